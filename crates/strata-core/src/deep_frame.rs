@@ -1,0 +1,606 @@
+//! DeepFrame: every pixel's fragments as one sorted run, in one contiguous layout.
+//!
+//! DeepFrame is strata's lingua franca (DESIGN §1): whatever a fragment store captured, it hands
+//! over a DeepFrame, and resolve, comparison, encoding, merging and composition all work on it.
+//!
+//! # Layout
+//!
+//! The S-buffer layout of seed 001 §3.1.3 — prefix-summed per-pixel counts and contiguous
+//! fragments — with the fragment fields split into columns:
+//!
+//! ```text
+//! offsets: [u32; w*h + 1]     pixel p (row-major, row 0 at the top) owns fragments
+//!                             offsets[p] .. offsets[p+1]
+//! depth:   [f32; n]           window depth in [0, 1]         ┐
+//! color:   [Rgba8; n]         straight-alpha RGBA8           ├ one entry per fragment
+//! object:  [ObjectId; n]      the object that made it        ┘
+//! ```
+//!
+//! Columns rather than an array of structs because every consumer reads them separately: the
+//! resolve reads colours only after the order is known, statistics read only the offsets, and the
+//! wire codecs of the remote-rendering path compress each column with its own model.
+//!
+//! # Invariants (checked by every constructor)
+//!
+//! - `offsets` has `w*h + 1` entries, starts at 0, never decreases, and ends at the column length;
+//! - every depth is finite, in `[0, 1]`, and `-0.0` never appears;
+//! - every run is sorted front to back by [`Fragment::order_key`] (depth, then object, then
+//!   colour), so two DeepFrames of the same fragments are equal whatever order they were captured in.
+
+use rayon::prelude::*;
+
+use crate::composite;
+use crate::fragment::{Fragment, ObjectId, Rgba8, sort_front_to_back};
+use crate::image::Rgb8Image;
+use crate::stats::DepthStats;
+
+/// Why fragments could not form a DeepFrame.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DeepFrameError {
+    /// `width * height` overflows or is inconsistent with the per-pixel data given.
+    #[error("a {width}x{height} frame needs {expected} per-pixel entries, got {found}")]
+    PixelCount {
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+        /// `width * height` (+1 for offsets).
+        expected: u64,
+        /// What was given.
+        found: u64,
+    },
+    /// More fragments than a `u32` offset can address.
+    #[error("{0} fragments exceed the DeepFrame limit of 2^32 - 1")]
+    TooManyFragments(u64),
+    /// A pixel's fill produced a different number of fragments than its count announced.
+    #[error("pixel {pixel}: expected {expected} fragments, the store produced {found}")]
+    CountMismatch {
+        /// Row-major pixel index.
+        pixel: usize,
+        /// The announced count.
+        expected: u32,
+        /// The fragments produced.
+        found: usize,
+    },
+    /// The offsets do not start at 0, decrease, or do not end at the column length.
+    #[error("offsets are not a prefix sum of the fragment columns (at pixel {pixel})")]
+    BadOffsets {
+        /// The first pixel where the offsets are wrong.
+        pixel: usize,
+    },
+    /// The columns have different lengths.
+    #[error(
+        "fragment columns differ in length: {depth} depths, {color} colours, {object} object ids"
+    )]
+    ColumnLengths {
+        /// Depth column length.
+        depth: usize,
+        /// Colour column length.
+        color: usize,
+        /// Object column length.
+        object: usize,
+    },
+    /// A depth is NaN, infinite, negative (including -0.0) or above 1.
+    #[error("fragment {index}: depth {depth} is outside [0, 1]")]
+    BadDepth {
+        /// Fragment index.
+        index: usize,
+        /// The offending value.
+        depth: f32,
+    },
+    /// A run is not in front-to-back order.
+    #[error("pixel {pixel}: fragments are not sorted front to back")]
+    Unsorted {
+        /// Row-major pixel index.
+        pixel: usize,
+    },
+}
+
+/// One pixel's fragments, front to back.
+#[derive(Clone, Copy, Debug)]
+pub struct Run<'a> {
+    /// Depths, ascending.
+    pub depth: &'a [f32],
+    /// Colours, in the same order.
+    pub color: &'a [Rgba8],
+    /// Object ids, in the same order.
+    pub object: &'a [ObjectId],
+}
+
+impl<'a> Run<'a> {
+    /// Number of fragments.
+    pub fn len(&self) -> usize {
+        self.depth.len()
+    }
+
+    /// True if the pixel holds no fragment.
+    pub fn is_empty(&self) -> bool {
+        self.depth.is_empty()
+    }
+
+    /// The `i`-th fragment from the front.
+    pub fn get(&self, i: usize) -> Option<Fragment> {
+        Some(Fragment {
+            depth: *self.depth.get(i)?,
+            color: self.color[i],
+            object: self.object[i],
+        })
+    }
+
+    /// The fragments front to back.
+    pub fn iter(&self) -> impl ExactSizeIterator<Item = Fragment> + 'a {
+        let (depth, color, object) = (self.depth, self.color, self.object);
+        (0..depth.len()).map(move |i| Fragment {
+            depth: depth[i],
+            color: color[i],
+            object: object[i],
+        })
+    }
+}
+
+/// Per-pixel sorted fragment runs of one frame; see the module docs for layout and invariants.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeepFrame {
+    width: u32,
+    height: u32,
+    offsets: Vec<u32>,
+    depth: Vec<f32>,
+    color: Vec<Rgba8>,
+    object: Vec<ObjectId>,
+}
+
+/// Pixels per parallel work item when building or resolving.
+const PIXELS_PER_TASK: usize = 8 * 1024;
+
+fn pixel_count(width: u32, height: u32) -> usize {
+    width as usize * height as usize
+}
+
+impl DeepFrame {
+    /// A frame with no fragments.
+    pub fn empty(width: u32, height: u32) -> Self {
+        DeepFrame {
+            width,
+            height,
+            offsets: vec![0; pixel_count(width, height) + 1],
+            depth: Vec::new(),
+            color: Vec::new(),
+            object: Vec::new(),
+        }
+    }
+
+    /// Builds a frame in parallel from per-pixel counts and a fill callback.
+    ///
+    /// `counts[p]` is the number of fragments pixel `p` (row-major) holds; `fill(p, out)` must push
+    /// exactly that many fragments into the empty `out` (in any order: runs are sorted here). This
+    /// is how a fragment store exports: count, prefix-sum, then gather — the S-buffer's passes.
+    pub fn build<F>(
+        width: u32,
+        height: u32,
+        counts: &[u32],
+        fill: F,
+    ) -> Result<Self, DeepFrameError>
+    where
+        F: Fn(usize, &mut Vec<Fragment>) + Sync,
+    {
+        let pixels = pixel_count(width, height);
+        if counts.len() != pixels {
+            return Err(DeepFrameError::PixelCount {
+                width,
+                height,
+                expected: pixels as u64,
+                found: counts.len() as u64,
+            });
+        }
+        let mut offsets = Vec::with_capacity(pixels + 1);
+        let mut total: u64 = 0;
+        offsets.push(0u32);
+        for &c in counts {
+            total += u64::from(c);
+            let t = u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
+            offsets.push(t);
+        }
+        let n = total as usize;
+        let mut depth = vec![0f32; n];
+        let mut color = vec![Rgba8::default(); n];
+        let mut object = vec![ObjectId::default(); n];
+
+        // Cut the columns at pixel-chunk boundaries so every task owns disjoint slices.
+        let mut tasks = Vec::with_capacity(pixels / PIXELS_PER_TASK + 1);
+        {
+            let (mut d, mut c, mut o) = (&mut depth[..], &mut color[..], &mut object[..]);
+            let mut p0 = 0;
+            while p0 < pixels {
+                let p1 = (p0 + PIXELS_PER_TASK).min(pixels);
+                let len = (offsets[p1] - offsets[p0]) as usize;
+                let (dh, dt) = std::mem::take(&mut d).split_at_mut(len);
+                let (ch, ct) = std::mem::take(&mut c).split_at_mut(len);
+                let (oh, ot) = std::mem::take(&mut o).split_at_mut(len);
+                tasks.push((p0..p1, dh, ch, oh));
+                (d, c, o) = (dt, ct, ot);
+                p0 = p1;
+            }
+        }
+        let offsets_ref = &offsets;
+        tasks.into_par_iter().try_for_each_init(
+            || Vec::with_capacity(64),
+            |scratch, (pixels, d, c, o)| {
+                let base = offsets_ref[pixels.start] as usize;
+                for p in pixels {
+                    scratch.clear();
+                    fill(p, scratch);
+                    let expected = counts[p];
+                    if scratch.len() != expected as usize {
+                        return Err(DeepFrameError::CountMismatch {
+                            pixel: p,
+                            expected,
+                            found: scratch.len(),
+                        });
+                    }
+                    for f in scratch.iter_mut() {
+                        normalise_depth(&mut f.depth, p)?;
+                    }
+                    sort_front_to_back(scratch);
+                    let start = offsets_ref[p] as usize - base;
+                    for (i, f) in scratch.iter().enumerate() {
+                        d[start + i] = f.depth;
+                        c[start + i] = f.color;
+                        o[start + i] = f.object;
+                    }
+                }
+                Ok(())
+            },
+        )?;
+        Ok(DeepFrame {
+            width,
+            height,
+            offsets,
+            depth,
+            color,
+            object,
+        })
+    }
+
+    /// Builds a frame from one fragment list per pixel (row-major), sorting each. For tests and
+    /// small tools; stores use [`DeepFrame::build`].
+    pub fn from_pixel_lists(
+        width: u32,
+        height: u32,
+        lists: &[Vec<Fragment>],
+    ) -> Result<Self, DeepFrameError> {
+        let counts: Vec<u32> = lists
+            .iter()
+            .map(|l| {
+                u32::try_from(l.len()).map_err(|_| DeepFrameError::TooManyFragments(l.len() as u64))
+            })
+            .collect::<Result<_, _>>()?;
+        Self::build(width, height, &counts, |p, out| {
+            out.extend_from_slice(&lists[p])
+        })
+    }
+
+    /// Assembles a frame from its raw parts (for decoders), checking every invariant.
+    pub fn from_parts(
+        width: u32,
+        height: u32,
+        offsets: Vec<u32>,
+        depth: Vec<f32>,
+        color: Vec<Rgba8>,
+        object: Vec<ObjectId>,
+    ) -> Result<Self, DeepFrameError> {
+        let pixels = pixel_count(width, height);
+        if offsets.len() != pixels + 1 {
+            return Err(DeepFrameError::PixelCount {
+                width,
+                height,
+                expected: pixels as u64 + 1,
+                found: offsets.len() as u64,
+            });
+        }
+        if depth.len() != color.len() || depth.len() != object.len() {
+            return Err(DeepFrameError::ColumnLengths {
+                depth: depth.len(),
+                color: color.len(),
+                object: object.len(),
+            });
+        }
+        if offsets[0] != 0 {
+            return Err(DeepFrameError::BadOffsets { pixel: 0 });
+        }
+        if let Some(p) = offsets.windows(2).position(|w| w[1] < w[0]) {
+            return Err(DeepFrameError::BadOffsets { pixel: p });
+        }
+        if offsets[pixels] as usize != depth.len() {
+            return Err(DeepFrameError::BadOffsets { pixel: pixels });
+        }
+        if let Some(index) = depth.iter().position(|d| !valid_depth(*d)) {
+            return Err(DeepFrameError::BadDepth {
+                index,
+                depth: depth[index],
+            });
+        }
+        let frame = DeepFrame {
+            width,
+            height,
+            offsets,
+            depth,
+            color,
+            object,
+        };
+        let unsorted = (0..pixels).into_par_iter().find_first(|&p| {
+            let run = frame.run(p);
+            (1..run.len())
+                .any(|i| run.get(i - 1).map(|f| f.order_key()) > run.get(i).map(|f| f.order_key()))
+        });
+        if let Some(pixel) = unsorted {
+            return Err(DeepFrameError::Unsorted { pixel });
+        }
+        Ok(frame)
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Total fragments.
+    pub fn fragment_count(&self) -> usize {
+        self.depth.len()
+    }
+
+    /// The prefix-summed offsets, `w*h + 1` entries.
+    pub fn offsets(&self) -> &[u32] {
+        &self.offsets
+    }
+
+    /// The depth column.
+    pub fn depths(&self) -> &[f32] {
+        &self.depth
+    }
+
+    /// The colour column.
+    pub fn colors(&self) -> &[Rgba8] {
+        &self.color
+    }
+
+    /// The object-id column.
+    pub fn objects(&self) -> &[ObjectId] {
+        &self.object
+    }
+
+    /// The run of row-major pixel `p`.
+    ///
+    /// # Panics
+    /// If `p >= width * height`.
+    pub fn run(&self, p: usize) -> Run<'_> {
+        let (a, b) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
+        Run {
+            depth: &self.depth[a..b],
+            color: &self.color[a..b],
+            object: &self.object[a..b],
+        }
+    }
+
+    /// The run of pixel `(x, y)`, row 0 at the top.
+    ///
+    /// # Panics
+    /// If `(x, y)` is outside the frame.
+    pub fn pixel(&self, x: u32, y: u32) -> Run<'_> {
+        assert!(
+            x < self.width && y < self.height,
+            "pixel ({x}, {y}) outside the frame"
+        );
+        self.run(y as usize * self.width as usize + x as usize)
+    }
+
+    /// Number of fragments in each pixel, row-major.
+    pub fn counts(&self) -> impl ExactSizeIterator<Item = u32> + '_ {
+        self.offsets.windows(2).map(|w| w[1] - w[0])
+    }
+
+    /// Depth-complexity statistics.
+    pub fn depth_stats(&self) -> DepthStats {
+        DepthStats::from_counts(self.counts())
+    }
+
+    /// Bytes held: offsets plus 12 bytes per fragment (depth, colour, object id).
+    pub fn memory_bytes(&self) -> u64 {
+        (self.offsets.len() * 4 + self.depth.len() * 12) as u64
+    }
+
+    /// Composites every run front to back onto `background` (DESIGN §2 resolve).
+    pub fn resolve(&self, background: [f32; 3]) -> Rgb8Image {
+        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
+        let bg = composite::background_pixel(background);
+        image
+            .as_bytes_mut()
+            .par_chunks_mut(PIXELS_PER_TASK * 3)
+            .enumerate()
+            .for_each(|(chunk, out)| {
+                let p0 = chunk * PIXELS_PER_TASK;
+                for (i, px) in out.chunks_exact_mut(3).enumerate() {
+                    let run = self.run(p0 + i);
+                    let rgb = if run.is_empty() {
+                        bg
+                    } else {
+                        composite::resolve_pixel(run.color.iter().copied(), background)
+                    };
+                    px.copy_from_slice(&rgb);
+                }
+            });
+        image
+    }
+
+    /// Takes the frame apart: `(width, height, offsets, depth, color, object)`.
+    #[allow(
+        clippy::type_complexity,
+        reason = "the parts are documented by from_parts"
+    )]
+    pub fn into_parts(self) -> (u32, u32, Vec<u32>, Vec<f32>, Vec<Rgba8>, Vec<ObjectId>) {
+        (
+            self.width,
+            self.height,
+            self.offsets,
+            self.depth,
+            self.color,
+            self.object,
+        )
+    }
+}
+
+fn valid_depth(d: f32) -> bool {
+    (0.0..=1.0).contains(&d) && !(d == 0.0 && d.is_sign_negative())
+}
+
+fn normalise_depth(d: &mut f32, pixel: usize) -> Result<(), DeepFrameError> {
+    if *d == 0.0 {
+        *d = 0.0; // -0.0 → +0.0
+    }
+    if valid_depth(*d) {
+        Ok(())
+    } else {
+        Err(DeepFrameError::BadDepth {
+            index: pixel,
+            depth: *d,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frag(depth: f32, rgba: [u8; 4], object: u32) -> Fragment {
+        Fragment {
+            depth,
+            color: Rgba8(rgba),
+            object: ObjectId(object),
+        }
+    }
+
+    fn sample() -> Vec<Vec<Fragment>> {
+        vec![
+            vec![],
+            vec![
+                frag(0.7, [0, 0, 255, 128], 1),
+                frag(0.3, [255, 0, 0, 128], 0),
+            ],
+            vec![frag(0.5, [0, 255, 0, 255], 2)],
+            vec![
+                frag(0.9, [1, 1, 1, 1], 0),
+                frag(0.1, [2, 2, 2, 2], 0),
+                frag(0.5, [3, 3, 3, 3], 0),
+            ],
+        ]
+    }
+
+    #[test]
+    fn build_sorts_runs_and_prefix_sums_counts() {
+        let f = DeepFrame::from_pixel_lists(2, 2, &sample()).unwrap();
+        assert_eq!(f.offsets(), &[0, 0, 2, 3, 6]);
+        assert_eq!(f.pixel(1, 0).depth, &[0.3, 0.7]);
+        assert_eq!(f.pixel(1, 1).depth, &[0.1, 0.5, 0.9]);
+        assert_eq!(f.fragment_count(), 6);
+        let s = f.depth_stats();
+        assert_eq!((s.covered_pixels(), s.max_depth_complexity()), (3, 3));
+    }
+
+    #[test]
+    fn resolve_is_the_worked_example() {
+        let f = DeepFrame::from_pixel_lists(2, 2, &sample()).unwrap();
+        let img = f.resolve([1.0, 1.0, 1.0]);
+        assert_eq!(img.pixel(0, 0), [255, 255, 255]);
+        assert_eq!(img.pixel(1, 0), [191, 63, 127]); // red over blue over white, alpha 128/255
+        assert_eq!(img.pixel(0, 1), [0, 255, 0]);
+    }
+
+    #[test]
+    fn capture_order_does_not_matter() {
+        let mut lists = sample();
+        let a = DeepFrame::from_pixel_lists(2, 2, &lists).unwrap();
+        for l in &mut lists {
+            l.reverse();
+        }
+        let b = DeepFrame::from_pixel_lists(2, 2, &lists).unwrap();
+        assert_eq!(a, b);
+    }
+
+    #[test]
+    fn from_parts_round_trips_and_rejects_broken_parts() {
+        let f = DeepFrame::from_pixel_lists(2, 2, &sample()).unwrap();
+        let (w, h, o, d, c, ob) = f.clone().into_parts();
+        assert_eq!(
+            DeepFrame::from_parts(w, h, o.clone(), d.clone(), c.clone(), ob.clone()).unwrap(),
+            f
+        );
+        let mut bad = o.clone();
+        bad[2] = 7;
+        assert!(matches!(
+            DeepFrame::from_parts(w, h, bad, d.clone(), c.clone(), ob.clone()),
+            Err(DeepFrameError::BadOffsets { .. })
+        ));
+        let mut swapped = d.clone();
+        swapped.swap(0, 1);
+        assert_eq!(
+            DeepFrame::from_parts(w, h, o.clone(), swapped, c.clone(), ob.clone()),
+            Err(DeepFrameError::Unsorted { pixel: 1 })
+        );
+        let mut nan = d.clone();
+        nan[5] = f32::NAN;
+        assert!(matches!(
+            DeepFrame::from_parts(w, h, o.clone(), nan, c.clone(), ob.clone()),
+            Err(DeepFrameError::BadDepth { index: 5, .. })
+        ));
+        assert!(matches!(
+            DeepFrame::from_parts(w, h, o[..4].to_vec(), d.clone(), c.clone(), ob.clone()),
+            Err(DeepFrameError::PixelCount { .. })
+        ));
+        assert!(matches!(
+            DeepFrame::from_parts(w, h, o, d, c[..5].to_vec(), ob),
+            Err(DeepFrameError::ColumnLengths { .. })
+        ));
+    }
+
+    #[test]
+    fn build_rejects_a_fill_that_disagrees_with_its_count() {
+        let err = DeepFrame::build(2, 1, &[1, 0], |_, out| {
+            out.push(frag(0.5, [0; 4], 0));
+            out.push(frag(0.6, [0; 4], 0));
+        });
+        assert!(matches!(
+            err,
+            Err(DeepFrameError::CountMismatch { pixel: 0, .. })
+        ));
+    }
+
+    #[test]
+    fn negative_zero_depth_is_normalised() {
+        let f = DeepFrame::from_pixel_lists(1, 1, &[vec![frag(-0.0, [0; 4], 0)]]).unwrap();
+        assert!(f.depths()[0].is_sign_positive());
+    }
+
+    #[test]
+    fn large_frames_cross_task_boundaries() {
+        // More pixels than one parallel task, with varying counts.
+        let (w, h) = (300u32, 100u32);
+        let lists: Vec<Vec<Fragment>> = (0..(w * h) as usize)
+            .map(|p| {
+                (0..(p % 4))
+                    .map(|k| frag(1.0 / (k as f32 + 2.0), [k as u8; 4], p as u32))
+                    .collect()
+            })
+            .collect();
+        let f = DeepFrame::from_pixel_lists(w, h, &lists).unwrap();
+        for p in [0, 1, 8191, 8192, 8193, 29_999] {
+            let mut expected = lists[p].clone();
+            sort_front_to_back(&mut expected);
+            assert_eq!(f.run(p).iter().collect::<Vec<_>>(), expected);
+        }
+    }
+}

@@ -1,0 +1,191 @@
+//! The colour fragment: window depth, straight-alpha RGBA8 and the object that made it.
+//!
+//! Seed 000 §2.1 stores a colour fragment as 12 bytes (RGBA8 colour, f32 depth, next pointer);
+//! strata replaces the store-specific `next` link by the object id, which every store keeps so that
+//! results can be attributed (remote rendering, object migration) and ties broken deterministically.
+//!
+//! # Depth order
+//!
+//! Fragments are ordered front to back by [`Fragment::order_key`]: window depth first, then object
+//! id, then the colour bits. Depth is a finite, non-negative `f32` in `[0, 1]` (the rasterizer
+//! guarantees it, `-0.0` is normalised to `+0.0`), so its IEEE bit pattern orders like the number.
+//! Breaking ties by *content* (object, then colour) instead of by primitive order means two
+//! fragments that compare equal are identical in everything a resolve reads: the sorted run — and
+//! so the image and the DeepFrame — does not depend on the order the triangles were drawn in.
+
+use std::cmp::Ordering;
+
+/// Identifies the scene object (one mesh, or one glTF mesh node) that produced a fragment.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[repr(transparent)]
+pub struct ObjectId(pub u32);
+
+/// A straight-alpha (not premultiplied) RGBA colour with 8 bits per channel.
+///
+/// Channel order in memory is `[r, g, b, a]`; as a `u32` (see [`Rgba8::to_bits`]) red is the
+/// least significant byte, like GLSL's `packUnorm4x8`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[repr(transparent)]
+pub struct Rgba8(pub [u8; 4]);
+
+impl Rgba8 {
+    /// Quantises a straight-alpha colour in `[0, 1]` as GLSL `packUnorm4x8` does:
+    /// `round(clamp(c, 0, 1) * 255)` per channel.
+    #[inline]
+    pub fn from_unorm(c: [f32; 4]) -> Self {
+        Rgba8([unorm8(c[0]), unorm8(c[1]), unorm8(c[2]), unorm8(c[3])])
+    }
+
+    /// The colour as floats in `[0, 1]` (`c / 255`).
+    #[inline]
+    pub fn to_unorm(self) -> [f32; 4] {
+        let [r, g, b, a] = self.0;
+        [
+            f32::from(r) / 255.0,
+            f32::from(g) / 255.0,
+            f32::from(b) / 255.0,
+            f32::from(a) / 255.0,
+        ]
+    }
+
+    /// The packed form, red in the low byte.
+    #[inline]
+    pub fn to_bits(self) -> u32 {
+        u32::from_le_bytes(self.0)
+    }
+
+    /// Inverse of [`Rgba8::to_bits`].
+    #[inline]
+    pub fn from_bits(bits: u32) -> Self {
+        Rgba8(bits.to_le_bytes())
+    }
+
+    /// The alpha channel.
+    #[inline]
+    pub fn alpha(self) -> u8 {
+        self.0[3]
+    }
+}
+
+/// Quantises one channel: `round(clamp(v, 0, 1) * 255)`; NaN maps to 0.
+#[inline]
+pub fn unorm8(v: f32) -> u8 {
+    // `clamp` keeps NaN; `as u8` saturates NaN to 0.
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// One colour fragment: what a fragment store keeps per rasterised sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
+pub struct Fragment {
+    /// Window-space depth, `0.5 * z_ndc + 0.5`, in `[0, 1]`; smaller is nearer.
+    pub depth: f32,
+    /// Shaded colour, straight alpha.
+    pub color: Rgba8,
+    /// The object that produced the fragment.
+    pub object: ObjectId,
+}
+
+impl Fragment {
+    /// The key that orders fragments front to back; see the module docs.
+    ///
+    /// Depth bits in the high 32 bits of the first word make integer comparison equal to depth
+    /// comparison for the non-negative depths strata produces.
+    #[inline]
+    pub fn order_key(&self) -> (u64, u32) {
+        (
+            (u64::from(self.depth.to_bits()) << 32) | u64::from(self.object.0),
+            self.color.to_bits(),
+        )
+    }
+
+    /// Front-to-back comparison by [`Fragment::order_key`].
+    #[inline]
+    pub fn cmp_front_to_back(&self, other: &Self) -> Ordering {
+        self.order_key().cmp(&other.order_key())
+    }
+}
+
+/// Sorts a run of fragments front to back by [`Fragment::order_key`].
+///
+/// Runs are short (a pixel's depth complexity): insertion sort for up to 32 fragments, where it
+/// beats the general sort, and the standard unstable sort beyond. Equal keys mean identical
+/// fragments, so stability is irrelevant.
+#[inline]
+pub fn sort_front_to_back(run: &mut [Fragment]) {
+    if run.len() <= 32 {
+        for i in 1..run.len() {
+            let item = run[i];
+            let key = item.order_key();
+            let mut j = i;
+            while j > 0 && run[j - 1].order_key() > key {
+                run[j] = run[j - 1];
+                j -= 1;
+            }
+            run[j] = item;
+        }
+    } else {
+        run.sort_unstable_by_key(Fragment::order_key);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn unorm8_matches_pack_unorm4x8() {
+        assert_eq!(unorm8(0.0), 0);
+        assert_eq!(unorm8(1.0), 255);
+        assert_eq!(unorm8(0.5), 128); // 127.5 rounds half away from zero
+        assert_eq!(unorm8(-3.0), 0);
+        assert_eq!(unorm8(7.0), 255);
+        assert_eq!(unorm8(f32::NAN), 0);
+        assert_eq!(
+            Rgba8::from_unorm([0.2, 0.6, 1.0, 0.5]).0,
+            [51, 153, 255, 128]
+        );
+    }
+
+    #[test]
+    fn rgba_bits_round_trip_red_in_low_byte() {
+        let c = Rgba8([1, 2, 3, 4]);
+        assert_eq!(c.to_bits(), 0x0403_0201);
+        assert_eq!(Rgba8::from_bits(c.to_bits()), c);
+    }
+
+    #[test]
+    fn ties_break_by_object_then_colour() {
+        let f = |d: f32, o: u32, c: u8| Fragment {
+            depth: d,
+            color: Rgba8([c, 0, 0, 255]),
+            object: ObjectId(o),
+        };
+        let mut run = [f(0.5, 2, 0), f(0.5, 1, 9), f(0.25, 7, 0), f(0.5, 1, 3)];
+        sort_front_to_back(&mut run);
+        assert_eq!(
+            run,
+            [f(0.25, 7, 0), f(0.5, 1, 3), f(0.5, 1, 9), f(0.5, 2, 0)]
+        );
+    }
+
+    proptest! {
+        #[test]
+        fn sort_orders_by_depth_for_any_input(
+            depths in proptest::collection::vec(0.0f32..=1.0, 0..80),
+        ) {
+            let mut run: Vec<Fragment> = depths
+                .iter()
+                .enumerate()
+                .map(|(i, &d)| Fragment { depth: d, color: Rgba8([i as u8; 4]), object: ObjectId(i as u32 % 3) })
+                .collect();
+            let mut reference = run.clone();
+            reference.sort_by(|a, b| {
+                a.depth.total_cmp(&b.depth).then(a.object.cmp(&b.object)).then(a.color.to_bits().cmp(&b.color.to_bits()))
+            });
+            sort_front_to_back(&mut run);
+            prop_assert_eq!(run, reference);
+        }
+    }
+}

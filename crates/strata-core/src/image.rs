@@ -1,0 +1,222 @@
+//! The resolved frame: an 8-bit RGB image, row 0 at the top, and its PNG form.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+/// Errors reading or writing images.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ImageError {
+    /// The file could not be created, opened, read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        source: std::io::Error,
+    },
+    /// PNG encoding failed.
+    #[error("{path}: cannot encode PNG: {source}")]
+    Encode {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        source: png::EncodingError,
+    },
+    /// PNG decoding failed.
+    #[error("{path}: cannot decode PNG: {source}")]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        source: png::DecodingError,
+    },
+    /// The PNG is valid but not 8-bit RGB or RGBA.
+    #[error(
+        "{path}: unsupported PNG layout {color:?} with {bits:?} bits (expected 8-bit RGB or RGBA)"
+    )]
+    Unsupported {
+        /// The file.
+        path: PathBuf,
+        /// The colour type found.
+        color: png::ColorType,
+        /// The bit depth found.
+        bits: png::BitDepth,
+    },
+}
+
+/// An 8-bit RGB image stored row-major, row 0 at the top, 3 bytes per pixel.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Rgb8Image {
+    width: u32,
+    height: u32,
+    data: Vec<u8>,
+}
+
+impl std::fmt::Debug for Rgb8Image {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Rgb8Image({}x{})", self.width, self.height)
+    }
+}
+
+impl Rgb8Image {
+    /// An image filled with one colour.
+    pub fn filled(width: u32, height: u32, rgb: [u8; 3]) -> Self {
+        let n = width as usize * height as usize;
+        let mut data = Vec::with_capacity(n * 3);
+        for _ in 0..n {
+            data.extend_from_slice(&rgb);
+        }
+        Rgb8Image {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// Wraps row-major RGB bytes; `None` if the length is not `width * height * 3`.
+    pub fn from_raw(width: u32, height: u32, data: Vec<u8>) -> Option<Self> {
+        (data.len() == width as usize * height as usize * 3).then_some(Rgb8Image {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// The pixel at column `x`, row `y` (row 0 at the top).
+    ///
+    /// # Panics
+    /// If `(x, y)` is outside the image.
+    pub fn pixel(&self, x: u32, y: u32) -> [u8; 3] {
+        assert!(
+            x < self.width && y < self.height,
+            "pixel ({x}, {y}) outside {self:?}"
+        );
+        let i = (y as usize * self.width as usize + x as usize) * 3;
+        [self.data[i], self.data[i + 1], self.data[i + 2]]
+    }
+
+    /// Row-major RGB bytes.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.data
+    }
+
+    /// Mutable row-major RGB bytes (for resolves that write rows in parallel).
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        &mut self.data
+    }
+
+    /// Encodes as an 8-bit RGB PNG into `out`.
+    pub fn encode_png(&self, out: impl Write) -> Result<(), png::EncodingError> {
+        let mut encoder = png::Encoder::new(out, self.width, self.height);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header()?;
+        writer.write_image_data(&self.data)?;
+        writer.finish()
+    }
+
+    /// Writes an 8-bit RGB PNG file.
+    pub fn write_png(&self, path: impl AsRef<Path>) -> Result<(), ImageError> {
+        let path = path.as_ref();
+        let file = File::create(path).map_err(|source| ImageError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        let mut out = BufWriter::new(file);
+        self.encode_png(&mut out)
+            .map_err(|source| ImageError::Encode {
+                path: path.to_owned(),
+                source,
+            })?;
+        out.flush().map_err(|source| ImageError::Io {
+            path: path.to_owned(),
+            source,
+        })
+    }
+
+    /// Reads an 8-bit RGB or RGBA PNG file (alpha is dropped).
+    pub fn read_png(path: impl AsRef<Path>) -> Result<Self, ImageError> {
+        let path = path.as_ref();
+        let file = File::open(path).map_err(|source| ImageError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::decode_png(BufReader::new(file), path)
+    }
+
+    fn decode_png(
+        input: impl Read + std::io::BufRead + std::io::Seek,
+        path: &Path,
+    ) -> Result<Self, ImageError> {
+        let decode = |source| ImageError::Decode {
+            path: path.to_owned(),
+            source,
+        };
+        let mut reader = png::Decoder::new(input).read_info().map_err(decode)?;
+        let size = reader.output_buffer_size().unwrap_or(0);
+        let mut buf = vec![0; size];
+        let info = reader.next_frame(&mut buf).map_err(decode)?;
+        let channels = match (info.color_type, info.bit_depth) {
+            (png::ColorType::Rgb, png::BitDepth::Eight) => 3,
+            (png::ColorType::Rgba, png::BitDepth::Eight) => 4,
+            (color, bits) => {
+                return Err(ImageError::Unsupported {
+                    path: path.to_owned(),
+                    color,
+                    bits,
+                });
+            }
+        };
+        let data: Vec<u8> = buf[..info.buffer_size()]
+            .chunks_exact(channels)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
+        Ok(Rgb8Image {
+            width: info.width,
+            height: info.height,
+            data,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_round_trip() {
+        let mut img = Rgb8Image::filled(3, 2, [1, 2, 3]);
+        img.as_bytes_mut()[3..6].copy_from_slice(&[200, 100, 50]);
+        let dir = std::env::temp_dir().join(format!("strata-core-png-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.png");
+        img.write_png(&path).unwrap();
+        let back = Rgb8Image::read_png(&path).unwrap();
+        assert_eq!(back, img);
+        assert_eq!(back.pixel(1, 0), [200, 100, 50]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn reading_garbage_is_an_error_naming_the_file() {
+        let dir = std::env::temp_dir().join(format!("strata-core-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bad.png");
+        std::fs::write(&path, b"not a png").unwrap();
+        let err = Rgb8Image::read_png(&path).unwrap_err().to_string();
+        assert!(err.contains("bad.png"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,83 @@
+//! What an object looks like: its straight-alpha colour and how it is shaded (DESIGN §2).
+
+/// How a fragment's colour is computed from the object's colour.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Shading {
+    /// `rgb = color.rgb * (0.25 + 0.75 * |N·L|)`, `alpha = color.a`, with `N` the perspective-
+    /// correctly interpolated eye-space normal and `L` the unit vector from the fragment to the eye.
+    #[default]
+    Headlight,
+    /// `rgb = color.rgb`: every fragment of the object has the object's colour.
+    Unlit,
+}
+
+impl Shading {
+    /// The name used in scene files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Shading::Headlight => "headlight",
+            Shading::Unlit => "unlit",
+        }
+    }
+}
+
+/// An object's material.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Material {
+    /// Straight (not premultiplied) RGBA in `[0, 1]`.
+    pub color: [f32; 4],
+    /// The shading model.
+    pub shading: Shading,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            color: [0.8, 0.8, 0.8, 1.0],
+            shading: Shading::Headlight,
+        }
+    }
+}
+
+/// The headlight factor `0.25 + 0.75 * |N·L|` from an unnormalised normal `n` and an unnormalised
+/// eye-space position `p` (the eye is the origin, so `L = -p / |p|`).
+///
+/// Both vectors may carry any common positive scale (for instance the `1/w` of perspective-
+/// correct interpolation): it cancels. A zero-length `n` or `p` counts as `N·L = 0`.
+#[inline]
+pub fn headlight_factor(n: [f32; 3], p: [f32; 3]) -> f32 {
+    let nn = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+    let pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+    let np = n[0] * p[0] + n[1] * p[1] + n[2] * p[2];
+    let denom = (nn * pp).sqrt();
+    let cos = if denom > 0.0 {
+        (np.abs() / denom).min(1.0)
+    } else {
+        0.0
+    };
+    0.25 + 0.75 * cos
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn headlight_is_full_when_facing_and_a_quarter_when_grazing() {
+        // Normal towards the eye, fragment straight ahead.
+        assert_eq!(headlight_factor([0.0, 0.0, 1.0], [0.0, 0.0, -2.0]), 1.0);
+        // Back faces are lit the same (|N·L|): no culling, two-sided lighting.
+        assert_eq!(headlight_factor([0.0, 0.0, -3.0], [0.0, 0.0, -2.0]), 1.0);
+        // Normal perpendicular to the view ray.
+        assert_eq!(headlight_factor([1.0, 0.0, 0.0], [0.0, 0.0, -2.0]), 0.25);
+        // 60 degrees: cos = 0.5.
+        let n = [60f32.to_radians().sin(), 0.0, 60f32.to_radians().cos()];
+        assert!((headlight_factor(n, [0.0, 0.0, -1.0]) - 0.625).abs() < 1e-6);
+        // Common scale cancels.
+        let a = headlight_factor([0.3, 0.4, 0.5], [0.1, -0.2, -1.0]);
+        let b = headlight_factor([3.0, 4.0, 5.0], [0.05, -0.1, -0.5]);
+        assert!((a - b).abs() < 1e-6);
+        // Degenerate normal.
+        assert_eq!(headlight_factor([0.0; 3], [0.0, 0.0, -1.0]), 0.25);
+    }
+}
