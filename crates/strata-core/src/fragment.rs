@@ -36,15 +36,15 @@ impl Rgba8 {
         Rgba8([unorm8(c[0]), unorm8(c[1]), unorm8(c[2]), unorm8(c[3])])
     }
 
-    /// The colour as floats in `[0, 1]` (`c / 255`).
+    /// The colour as floats in `[0, 1]` (`c / 255`, correctly rounded, from a table).
     #[inline]
     pub fn to_unorm(self) -> [f32; 4] {
         let [r, g, b, a] = self.0;
         [
-            f32::from(r) / 255.0,
-            f32::from(g) / 255.0,
-            f32::from(b) / 255.0,
-            f32::from(a) / 255.0,
+            UNORM8_TO_F32[r as usize],
+            UNORM8_TO_F32[g as usize],
+            UNORM8_TO_F32[b as usize],
+            UNORM8_TO_F32[a as usize],
         ]
     }
 
@@ -67,11 +67,27 @@ impl Rgba8 {
     }
 }
 
-/// Quantises one channel: `round(clamp(v, 0, 1) * 255)`; NaN maps to 0.
+/// `UNORM8_TO_F32[c] == c as f32 / 255.0`: the table the resolve reads instead of dividing.
+pub static UNORM8_TO_F32: [f32; 256] = {
+    let mut t = [0.0f32; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = i as f32 / 255.0;
+        i += 1;
+    }
+    t
+};
+
+/// Quantises one channel: `round(clamp(v, 0, 1) * 255)` with halves rounded up; NaN maps to 0.
+///
+/// Written as `trunc(x + 0.5)` because `f32::round` is a libm call on baseline x86-64 and this
+/// runs once per channel per fragment. For the non-negative `x` here the two agree except where
+/// `x + 0.5` itself rounds up in f32 (x within half an ulp below a half-integer), where this rounds
+/// up; GLSL leaves halves implementation-defined, and every strata path uses this one function.
 #[inline]
 pub fn unorm8(v: f32) -> u8 {
-    // `clamp` keeps NaN; `as u8` saturates NaN to 0.
-    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+    // `clamp` keeps NaN; `as u8` truncates and saturates NaN to 0.
+    (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
 }
 
 /// One colour fragment: what a fragment store keeps per rasterised sample.
@@ -146,6 +162,14 @@ mod tests {
             Rgba8::from_unorm([0.2, 0.6, 1.0, 0.5]).0,
             [51, 153, 255, 128]
         );
+    }
+
+    #[test]
+    fn unorm_table_is_the_division() {
+        for c in 0..=255u8 {
+            assert_eq!(Rgba8([c, 0, 0, 0]).to_unorm()[0], f32::from(c) / 255.0);
+            assert_eq!(unorm8(f32::from(c) / 255.0), c);
+        }
     }
 
     #[test]

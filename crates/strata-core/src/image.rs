@@ -1,7 +1,7 @@
 //! The resolved frame: an 8-bit RGB image, row 0 at the top, and its PNG form.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// Errors reading or writing images.
@@ -122,6 +122,8 @@ impl Rgb8Image {
         let mut encoder = png::Encoder::new(out, self.width, self.height);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
+        // The default deflate level costs more than rendering a frame; fast is ~10 % larger.
+        encoder.set_compression(png::Compression::Fast);
         let mut writer = encoder.write_header()?;
         writer.write_image_data(&self.data)?;
         writer.finish()
@@ -157,7 +159,7 @@ impl Rgb8Image {
     }
 
     fn decode_png(
-        input: impl Read + std::io::BufRead + std::io::Seek,
+        input: impl std::io::BufRead + std::io::Seek,
         path: &Path,
     ) -> Result<Self, ImageError> {
         let decode = |source| ImageError::Decode {

@@ -30,6 +30,16 @@ impl DepthStats {
         self.histogram[n] += 1;
     }
 
+    /// Counts `pixels` pixels holding `n` fragments each.
+    #[inline]
+    pub fn record_many(&mut self, n: u32, pixels: u64) {
+        let n = n as usize;
+        if n >= self.histogram.len() {
+            self.histogram.resize(n + 1, 0);
+        }
+        self.histogram[n] += pixels;
+    }
+
     /// Adds another set of pixels' statistics to these.
     pub fn merge(&mut self, other: &DepthStats) {
         if other.histogram.len() > self.histogram.len() {
