@@ -1,0 +1,85 @@
+//! The camera: OpenGL conventions, right-handed (DESIGN §2).
+//!
+//! `view = look_at_rh(eye, target, up)`, `projection = perspective_rh_gl(fovy, width/height, near,
+//! far)`: clip-space z runs from `-w` (near) to `+w` (far), window depth is `0.5 * z_ndc + 0.5`.
+
+use glam::{Mat4, Vec3};
+
+/// A perspective camera.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Eye position in world space.
+    pub eye: Vec3,
+    /// The point looked at.
+    pub target: Vec3,
+    /// Up direction (need not be orthogonal to the view direction, must not be parallel).
+    pub up: Vec3,
+    /// Vertical field of view in degrees, in (0, 180).
+    pub fovy_deg: f32,
+    /// Near plane distance, > 0.
+    pub near: f32,
+    /// Far plane distance, > near.
+    pub far: f32,
+}
+
+impl Default for Camera {
+    fn default() -> Self {
+        Camera {
+            eye: Vec3::new(0.0, 0.0, 1.6),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fovy_deg: 45.0,
+            near: 0.01,
+            far: 100.0,
+        }
+    }
+}
+
+impl Camera {
+    /// World → eye space.
+    pub fn view(&self) -> Mat4 {
+        Mat4::look_at_rh(self.eye, self.target, self.up)
+    }
+
+    /// Eye → clip space for an image of `width` × `height` pixels.
+    pub fn projection(&self, width: u32, height: u32) -> Mat4 {
+        Mat4::perspective_rh_gl(
+            self.fovy_deg.to_radians(),
+            width as f32 / height as f32,
+            self.near,
+            self.far,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec4;
+
+    #[test]
+    fn gl_depth_range_maps_near_to_minus_one_and_far_to_one() {
+        let cam = Camera::default();
+        let p = cam.projection(1280, 720) * cam.view();
+        let near = p * Vec4::new(0.0, 0.0, cam.eye.z - cam.near, 1.0);
+        let far = p * Vec4::new(0.0, 0.0, cam.eye.z - cam.far, 1.0);
+        assert!((near.z / near.w + 1.0).abs() < 1e-4);
+        assert!((far.z / far.w - 1.0).abs() < 1e-4);
+        // The target lies on the optical axis.
+        let t = p * Vec4::new(0.0, 0.0, 0.0, 1.0);
+        assert!(t.x.abs() < 1e-6 && t.y.abs() < 1e-6);
+    }
+
+    #[test]
+    fn fovy_spans_the_image_height() {
+        let cam = Camera::default();
+        let p = cam.projection(200, 100) * cam.view();
+        // A point at the top edge of the frustum at distance 1.6.
+        let h = 1.6 * (22.5f32).to_radians().tan();
+        let c = p * Vec4::new(0.0, h, 0.0, 1.0);
+        assert!((c.y / c.w - 1.0).abs() < 1e-5);
+        // Aspect 2: the same offset along x reaches half the width.
+        let c = p * Vec4::new(h, 0.0, 0.0, 1.0);
+        assert!((c.x / c.w - 0.5).abs() < 1e-5);
+    }
+}
