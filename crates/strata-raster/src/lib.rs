@@ -1,1 +1,61 @@
-//! placeholder
+//! strata's CPU rasterizer: scene geometry in, fragments out, in parallel and deterministically.
+//!
+//! The rasterizer turns a [`FrameInput`] (meshes, model matrices, materials, camera) into
+//! fragments pushed into a [`CaptureTarget`] — a fragment store. It follows the conventions of
+//! DESIGN §2 exactly: GL projection, pixel centres at `(x + ½, y + ½)`, the top-left fill rule,
+//! exact near-plane clipping, perspective-correct interpolation, no culling, headlight and unlit
+//! shading, RGBA8 rounding.
+//!
+//! # Stages
+//!
+//! ```text
+//! FrameInput ──► vertex ──► setup + bin ──► scan (per strip) ──► FragmentSink (per strip)
+//!               (par. over   (par. over       (par. over
+//!                vertices)    triangle chunks)  strips)
+//! ```
+//!
+//! 1. **vertex** ([`vertex`]): every vertex to eye space (position, normal) and clip space, an
+//!    outcode against the view volume and a guard band, and — for vertices in front of the near
+//!    plane — 24.8 fixed-point window coordinates, window depth and `1/w`. One flat array of
+//!    position, outcode and attribute arrays for all objects ([`vertex`]).
+//! 2. **setup + bin** ([`setup`]): triangles in chunks of consecutive primitives of one object.
+//!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
+//!    culled here; one that crosses the near plane or the guard band is clipped exactly in clip
+//!    space ([`clip`]) and its pieces kept in the chunk. Survivors are appended to the chunk's bin
+//!    of every *strip* their pixel rows touch.
+//! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order and
+//!    each chunk's bin in order, so every pixel receives its fragments in primitive order, from one
+//!    thread, whatever the thread count. Coverage uses exact integer edge functions with the
+//!    top-left rule; depth is affine in screen space; normals and eye positions are interpolated
+//!    perspective-correctly for the headlight.
+//!
+//! # Why strips
+//!
+//! A strip is a band of `strip_height` full-width rows, so every per-pixel buffer of a store
+//! (row-major) splits into disjoint contiguous slices, one per strip — the CPU analogue of pixel
+//! synchronisation, with no per-fragment atomics and no read-modify-write hazards, and with plain
+//! `chunks_mut` instead of unsafe sharing. Bins are per (chunk, strip) vectors filled without
+//! synchronisation by the chunk's worker and read by the strip's worker.
+//!
+//! # Determinism
+//!
+//! Every fragment's value is a function of its triangle and pixel alone, and a pixel's fragments
+//! arrive in primitive order; neither depends on the number of threads. Reordering triangles
+//! changes only the arrival order, which the stores' front-to-back sort removes.
+//!
+//! # Allocation
+//!
+//! [`Rasterizer`] owns its buffers (vertices, chunks, bins) and reuses their capacity from frame to
+//! frame; nothing is allocated per triangle or per fragment.
+
+pub mod clip;
+pub mod frame;
+pub mod rasterizer;
+pub mod scan;
+pub mod setup;
+pub mod sink;
+pub mod vertex;
+
+pub use frame::{DrawObject, FrameInput};
+pub use rasterizer::{Prepared, RasterConfig, RasterStats, Rasterizer, SetupStats};
+pub use sink::{CaptureTarget, FragmentSink, FragmentVec, StripLayout};

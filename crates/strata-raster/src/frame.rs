@@ -1,0 +1,73 @@
+//! What one frame draws: the objects' geometry, placement and material, and the camera.
+
+use glam::Mat4;
+use strata_core::{Material, ObjectId};
+use strata_scene::Scene;
+
+/// One object to draw: borrowed geometry plus its per-frame placement.
+#[derive(Clone, Copy, Debug)]
+pub struct DrawObject<'a> {
+    /// Object-space positions.
+    pub positions: &'a [[f32; 3]],
+    /// Per-vertex normals, one per position.
+    pub normals: &'a [[f32; 3]],
+    /// Triangles; every index must be `< positions.len()` (a validated [`strata_scene::Mesh`]
+    /// guarantees it).
+    pub triangles: &'a [[u32; 3]],
+    /// Object → world.
+    pub model: Mat4,
+    /// Colour and shading.
+    pub material: Material,
+    /// The id its fragments carry.
+    pub id: ObjectId,
+}
+
+/// Everything the rasterizer needs for one frame.
+#[derive(Clone, Debug)]
+pub struct FrameInput<'a> {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// World → eye.
+    pub view: Mat4,
+    /// Eye → clip (OpenGL convention).
+    pub projection: Mat4,
+    /// The objects, in draw order.
+    pub objects: Vec<DrawObject<'a>>,
+}
+
+impl<'a> FrameInput<'a> {
+    /// The scene posed at animation frame `frame` (frames beyond the animation keep turning).
+    pub fn from_scene(scene: &'a Scene, frame: u32) -> Self {
+        let objects = scene
+            .objects
+            .iter()
+            .map(|o| DrawObject {
+                positions: o.mesh.positions(),
+                normals: o.mesh.normals(),
+                triangles: o.mesh.triangles(),
+                model: o.model_matrix(scene.animation.as_ref(), frame),
+                material: o.material,
+                id: o.id,
+            })
+            .collect();
+        FrameInput {
+            width: scene.width,
+            height: scene.height,
+            view: scene.camera.view(),
+            projection: scene.camera.projection(scene.width, scene.height),
+            objects,
+        }
+    }
+
+    /// Triangles over all objects.
+    pub fn triangle_count(&self) -> u64 {
+        self.objects.iter().map(|o| o.triangles.len() as u64).sum()
+    }
+
+    /// Pixels in the image.
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}

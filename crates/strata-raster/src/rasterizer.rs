@@ -1,0 +1,354 @@
+//! The rasterizer driver: owns the stage buffers and runs vertex → setup → scan.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use strata_core::{PassTimings, Rgba8, Shading, fragment::unorm8};
+
+use crate::frame::FrameInput;
+use crate::scan::{Shade, scan_triangle};
+pub use crate::setup::SetupStats;
+use crate::setup::{CLIPPED, Chunk, ClippedTriangle, SetupContext, setup_chunk};
+use crate::sink::{CaptureTarget, FragmentSink, StripLayout};
+use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, transform_vertices};
+
+/// Vertices per parallel work item in the vertex stage.
+const VERTICES_PER_TASK: usize = 4096;
+
+/// Tuning knobs; the defaults are what the benchmarks measured best on 2–16 cores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RasterConfig {
+    /// Rows per strip, the unit of parallel scan conversion; a power of two.
+    pub strip_height: u32,
+    /// Triangles per setup chunk, the unit of parallel setup.
+    pub chunk_triangles: usize,
+}
+
+impl Default for RasterConfig {
+    fn default() -> Self {
+        RasterConfig {
+            strip_height: 16,
+            chunk_triangles: 16 * 1024,
+        }
+    }
+}
+
+/// What one scan pass produced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RasterStats {
+    /// Fragments pushed into the target.
+    pub fragments: u64,
+}
+
+/// The CPU rasterizer; see the crate docs. Reuse one across frames to reuse its buffers.
+#[derive(Debug, Default)]
+pub struct Rasterizer {
+    config: RasterConfig,
+    screen: Vec<ScreenPos>,
+    codes: Vec<u8>,
+    attrs: Vec<Attrs>,
+    chunks: Vec<Chunk>,
+}
+
+/// A frame after the vertex and setup stages, ready to be scanned into one or more targets.
+#[derive(Debug)]
+pub struct Prepared<'r, 'a> {
+    input: &'r FrameInput<'a>,
+    screen: &'r [ScreenPos],
+    attrs: &'r [Attrs],
+    vertex_base: Vec<usize>,
+    chunks: &'r [Chunk],
+    shades: Vec<(Shade, bool)>,
+    layout: StripLayout,
+    setup: SetupStats,
+    timings: PassTimings,
+}
+
+impl Rasterizer {
+    /// A rasterizer with the given configuration.
+    ///
+    /// # Panics
+    /// If `strip_height` is not a power of two, or `chunk_triangles` is zero or ≥ 2^31.
+    pub fn new(config: RasterConfig) -> Self {
+        assert!(
+            config.strip_height.is_power_of_two(),
+            "strip_height must be a power of two"
+        );
+        assert!(
+            config.chunk_triangles > 0 && config.chunk_triangles < CLIPPED as usize,
+            "chunk_triangles must be in 1..2^31"
+        );
+        Rasterizer {
+            config,
+            ..Self::default()
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> RasterConfig {
+        self.config
+    }
+
+    /// Runs the vertex and setup stages for `input`.
+    ///
+    /// Work runs on the current rayon pool (use `ThreadPool::install` to choose the thread count).
+    ///
+    /// # Panics
+    /// If the image is empty, or an object has a different number of normals than positions.
+    pub fn prepare<'r, 'a>(&'r mut self, input: &'r FrameInput<'a>) -> Prepared<'r, 'a> {
+        assert!(input.width > 0 && input.height > 0, "empty image");
+        let config = if self.config.strip_height == 0 {
+            RasterConfig::default()
+        } else {
+            self.config
+        };
+        let vp = Viewport::new(input.width, input.height);
+        let layout = StripLayout {
+            width: input.width,
+            height: input.height,
+            strip_height: config.strip_height,
+        };
+        let mut timings = PassTimings::new();
+
+        // ---- vertex stage -------------------------------------------------------------------
+        let start = Instant::now();
+        let mut vertex_base = Vec::with_capacity(input.objects.len());
+        let mut total = 0usize;
+        for o in &input.objects {
+            assert_eq!(
+                o.positions.len(),
+                o.normals.len(),
+                "one normal per position"
+            );
+            vertex_base.push(total);
+            total += o.positions.len();
+        }
+        self.screen.resize(total, ScreenPos::default());
+        self.codes.resize(total, 0);
+        self.attrs.resize(total, Attrs::default());
+        {
+            let mut jobs = Vec::with_capacity(input.objects.len());
+            let (mut ss, mut cs, mut atts) = (
+                &mut self.screen[..],
+                &mut self.codes[..],
+                &mut self.attrs[..],
+            );
+            for (o, draw) in input.objects.iter().enumerate() {
+                let n = draw.positions.len();
+                let (s, srest) = std::mem::take(&mut ss).split_at_mut(n);
+                let (c, crest) = std::mem::take(&mut cs).split_at_mut(n);
+                let (a, arest) = std::mem::take(&mut atts).split_at_mut(n);
+                jobs.push((o, s, c, a));
+                (ss, cs, atts) = (srest, crest, arest);
+            }
+            jobs.into_par_iter().for_each(|(o, s, c, a)| {
+                let draw = &input.objects[o];
+                let t = ObjectTransform::new(input.view, draw.model, input.projection);
+                let lit = draw.material.shading == Shading::Headlight;
+                s.par_chunks_mut(VERTICES_PER_TASK)
+                    .zip(c.par_chunks_mut(VERTICES_PER_TASK))
+                    .zip(a.par_chunks_mut(VERTICES_PER_TASK))
+                    .enumerate()
+                    .for_each(|(k, ((s, c), a))| {
+                        let first = k * VERTICES_PER_TASK;
+                        let range = first..first + s.len();
+                        transform_vertices(
+                            &t,
+                            &vp,
+                            &draw.positions[range.clone()],
+                            &draw.normals[range],
+                            lit,
+                            s,
+                            c,
+                            a,
+                        );
+                    });
+            });
+        }
+        timings.add("capture.vertex", start.elapsed());
+
+        // ---- setup and binning ----------------------------------------------------------------
+        let start = Instant::now();
+        let mut n_chunks = 0;
+        for (o, draw) in input.objects.iter().enumerate() {
+            let n = draw.triangles.len();
+            let mut first = 0;
+            while first < n {
+                let end = (first + config.chunk_triangles).min(n);
+                if self.chunks.len() == n_chunks {
+                    self.chunks.push(Chunk::default());
+                }
+                self.chunks[n_chunks].reset(o, first..end, layout.count());
+                n_chunks += 1;
+                first = end;
+            }
+        }
+        // Keep the allocations of unused chunks for later frames, but do not scan them.
+        let chunks = &mut self.chunks[..n_chunks];
+        let (screen, codes, attrs) = (&self.screen, &self.codes, &self.attrs);
+        let cx = SetupContext {
+            projection: &input.projection,
+            viewport: &vp,
+            strip_shift: config.strip_height.trailing_zeros(),
+        };
+        chunks.par_iter_mut().for_each(|chunk| {
+            let o = chunk.object;
+            let base = vertex_base[o];
+            let range = base..base + input.objects[o].positions.len();
+            setup_chunk(
+                chunk,
+                &input.objects[o],
+                &screen[range.clone()],
+                &codes[range.clone()],
+                &attrs[range],
+                &cx,
+            );
+        });
+        let mut setup = SetupStats::default();
+        for c in chunks.iter() {
+            setup.add(&c.stats);
+        }
+        timings.add("capture.setup", start.elapsed());
+
+        let shades = input
+            .objects
+            .iter()
+            .map(|o| {
+                let c = o.material.color;
+                (
+                    Shade {
+                        rgb: [c[0], c[1], c[2]],
+                        alpha: unorm8(c[3]),
+                        flat: Rgba8::from_unorm(c),
+                        id: o.id,
+                    },
+                    o.material.shading == Shading::Headlight,
+                )
+            })
+            .collect();
+
+        Prepared {
+            input,
+            screen: &self.screen,
+            attrs: &self.attrs,
+            vertex_base,
+            chunks: &self.chunks[..n_chunks],
+            shades,
+            layout,
+            setup,
+            timings,
+        }
+    }
+}
+
+impl Prepared<'_, '_> {
+    /// The strips the image is cut into.
+    pub fn layout(&self) -> &StripLayout {
+        &self.layout
+    }
+
+    /// What setup culled, clipped and binned.
+    pub fn setup_stats(&self) -> SetupStats {
+        self.setup
+    }
+
+    /// Time spent in the vertex (`capture.vertex`) and setup (`capture.setup`) stages.
+    pub fn timings(&self) -> &PassTimings {
+        &self.timings
+    }
+
+    /// The frame this was prepared from.
+    pub fn input(&self) -> &FrameInput<'_> {
+        self.input
+    }
+
+    /// Scans every strip in parallel into `target`'s sinks.
+    ///
+    /// # Panics
+    /// If the target returns a different number of sinks than there are strips.
+    pub fn rasterize<T: CaptureTarget + ?Sized>(&self, target: &mut T) -> RasterStats {
+        let sinks = target.sinks(&self.layout);
+        assert_eq!(sinks.len(), self.layout.count(), "one sink per strip");
+        let fragments = sinks
+            .into_par_iter()
+            .enumerate()
+            .map(|(s, mut sink)| {
+                let n = self.scan_strip(s, &mut sink);
+                sink.finish();
+                n
+            })
+            .sum();
+        RasterStats { fragments }
+    }
+
+    /// Scans strip `s`: every chunk's bin for the strip, in primitive order.
+    fn scan_strip<S: FragmentSink>(&self, s: usize, sink: &mut S) -> u64 {
+        let rows = self.layout.rows(s);
+        let rows = (rows.start as i32, rows.end as i32 - 1);
+        let (w, h) = (self.layout.width as i32, self.layout.height as i32);
+        let mut n = 0u64;
+        for chunk in self.chunks {
+            let bin = &chunk.bins[s];
+            if bin.is_empty() {
+                continue;
+            }
+            let (shade, lit) = &self.shades[chunk.object];
+            let draw = &self.input.objects[chunk.object];
+            let base = self.vertex_base[chunk.object];
+            let tris = &draw.triangles[chunk.triangles.clone()];
+            let range = base..base + draw.positions.len();
+            let verts = (&self.screen[range.clone()], &self.attrs[range]);
+            n += if *lit {
+                scan_bin::<S, true>(bin, tris, verts, &chunk.clipped, rows, w, h, shade, sink)
+            } else {
+                scan_bin::<S, false>(bin, tris, verts, &chunk.clipped, rows, w, h, shade, sink)
+            };
+        }
+        n
+    }
+}
+
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the hot loop's inputs, kept as plain slices"
+)]
+#[inline(never)]
+fn scan_bin<S: FragmentSink, const LIT: bool>(
+    bin: &[u32],
+    tris: &[[u32; 3]],
+    (screen, attrs): (&[ScreenPos], &[Attrs]),
+    clipped: &[ClippedTriangle],
+    rows: (i32, i32),
+    w: i32,
+    h: i32,
+    shade: &Shade,
+    sink: &mut S,
+) -> u64 {
+    let mut n = 0u64;
+    for &r in bin {
+        n += u64::from(if r & CLIPPED == 0 {
+            let [i0, i1, i2] = tris[r as usize].map(|i| i as usize);
+            scan_triangle::<S, LIT>(
+                [screen[i0], screen[i1], screen[i2]],
+                [&attrs[i0], &attrs[i1], &attrs[i2]],
+                rows,
+                w,
+                h,
+                shade,
+                sink,
+            )
+        } else {
+            let t = &clipped[(r & !CLIPPED) as usize];
+            scan_triangle::<S, LIT>(
+                t.pos,
+                [&t.attrs[0], &t.attrs[1], &t.attrs[2]],
+                rows,
+                w,
+                h,
+                shade,
+                sink,
+            )
+        });
+    }
+    n
+}
