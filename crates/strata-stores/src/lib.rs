@@ -1,1 +1,26 @@
-//! placeholder
+//! strata's fragment stores: every multi-fragment method behind one [`Method`] trait.
+//!
+//! A method is a module with the same shape as its siblings — the habit of nvpro's OIT sample,
+//! so a diff between two methods shows only what differs between the algorithms:
+//!
+//! ```text
+//! clear    reset the per-pixel state for a width × height frame
+//! capture  drive the rasterizer (one or more passes) and store fragments
+//! resolve  sort and composite each pixel onto the background
+//! ```
+//!
+//! plus its real buffer sizes ([`Method::memory_bytes`]) and, for exact methods, a
+//! [`strata_core::DeepFrame`] export. [`render_frame`] runs the passes in order and times each
+//! one; [`create`] builds a method from its name. Adding a method touches its own module and one
+//! line of [`METHODS`].
+//!
+//! | name | module | seed |
+//! | --- | --- | --- |
+//! | `abuffer` | [`abuffer::linked_list`] | 000 §2, 001 Alg. 4–6 |
+
+pub mod abuffer;
+pub mod method;
+pub mod registry;
+
+pub use method::{CaptureReport, FrameResult, Method, render_frame};
+pub use registry::{METHODS, MethodOptions, PoolCapacity, UnknownMethod, create};

@@ -1,0 +1,534 @@
+//! The per-pixel linked-list A-buffer (seed 000 §2.1–2.2; seed 001 §3.1.2, Algorithms 4–6).
+//!
+//! # Layout
+//!
+//! ```text
+//! heads: [u32; w*h]        index of the newest node of each pixel, EMPTY (u32::MAX) if none
+//! nodes: [Node; capacity]  the node pool, 16 bytes a node:
+//!                            word 0 = depth bits | rgba << 32
+//!                            word 1 = object id  | next << 32     (next: older node or EMPTY)
+//! next_free: AtomicU32     the allocation counter (seed 000's atomic counter)
+//! ```
+//!
+//! The seed's colour node is 12 bytes (colour, depth, next); strata adds the object id.
+//!
+//! # Passes
+//!
+//! - **clear** (Alg. 4): every head to EMPTY, the counter to 0.
+//! - **capture** (Alg. 5): for each fragment take a node from the pool, write it, link it in front
+//!   of the pixel's list (`next = head; head = node`), so lists are built in reverse.
+//!   On the GPU both steps are atomics. Here the rasterizer hands each strip of rows to one thread,
+//!   so the head update is a plain store into that strip's `chunks_mut` slice of `heads`; and nodes
+//!   are reserved from the shared counter in blocks of [`BLOCK`], so the counter is touched once per
+//!   64 fragments rather than once per fragment. A block is written only by the thread that
+//!   reserved it; nodes are pairs of `AtomicU64` written with `Relaxed` stores (plain moves on
+//!   x86-64 and AArch64), which keeps the pool shareable without `unsafe`. The end of the parallel
+//!   pass is the synchronisation point before anything reads the pool.
+//! - **resolve** (Alg. 6): per pixel, walk the list into a local array, sort it front to back
+//!   (insertion sort for short lists, as seed 000 Alg. A.1 does with bubble sort), composite with
+//!   OVER onto the background with early exit at full opacity. Rows are resolved in parallel.
+//!   Walking a list is a chain of dependent loads into a pool that has left the cache by the
+//!   time it is resolved, so lists are gathered breadth-first over batches of [`GATHER_BATCH`]
+//!   pixels: each round loads the next node of every unfinished list in the batch, and those loads
+//!   are independent, so the memory system serves them in parallel.
+//!
+//! # Overflow
+//!
+//! When the counter passes the capacity, Alg. 5's check drops the fragment. Drops are counted and
+//! reported, never silent. A thread may hold up to `BLOCK - 1` reserved but unused nodes when its
+//! strip ends, so with a fixed capacity a frame can drop fragments while at most
+//! `strips × (BLOCK − 1)` nodes stay unused. With [`PoolCapacity::Auto`] (the default) an
+//! overflowing frame grows the pool to fit and is captured again, reported as a regrow.
+//!
+//! # Determinism
+//!
+//! A pixel's list holds its fragments in primitive order whatever the thread count (each strip is
+//! scanned by one thread in primitive order); only node indices depend on scheduling. Sorting by
+//! [`strata_core::Fragment::order_key`] makes the resolved image and the DeepFrame independent of
+//! both. Under overflow *which* fragments are dropped depends on scheduling, as on a GPU.
+
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::time::Instant;
+
+use rayon::prelude::*;
+use strata_core::fragment::sort_front_to_back;
+use strata_core::{
+    DeepFrame, DeepFrameError, DepthStats, Fragment, ObjectId, PassTimings, Rgb8Image, Rgba8,
+    composite,
+};
+use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
+
+use crate::method::{CaptureReport, Method};
+use crate::registry::PoolCapacity;
+
+/// The end of a list.
+pub const EMPTY: u32 = u32::MAX;
+
+/// Nodes reserved from the allocation counter at a time.
+pub const BLOCK: u32 = 64;
+
+/// The largest pool: leaves room above the capacity for the counter to overshoot by one block
+/// per strip without wrapping, and keeps every index below [`EMPTY`].
+pub const MAX_CAPACITY: u64 = 1 << 31;
+
+/// Initial pool size for [`PoolCapacity::Auto`], as a multiple of the pixel count.
+const AUTO_INITIAL_PER_PIXEL: u64 = 2;
+
+/// Pixels resolved per parallel task.
+const RESOLVE_PIXELS_PER_TASK: usize = 4096;
+
+/// Pixels whose lists are walked together, one node of each per round.
+pub const GATHER_BATCH: usize = 16;
+
+/// One pool node; see the module docs for the bit layout.
+#[derive(Debug, Default)]
+pub struct Node {
+    w0: AtomicU64,
+    w1: AtomicU64,
+}
+
+impl Node {
+    #[inline(always)]
+    fn store(&self, f: Fragment, next: u32) {
+        self.w0.store(
+            u64::from(f.depth.to_bits()) | (u64::from(f.color.to_bits()) << 32),
+            Relaxed,
+        );
+        self.w1
+            .store(u64::from(f.object.0) | (u64::from(next) << 32), Relaxed);
+    }
+
+    #[inline(always)]
+    fn load(&self) -> (Fragment, u32) {
+        let (w0, w1) = (self.w0.load(Relaxed), self.w1.load(Relaxed));
+        (
+            Fragment {
+                depth: f32::from_bits(w0 as u32),
+                color: Rgba8::from_bits((w0 >> 32) as u32),
+                object: ObjectId(w1 as u32),
+            },
+            (w1 >> 32) as u32,
+        )
+    }
+}
+
+/// The linked-list A-buffer; see the module docs.
+#[derive(Debug)]
+pub struct LinkedListABuffer {
+    capacity: PoolCapacity,
+    width: u32,
+    height: u32,
+    heads: Vec<u32>,
+    nodes: Vec<Node>,
+    next_free: AtomicU32,
+    stored: AtomicU64,
+    dropped: AtomicU64,
+    depth: Option<DepthStats>,
+}
+
+impl LinkedListABuffer {
+    /// An empty A-buffer; buffers are sized at the first [`Method::clear`].
+    pub fn new(capacity: PoolCapacity) -> Self {
+        LinkedListABuffer {
+            capacity,
+            width: 0,
+            height: 0,
+            heads: Vec::new(),
+            nodes: Vec::new(),
+            next_free: AtomicU32::new(0),
+            stored: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
+            depth: None,
+        }
+    }
+
+    /// Nodes in the pool.
+    pub fn capacity(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// The pool size this frame asks for.
+    fn wanted_capacity(&self) -> u64 {
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        let n = match self.capacity {
+            PoolCapacity::Auto => (pixels * AUTO_INITIAL_PER_PIXEL).max(self.nodes.len() as u64),
+            PoolCapacity::PerPixel(k) => (pixels as f64 * k).ceil() as u64,
+            PoolCapacity::Fragments(n) => n,
+        };
+        n.clamp(1, MAX_CAPACITY)
+    }
+
+    fn resize_pool(&mut self, n: u64) {
+        let n = n.clamp(1, MAX_CAPACITY) as usize;
+        if self.nodes.len() != n {
+            self.nodes.clear();
+            self.nodes.shrink_to_fit();
+            self.nodes.reserve_exact(n);
+            self.nodes.resize_with(n, Node::default);
+        }
+    }
+
+    fn reset_lists(&mut self) {
+        self.heads.par_iter_mut().for_each(|h| *h = EMPTY);
+        self.next_free.store(0, Relaxed);
+        self.stored.store(0, Relaxed);
+        self.dropped.store(0, Relaxed);
+    }
+
+    /// Gathers the lists of pixels `p0 .. p0 + out.len()` into `out`, breadth-first (see the module
+    /// docs): each round follows one link of every list that has not ended.
+    #[inline]
+    fn gather(&self, p0: usize, out: &mut [Vec<Fragment>]) {
+        let mut cursor = [EMPTY; GATHER_BATCH];
+        let mut live = 0usize;
+        for (k, list) in out.iter_mut().enumerate() {
+            list.clear();
+            cursor[k] = self.heads[p0 + k];
+            live += usize::from(cursor[k] != EMPTY);
+        }
+        while live > 0 {
+            for (c, list) in cursor.iter_mut().zip(out.iter_mut()) {
+                if *c != EMPTY {
+                    let (f, next) = self.nodes[*c as usize].load();
+                    list.push(f);
+                    *c = next;
+                    live -= usize::from(next == EMPTY);
+                }
+            }
+        }
+    }
+
+    /// Walks pixel `p`'s list, newest first.
+    #[inline]
+    fn list(&self, p: usize) -> impl Iterator<Item = Fragment> + '_ {
+        let mut i = self.heads[p];
+        std::iter::from_fn(move || {
+            if i == EMPTY {
+                return None;
+            }
+            let (f, next) = self.nodes[i as usize].load();
+            i = next;
+            Some(f)
+        })
+    }
+}
+
+/// Capture into one strip of rows.
+#[derive(Debug)]
+pub struct LinkedListSink<'a> {
+    heads: &'a mut [u32],
+    first_pixel: u32,
+    nodes: &'a [Node],
+    next_free: &'a AtomicU32,
+    stored: &'a AtomicU64,
+    dropped: &'a AtomicU64,
+    cur: u32,
+    end: u32,
+    exhausted: bool,
+    n_stored: u64,
+    n_dropped: u64,
+}
+
+impl LinkedListSink<'_> {
+    /// Reserves the next block of nodes; false once the pool is exhausted.
+    #[cold]
+    fn refill(&mut self) -> bool {
+        if self.exhausted {
+            return false;
+        }
+        let capacity = self.nodes.len() as u32;
+        let start = self.next_free.fetch_add(BLOCK, Relaxed);
+        if start >= capacity {
+            self.exhausted = true;
+            return false;
+        }
+        self.cur = start;
+        self.end = start.saturating_add(BLOCK).min(capacity);
+        true
+    }
+}
+
+impl FragmentSink for LinkedListSink<'_> {
+    #[inline(always)]
+    fn push(&mut self, pixel: u32, fragment: Fragment) {
+        if self.cur == self.end && !self.refill() {
+            self.n_dropped += 1;
+            return;
+        }
+        let index = self.cur;
+        self.cur += 1;
+        let head = &mut self.heads[(pixel - self.first_pixel) as usize];
+        self.nodes[index as usize].store(fragment, *head);
+        *head = index;
+        self.n_stored += 1;
+    }
+
+    fn finish(&mut self) {
+        self.stored.fetch_add(self.n_stored, Relaxed);
+        self.dropped.fetch_add(self.n_dropped, Relaxed);
+    }
+}
+
+impl CaptureTarget for LinkedListABuffer {
+    type Sink<'s> = LinkedListSink<'s>;
+
+    fn sinks(&mut self, layout: &StripLayout) -> Vec<LinkedListSink<'_>> {
+        assert_eq!(
+            (layout.width, layout.height),
+            (self.width, self.height),
+            "clear before capture"
+        );
+        let (nodes, next_free, stored, dropped) = (
+            &self.nodes[..],
+            &self.next_free,
+            &self.stored,
+            &self.dropped,
+        );
+        layout
+            .split_mut(&mut self.heads)
+            .enumerate()
+            .map(|(s, heads)| LinkedListSink {
+                heads,
+                first_pixel: layout.pixels(s).start as u32,
+                nodes,
+                next_free,
+                stored,
+                dropped,
+                cur: 0,
+                end: 0,
+                exhausted: false,
+                n_stored: 0,
+                n_dropped: 0,
+            })
+            .collect()
+    }
+}
+
+impl Method for LinkedListABuffer {
+    fn name(&self) -> &'static str {
+        "abuffer"
+    }
+
+    fn clear(&mut self, width: u32, height: u32) {
+        let pixels = width as usize * height as usize;
+        assert!(
+            (pixels as u64) < u64::from(EMPTY),
+            "image too large for u32 pixel indices"
+        );
+        (self.width, self.height) = (width, height);
+        self.heads.resize(pixels, EMPTY);
+        self.resize_pool(self.wanted_capacity());
+        self.reset_lists();
+        self.depth = None;
+    }
+
+    fn capture(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        timings: &mut PassTimings,
+    ) -> CaptureReport {
+        let prepared = raster.prepare(input);
+        timings.extend(prepared.timings());
+        let mut regrows = 0;
+        loop {
+            let start = Instant::now();
+            let stats = prepared.rasterize(self);
+            timings.add("capture.raster", start.elapsed());
+            let dropped = self.dropped.load(Relaxed);
+            if dropped == 0
+                || self.capacity != PoolCapacity::Auto
+                || self.nodes.len() as u64 >= MAX_CAPACITY
+            {
+                return CaptureReport {
+                    fragments_rasterized: stats.fragments,
+                    fragments_stored: self.stored.load(Relaxed),
+                    dropped,
+                    regrows,
+                    setup: prepared.setup_stats(),
+                };
+            }
+            // Grow to hold every fragment plus each strip's unused block tail, with headroom
+            // for the next frames, and capture again.
+            let start = Instant::now();
+            let slack = prepared.layout().count() as u64 * u64::from(BLOCK);
+            self.resize_pool((stats.fragments + slack) * 5 / 4);
+            self.reset_lists();
+            regrows += 1;
+            timings.add("capture.regrow", start.elapsed());
+        }
+    }
+
+    fn resolve(&mut self, background: [f32; 3]) -> Rgb8Image {
+        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
+        let bg = composite::background_pixel(background);
+        let this = &*self;
+        let depth = image
+            .as_bytes_mut()
+            .par_chunks_mut(RESOLVE_PIXELS_PER_TASK * 3)
+            .enumerate()
+            .map_init(
+                || {
+                    std::array::from_fn::<Vec<Fragment>, GATHER_BATCH, _>(|_| {
+                        Vec::with_capacity(16)
+                    })
+                },
+                |lists, (task, out)| {
+                    let mut stats = DepthStats::default();
+                    let first = task * RESOLVE_PIXELS_PER_TASK;
+                    for (b, batch) in out.chunks_mut(GATHER_BATCH * 3).enumerate() {
+                        let p0 = first + b * GATHER_BATCH;
+                        let n = batch.len() / 3;
+                        if this.heads[p0..p0 + n].iter().all(|&h| h == EMPTY) {
+                            for px in batch.chunks_exact_mut(3) {
+                                px.copy_from_slice(&bg);
+                            }
+                            stats.record_many(0, n as u64);
+                            continue;
+                        }
+                        this.gather(p0, &mut lists[..n]);
+                        for (list, px) in lists.iter_mut().zip(batch.chunks_exact_mut(3)) {
+                            stats.record(list.len() as u32);
+                            let rgb = if list.is_empty() {
+                                bg
+                            } else {
+                                sort_front_to_back(list);
+                                composite::resolve_pixel(list.iter().map(|f| f.color), background)
+                            };
+                            px.copy_from_slice(&rgb);
+                        }
+                    }
+                    stats
+                },
+            )
+            .reduce(DepthStats::default, |mut a, b| {
+                a.merge(&b);
+                a
+            });
+        self.depth = Some(depth);
+        image
+    }
+
+    fn depth_stats(&self) -> Option<DepthStats> {
+        self.depth.clone()
+    }
+
+    fn memory_bytes(&self) -> u64 {
+        (self.heads.len() * size_of::<u32>()
+            + self.nodes.len() * size_of::<Node>()
+            + size_of::<AtomicU32>()) as u64
+    }
+
+    fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
+        let counts: Vec<u32> = (0..self.heads.len())
+            .into_par_iter()
+            .map(|p| self.list(p).count() as u32)
+            .collect();
+        Some(DeepFrame::build(
+            self.width,
+            self.height,
+            &counts,
+            |p, out| {
+                out.extend(self.list(p));
+            },
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frag(depth: f32, o: u32) -> Fragment {
+        Fragment {
+            depth,
+            color: Rgba8([o as u8, 0, 0, 255]),
+            object: ObjectId(o),
+        }
+    }
+
+    /// Pushes fragments through the sinks directly, bypassing the rasterizer.
+    fn capture(ab: &mut LinkedListABuffer, layout: &StripLayout, frags: &[(u32, Fragment)]) {
+        let mut sinks = ab.sinks(layout);
+        for &(p, f) in frags {
+            let s = p as usize / layout.pixels_per_strip();
+            sinks[s].push(p, f);
+        }
+        for s in &mut sinks {
+            s.finish();
+        }
+    }
+
+    #[test]
+    fn lists_are_built_in_reverse_and_resolve_sorted() {
+        let layout = StripLayout {
+            width: 4,
+            height: 4,
+            strip_height: 2,
+        };
+        let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(100));
+        ab.clear(4, 4);
+        capture(
+            &mut ab,
+            &layout,
+            &[(5, frag(0.5, 1)), (5, frag(0.2, 2)), (13, frag(0.9, 3))],
+        );
+        assert_eq!(
+            ab.list(5).collect::<Vec<_>>(),
+            vec![frag(0.2, 2), frag(0.5, 1)]
+        );
+        assert_eq!(ab.list(0).count(), 0);
+        let df = ab.deep_frame().unwrap().unwrap();
+        assert_eq!(df.pixel(1, 1).depth, &[0.2, 0.5]);
+        let img = ab.resolve([1.0; 3]);
+        assert_eq!(img.pixel(1, 1), [2, 0, 0]); // opaque fragment of object 2 in front
+        assert_eq!(img, df.resolve([1.0; 3]));
+        let s = ab.depth_stats().unwrap();
+        assert_eq!(
+            (s.fragments(), s.max_depth_complexity(), s.covered_pixels()),
+            (3, 2, 2)
+        );
+    }
+
+    #[test]
+    fn overflow_is_counted_not_silent() {
+        let layout = StripLayout {
+            width: 2,
+            height: 2,
+            strip_height: 2,
+        };
+        let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(10));
+        ab.clear(2, 2);
+        let frags: Vec<_> = (0..25).map(|i| (i % 4, frag(i as f32 / 25.0, i))).collect();
+        capture(&mut ab, &layout, &frags);
+        assert_eq!(ab.stored.load(Relaxed), 10);
+        assert_eq!(ab.dropped.load(Relaxed), 15);
+        // The first ten fragments made it (one strip, one block).
+        let kept: usize = (0..4).map(|p| ab.list(p).count()).sum();
+        assert_eq!(kept, 10);
+    }
+
+    #[test]
+    fn clear_empties_every_list() {
+        let layout = StripLayout {
+            width: 2,
+            height: 1,
+            strip_height: 1,
+        };
+        let mut ab = LinkedListABuffer::new(PoolCapacity::PerPixel(4.0));
+        ab.clear(2, 1);
+        assert_eq!(ab.capacity(), 8);
+        capture(&mut ab, &layout, &[(0, frag(0.1, 0)), (1, frag(0.2, 1))]);
+        ab.clear(2, 1);
+        assert_eq!(ab.list(0).count() + ab.list(1).count(), 0);
+        assert_eq!(ab.resolve([0.0, 0.0, 1.0]).pixel(0, 0), [0, 0, 255]);
+    }
+
+    #[test]
+    fn memory_is_heads_plus_pool() {
+        let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(1000));
+        ab.clear(10, 10);
+        assert_eq!(ab.memory_bytes(), 100 * 4 + 1000 * 16 + 4);
+        assert_eq!(size_of::<Node>(), 16);
+    }
+}

@@ -1,0 +1,99 @@
+//! The one trait every fragment store implements, and the driver that times its passes.
+
+use std::time::Instant;
+
+use strata_core::{DeepFrame, DeepFrameError, DepthStats, PassTimings, Rgb8Image};
+use strata_raster::{FrameInput, Rasterizer, SetupStats};
+
+/// What a capture pass did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CaptureReport {
+    /// Fragments the rasterizer produced (summed over passes for multi-pass methods).
+    pub fragments_rasterized: u64,
+    /// Fragments the store kept.
+    pub fragments_stored: u64,
+    /// Fragments lost to a full buffer; never silent — every method reports them here.
+    pub dropped: u64,
+    /// Times the store had to grow its buffers and capture again.
+    pub regrows: u32,
+    /// What triangle setup culled, clipped and binned.
+    pub setup: SetupStats,
+}
+
+/// A multi-fragment rendering method; see the crate docs.
+pub trait Method: Send {
+    /// The name it is selected by (`--method`).
+    fn name(&self) -> &'static str;
+
+    /// Resets per-pixel state for a `width` × `height` frame (the "clear" pass).
+    fn clear(&mut self, width: u32, height: u32);
+
+    /// Rasterises `input` into the store (the "capture" pass). Implementations record their
+    /// stages as `capture.<stage>` in `timings`.
+    fn capture(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        timings: &mut PassTimings,
+    ) -> CaptureReport;
+
+    /// Sorts and composites every pixel onto `background` (the "resolve" pass).
+    fn resolve(&mut self, background: [f32; 3]) -> Rgb8Image;
+
+    /// Depth complexity of what the store holds, as seen by the last resolve.
+    fn depth_stats(&self) -> Option<DepthStats>;
+
+    /// Bytes of the buffers the method allocated for this frame (whether used or not).
+    fn memory_bytes(&self) -> u64;
+
+    /// The captured fragments as a DeepFrame; `None` for methods that do not keep fragments.
+    fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>>;
+}
+
+/// Everything one rendered frame produced.
+#[derive(Clone, Debug)]
+pub struct FrameResult {
+    /// The resolved image.
+    pub image: Rgb8Image,
+    /// `clear`, `capture` (with `capture.*` stages) and `resolve`, in milliseconds when printed.
+    pub timings: PassTimings,
+    /// What capture did.
+    pub capture: CaptureReport,
+    /// Depth complexity, if the method knows it.
+    pub depth: Option<DepthStats>,
+    /// Bytes of the method's buffers.
+    pub memory_bytes: u64,
+}
+
+/// Runs clear → capture → resolve and times each pass.
+///
+/// Runs on the current rayon pool; wrap it in `ThreadPool::install` to choose the thread count.
+pub fn render_frame(
+    method: &mut dyn Method,
+    raster: &mut Rasterizer,
+    input: &FrameInput<'_>,
+    background: [f32; 3],
+) -> FrameResult {
+    let mut timings = PassTimings::new();
+    let start = Instant::now();
+    method.clear(input.width, input.height);
+    timings.add("clear", start.elapsed());
+
+    let start = Instant::now();
+    let mut stages = PassTimings::new();
+    let capture = method.capture(raster, input, &mut stages);
+    timings.add("capture", start.elapsed());
+    timings.extend(&stages);
+
+    let start = Instant::now();
+    let image = method.resolve(background);
+    timings.add("resolve", start.elapsed());
+
+    FrameResult {
+        image,
+        timings,
+        capture,
+        depth: method.depth_stats(),
+        memory_bytes: method.memory_bytes(),
+    }
+}
