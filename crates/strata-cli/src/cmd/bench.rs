@@ -1,0 +1,241 @@
+//! `strata bench`: per-pass medians over repeated runs, and thread scaling.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use serde_json::{Value, json};
+use strata_raster::{FrameInput, Rasterizer};
+use strata_stores::{FrameResult, MethodOptions, PoolCapacity, render_frame};
+
+use crate::options::{default_threads, open_scene, search_path, thread_pool};
+
+/// Time each pass of a method on a scene: median, min and max over repeated runs.
+///
+/// Every run is a full frame (clear, capture, resolve) with buffers reused from the previous run,
+/// as in an animation. Give several thread counts (`--threads 1,2`) to see the scaling. Timings are
+/// wall-clock on a possibly shared machine: compare medians from one invocation.
+#[derive(clap::Args, Debug)]
+pub(crate) struct Args {
+    /// Scene file (TOML) or built-in scene name.
+    pub(crate) scene: String,
+
+    /// Fragment store to measure.
+    #[arg(long, short, default_value = "abuffer")]
+    pub(crate) method: String,
+
+    /// Node pool of the linked-list A-buffer (`auto`, `4x`, or a number of fragments).
+    #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<PoolCapacity>())]
+    pub(crate) pool: PoolCapacity,
+
+    /// Timed runs per thread count.
+    #[arg(long, default_value_t = 15)]
+    pub(crate) runs: usize,
+
+    /// Untimed runs first (page faults, pool growth, caches).
+    #[arg(long, default_value_t = 3)]
+    pub(crate) warmup: usize,
+
+    /// Thread counts to measure, comma-separated (default: every available core).
+    #[arg(long, short = 'j', value_delimiter = ',')]
+    pub(crate) threads: Vec<usize>,
+
+    /// Animation frame to pose the scene at.
+    #[arg(long, default_value_t = 0)]
+    pub(crate) frame: u32,
+
+    /// Extra directory to look for mesh files in (repeatable).
+    #[arg(long = "models", value_name = "DIR")]
+    pub(crate) model_dirs: Vec<PathBuf>,
+
+    /// Also write the figures as JSON to this file.
+    #[arg(long)]
+    pub(crate) json: Option<PathBuf>,
+}
+
+/// The anchors of DESIGN §4 that a benchmark prints its figures beside.
+fn anchor(scene: &str, method: &str) -> Option<(&'static str, f64)> {
+    match (scene, method) {
+        ("dragon", "abuffer") => Some((
+            "Mesa llvmpipe running the seed's GLSL linked-list shaders on this 2-core machine kind: \
+             ~240 ms capture + ~17 ms resolve",
+            257.0,
+        )),
+        _ => None,
+    }
+}
+
+#[derive(Default)]
+struct Samples {
+    order: Vec<&'static str>,
+    by_name: BTreeMap<&'static str, Vec<Duration>>,
+    totals: Vec<Duration>,
+}
+
+impl Samples {
+    fn add(&mut self, r: &FrameResult) {
+        for (n, d) in r.timings.iter() {
+            if !self.by_name.contains_key(n) {
+                self.order.push(n);
+            }
+            self.by_name.entry(n).or_default().push(d);
+        }
+        self.totals.push(r.timings.total());
+    }
+}
+
+/// Median, min, max in milliseconds.
+fn stats(v: &[Duration]) -> (f64, f64, f64) {
+    let mut ms: Vec<f64> = v.iter().map(|d| d.as_secs_f64() * 1e3).collect();
+    ms.sort_by(f64::total_cmp);
+    let n = ms.len();
+    let median = if n % 2 == 1 {
+        ms[n / 2]
+    } else {
+        (ms[n / 2 - 1] + ms[n / 2]) / 2.0
+    };
+    (median, ms[0], ms[n - 1])
+}
+
+/// Runs `strata bench`.
+pub(crate) fn run(args: Args) -> Result<()> {
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let threads = if args.threads.is_empty() {
+        vec![default_threads()]
+    } else {
+        args.threads.clone()
+    };
+    let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
+    scene.check_frame(args.frame)?;
+    let input = FrameInput::from_scene(&scene, args.frame);
+    let options = MethodOptions { pool: args.pool };
+    strata_stores::create(&args.method, &options)?; // fail early on a bad name
+
+    println!(
+        "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up",
+        scene.name,
+        scene.triangle_count(),
+        scene.width,
+        scene.height,
+        args.method,
+        args.frame,
+        args.runs,
+        args.warmup
+    );
+    let mut per_threads = Vec::new();
+    let mut medians = Vec::new();
+    for &n in &threads {
+        let pool = thread_pool(Some(n))?;
+        let mut method = strata_stores::create(&args.method, &options)?;
+        let mut raster = Rasterizer::default();
+        let mut samples = Samples::default();
+        let mut last = None;
+        for run in 0..args.warmup + args.runs {
+            let r = pool
+                .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background));
+            if run >= args.warmup {
+                samples.add(&r);
+            }
+            last = Some(r);
+        }
+        let last = last.context("no run")?;
+        let depth = last.depth.clone().unwrap_or_default();
+        let fragments = last.capture.fragments_stored;
+        let (total_med, total_min, total_max) = stats(&samples.totals);
+        println!();
+        println!(
+            "threads {n}: {fragments} fragments, {} covered pixels, depth max {} mean {:.2}, memory {:.1} MiB = {:.1} B/fragment{}",
+            depth.covered_pixels(),
+            depth.max_depth_complexity(),
+            depth.mean_depth_complexity(),
+            last.memory_bytes as f64 / (1 << 20) as f64,
+            if fragments > 0 {
+                last.memory_bytes as f64 / fragments as f64
+            } else {
+                0.0
+            },
+            if last.capture.dropped > 0 {
+                format!(", {} DROPPED", last.capture.dropped)
+            } else {
+                String::new()
+            },
+        );
+        println!(
+            "  {:<18} {:>9} {:>9} {:>9}",
+            "pass (ms)", "median", "min", "max"
+        );
+        let mut passes = serde_json::Map::new();
+        for name in &samples.order {
+            let (med, min, max) = stats(&samples.by_name[name]);
+            let label = match name.split_once('.') {
+                Some((_, stage)) => format!("  {stage}"),
+                None => (*name).to_owned(),
+            };
+            println!("  {label:<18} {med:>9.2} {min:>9.2} {max:>9.2}");
+            passes.insert(
+                (*name).to_owned(),
+                json!({"median": med, "min": min, "max": max}),
+            );
+        }
+        println!(
+            "  {:<18} {total_med:>9.2} {total_min:>9.2} {total_max:>9.2}",
+            "total"
+        );
+        let fps = fragments as f64 / (total_med / 1e3);
+        println!(
+            "  {:.1} M fragments/s (fragments / median total)",
+            fps / 1e6
+        );
+        medians.push((n, total_med));
+        per_threads.push(json!({
+            "threads": n,
+            "passes_ms": Value::Object(passes),
+            "total_ms": {"median": total_med, "min": total_min, "max": total_max},
+            "fragments": fragments,
+            "fragments_per_second": fps,
+            "memory_bytes": last.memory_bytes,
+            "bytes_per_fragment": if fragments > 0 { last.memory_bytes as f64 / fragments as f64 } else { 0.0 },
+            "dropped_fragments": last.capture.dropped,
+            "max_depth_complexity": depth.max_depth_complexity(),
+            "covered_pixels": depth.covered_pixels(),
+        }));
+    }
+    if medians.len() > 1 {
+        let (n0, t0) = medians[0];
+        let parts: Vec<String> = medians
+            .iter()
+            .map(|&(n, t)| format!("{n} thread(s) {t:.2} ms ({:.2}x)", t0 / t))
+            .collect();
+        println!(
+            "\nscaling (median total, relative to {n0} thread(s)): {}",
+            parts.join(", ")
+        );
+    }
+    let anchor = anchor(&scene.name, &args.method);
+    if let (Some((text, anchor_ms)), Some(&(n, best))) = (anchor, medians.last()) {
+        println!(
+            "\nanchor (DESIGN §4): {text} = {anchor_ms:.0} ms; strata with {n} thread(s): {best:.2} ms = {:.1}x faster",
+            anchor_ms / best
+        );
+    }
+    if let Some(path) = &args.json {
+        let doc = json!({
+            "scene": scene.name,
+            "method": args.method,
+            "frame": args.frame,
+            "width": scene.width,
+            "height": scene.height,
+            "triangles": scene.triangle_count(),
+            "runs": args.runs,
+            "warmup": args.warmup,
+            "results": per_threads,
+            "anchor_ms": anchor.map(|a| a.1),
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&doc)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,239 @@
+//! `strata demo`: every built-in scene (and the real meshes when found) with a report.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use strata_raster::{FrameInput, Rasterizer};
+use strata_scene::builtin;
+use strata_stores::render_frame;
+
+use crate::options::{RenderOptions, thread_pool};
+use crate::report::{ms, stats_json, summary_line};
+
+/// Render every built-in scene (and the Stanford/Khronos meshes when they are found) into a
+/// folder: one PNG and one statistics JSON per scene, and report.md / report.html showing them.
+#[derive(clap::Args, Debug)]
+pub(crate) struct Args {
+    /// Folder to write into (created if missing).
+    #[arg(long, default_value = "strata-demo")]
+    pub(crate) out_dir: PathBuf,
+
+    #[command(flatten)]
+    pub(crate) render: RenderOptions,
+}
+
+struct Row {
+    name: &'static str,
+    description: &'static str,
+    triangles: u64,
+    fragments: u64,
+    covered: u64,
+    max_depth: u32,
+    mean_depth: f64,
+    memory: u64,
+    capture_ms: f64,
+    resolve_ms: f64,
+    deep_frame_ok: bool,
+}
+
+/// Runs `strata demo`.
+pub(crate) fn run(args: Args) -> Result<()> {
+    let dir = &args.out_dir;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let search = args.render.search_path();
+    let pool = thread_pool(args.render.threads)?;
+    let threads = pool.current_num_threads();
+    let mut raster = Rasterizer::default();
+    let (available, skipped): (Vec<&builtin::BuiltinScene>, Vec<_>) =
+        builtin::SCENES.iter().partition(|s| s.available(&search));
+    let mut rows = Vec::new();
+    let started = Instant::now();
+    for (i, b) in available.iter().enumerate() {
+        eprint!("[{}/{}] {}: loading… ", i + 1, available.len(), b.name);
+        let scene = b.load(&search)?;
+        eprint!("rendering… ");
+        let mut method = strata_stores::create(&args.render.method, &args.render.method_options())?;
+        let input = FrameInput::from_scene(&scene, 0);
+        let result =
+            pool.install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background));
+        // Check the exchange format on every demo frame: the DeepFrame must resolve to the same image.
+        let deep_frame_ok = match method.deep_frame() {
+            Some(df) => df?.resolve(scene.background) == result.image,
+            None => false,
+        };
+        let png = dir.join(format!("{}.png", b.name));
+        result.image.write_png(&png)?;
+        let json = stats_json(&scene, method.name(), 0, threads, &result);
+        std::fs::write(
+            dir.join(format!("{}.json", b.name)),
+            serde_json::to_string_pretty(&json)? + "\n",
+        )?;
+        eprintln!("done");
+        eprintln!("      {}", summary_line(&scene, &result));
+        let depth = result.depth.clone().unwrap_or_default();
+        rows.push(Row {
+            name: b.name,
+            description: b.description,
+            triangles: scene.triangle_count(),
+            fragments: result.capture.fragments_stored,
+            covered: depth.covered_pixels(),
+            max_depth: depth.max_depth_complexity(),
+            mean_depth: depth.mean_depth_complexity(),
+            memory: result.memory_bytes,
+            capture_ms: result.timings.get("capture").map_or(0.0, ms),
+            resolve_ms: result.timings.get("resolve").map_or(0.0, ms),
+            deep_frame_ok,
+        });
+    }
+    let skipped: Vec<String> = skipped
+        .iter()
+        .map(|s| format!("{} (needs {})", s.name, s.meshes.join(", ")))
+        .collect();
+    write_markdown(dir, &rows, &skipped, &args.render.method, threads)?;
+    write_html(dir, &rows, &skipped, &args.render.method, threads)?;
+    eprintln!(
+        "rendered {} scenes in {:.1} s into {}; open {}",
+        rows.len(),
+        started.elapsed().as_secs_f64(),
+        dir.display(),
+        dir.join("report.html").display()
+    );
+    if !skipped.is_empty() {
+        eprintln!(
+            "skipped (meshes not found; set STRATA_MODEL_PATH, pass --models DIR, or run scripts/fetch-models): {}",
+            skipped.join(", ")
+        );
+    }
+    Ok(())
+}
+
+fn mib(b: u64) -> f64 {
+    b as f64 / (1 << 20) as f64
+}
+
+fn write_markdown(
+    dir: &std::path::Path,
+    rows: &[Row],
+    skipped: &[String],
+    method: &str,
+    threads: usize,
+) -> Result<()> {
+    let mut md = String::new();
+    writeln!(md, "# strata demo\n")?;
+    writeln!(
+        md,
+        "Method `{method}`, {threads} thread(s), frame 0 of each scene. Every pixel keeps all its fragments, \
+         sorted and composited front to back with OVER. Times are one run's wall clock (use `strata bench` for medians).\n"
+    )?;
+    writeln!(
+        md,
+        "| scene | triangles | fragments | covered px | max depth | mean depth | memory MiB | capture ms | resolve ms | DeepFrame = image |"
+    )?;
+    writeln!(
+        md,
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | :---: |"
+    )?;
+    for r in rows {
+        writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.2} | {:.1} | {:.2} | {:.2} | {} |",
+            r.name,
+            r.triangles,
+            r.fragments,
+            r.covered,
+            r.max_depth,
+            r.mean_depth,
+            mib(r.memory),
+            r.capture_ms,
+            r.resolve_ms,
+            if r.deep_frame_ok { "yes" } else { "NO" }
+        )?;
+    }
+    writeln!(md)?;
+    for r in rows {
+        writeln!(
+            md,
+            "## {}\n\n{}\n\n![{}]({}.png)\n",
+            r.name, r.description, r.name, r.name
+        )?;
+    }
+    if !skipped.is_empty() {
+        writeln!(md, "Skipped, meshes not found: {}.", skipped.join(", "))?;
+    }
+    std::fs::write(dir.join("report.md"), md)
+        .with_context(|| format!("cannot write {}", dir.join("report.md").display()))
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+fn write_html(
+    dir: &std::path::Path,
+    rows: &[Row],
+    skipped: &[String],
+    method: &str,
+    threads: usize,
+) -> Result<()> {
+    let mut h = String::new();
+    writeln!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>strata demo</title><style>"
+    )?;
+    writeln!(
+        h,
+        "body{{font-family:system-ui,sans-serif;margin:2em;max-width:1400px}}table{{border-collapse:collapse}}td,th{{padding:.3em .7em;border-bottom:1px solid #ddd;text-align:right}}td:first-child,th:first-child{{text-align:left}}.grid{{display:grid;grid-template-columns:repeat(auto-fill,minmax(420px,1fr));gap:1.5em}}img{{width:100%;border:1px solid #ccc}}figcaption{{font-size:.9em;color:#444}}"
+    )?;
+    writeln!(h, "</style></head><body><h1>strata demo</h1>")?;
+    writeln!(
+        h,
+        "<p>Method <code>{}</code>, {threads} thread(s), frame 0 of each scene. Every pixel keeps all its fragments, sorted and composited front to back with OVER. Times are one run's wall clock (use <code>strata bench</code> for medians).</p>",
+        html_escape(method)
+    )?;
+    writeln!(
+        h,
+        "<table><tr><th>scene</th><th>triangles</th><th>fragments</th><th>covered px</th><th>max depth</th><th>mean depth</th><th>memory MiB</th><th>capture ms</th><th>resolve ms</th><th>DeepFrame = image</th></tr>"
+    )?;
+    for r in rows {
+        writeln!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td></tr>",
+            r.name,
+            r.triangles,
+            r.fragments,
+            r.covered,
+            r.max_depth,
+            r.mean_depth,
+            mib(r.memory),
+            r.capture_ms,
+            r.resolve_ms,
+            if r.deep_frame_ok { "yes" } else { "NO" }
+        )?;
+    }
+    writeln!(h, "</table><div class=\"grid\">")?;
+    for r in rows {
+        writeln!(
+            h,
+            "<figure><img src=\"{0}.png\" alt=\"{0}\"><figcaption><b>{0}</b>: {1} ({2} fragments, depth up to {3}; <a href=\"{0}.json\">statistics</a>)</figcaption></figure>",
+            r.name,
+            html_escape(r.description),
+            r.fragments,
+            r.max_depth
+        )?;
+    }
+    writeln!(h, "</div>")?;
+    if !skipped.is_empty() {
+        writeln!(
+            h,
+            "<p>Skipped, meshes not found: {}.</p>",
+            html_escape(&skipped.join(", "))
+        )?;
+    }
+    writeln!(h, "</body></html>")?;
+    std::fs::write(dir.join("report.html"), h)
+        .with_context(|| format!("cannot write {}", dir.join("report.html").display()))
+}

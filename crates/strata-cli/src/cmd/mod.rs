@@ -1,0 +1,6 @@
+//! One module per subcommand.
+
+pub(crate) mod bench;
+pub(crate) mod demo;
+pub(crate) mod render;
+pub(crate) mod scenes;
