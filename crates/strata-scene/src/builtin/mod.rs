@@ -35,7 +35,7 @@ pub const SCENES: &[BuiltinScene] = &[
     },
     BuiltinScene {
         name: "spheres",
-        description: "nested translucent spheres threaded by intersecting tori; depth complexity up to 14",
+        description: "nested translucent spheres threaded by intersecting tori; depth complexity up to 16",
         source: include_str!("scenes/spheres.toml"),
         meshes: &[],
     },
