@@ -64,10 +64,7 @@ impl Rgb8Image {
     /// An image filled with one colour.
     pub fn filled(width: u32, height: u32, rgb: [u8; 3]) -> Self {
         let n = width as usize * height as usize;
-        let mut data = Vec::with_capacity(n * 3);
-        for _ in 0..n {
-            data.extend_from_slice(&rgb);
-        }
+        let data = rgb.repeat(n);
         Rgb8Image {
             width,
             height,

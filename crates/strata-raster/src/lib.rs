@@ -20,13 +20,13 @@
 //!    position, outcode and attribute arrays for all objects ([`vertex`]).
 //! 2. **setup + bin** ([`setup`]): triangles in chunks of consecutive primitives of one object.
 //!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
-//!    culled here; one that crosses the near plane or the guard band is clipped exactly in clip
+//!    culled here (small triangles get their exact coverage bitmask here, [`coverage`]); one that crosses the near plane or the guard band is clipped exactly in clip
 //!    space ([`clip`]) and its pieces kept in the chunk. Survivors are appended to the chunk's bin
 //!    of every *strip* their pixel rows touch.
 //! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order and
 //!    each chunk's bin in order, so every pixel receives its fragments in primitive order, from one
 //!    thread, whatever the thread count. Coverage uses exact integer edge functions with the
-//!    top-left rule; depth is affine in screen space; normals and eye positions are interpolated
+//!    top-left rule ([`coverage`]); depth is affine in screen space; normals and eye positions are interpolated
 //!    perspective-correctly for the headlight.
 //!
 //! # Why strips
@@ -49,6 +49,7 @@
 //! frame; nothing is allocated per triangle or per fragment.
 
 pub mod clip;
+pub mod coverage;
 pub mod frame;
 pub mod rasterizer;
 pub mod scan;

@@ -8,7 +8,7 @@ use strata_core::{PassTimings, Rgba8, Shading, fragment::unorm8};
 use crate::frame::FrameInput;
 use crate::scan::{Shade, scan_triangle};
 pub use crate::setup::SetupStats;
-use crate::setup::{CLIPPED, Chunk, ClippedTriangle, SetupContext, setup_chunk};
+use crate::setup::{CLIPPED, Chunk, ClippedTriangle, PixelFragment, SetupContext, setup_chunk};
 use crate::sink::{CaptureTarget, FragmentSink, StripLayout};
 use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, transform_vertices};
 
@@ -185,32 +185,7 @@ impl Rasterizer {
         }
         // Keep the allocations of unused chunks for later frames, but do not scan them.
         let chunks = &mut self.chunks[..n_chunks];
-        let (screen, codes, attrs) = (&self.screen, &self.codes, &self.attrs);
-        let cx = SetupContext {
-            projection: &input.projection,
-            viewport: &vp,
-            strip_shift: config.strip_height.trailing_zeros(),
-        };
-        chunks.par_iter_mut().for_each(|chunk| {
-            let o = chunk.object;
-            let base = vertex_base[o];
-            let range = base..base + input.objects[o].positions.len();
-            setup_chunk(
-                chunk,
-                &input.objects[o],
-                &screen[range.clone()],
-                &codes[range.clone()],
-                &attrs[range],
-                &cx,
-            );
-        });
-        let mut setup = SetupStats::default();
-        for c in chunks.iter() {
-            setup.add(&c.stats);
-        }
-        timings.add("capture.setup", start.elapsed());
-
-        let shades = input
+        let shades: Vec<(Shade, bool)> = input
             .objects
             .iter()
             .map(|o| {
@@ -226,6 +201,38 @@ impl Rasterizer {
                 )
             })
             .collect();
+        let transforms: Vec<ObjectTransform> = input
+            .objects
+            .iter()
+            .map(|o| ObjectTransform::new(input.view, o.model, input.projection))
+            .collect();
+        let (screen, codes, attrs) = (&self.screen, &self.codes, &self.attrs);
+        chunks.par_iter_mut().for_each(|chunk| {
+            let o = chunk.object;
+            let draw = &input.objects[o];
+            let base = vertex_base[o];
+            let range = base..base + draw.positions.len();
+            let cx = SetupContext {
+                transform: &transforms[o],
+                lit: shades[o].1,
+                shade: &shades[o].0,
+                viewport: &vp,
+                strip_shift: config.strip_height.trailing_zeros(),
+            };
+            setup_chunk(
+                chunk,
+                draw,
+                &screen[range.clone()],
+                &codes[range.clone()],
+                &attrs[range],
+                &cx,
+            );
+        });
+        let mut setup = SetupStats::default();
+        for c in chunks.iter() {
+            setup.add(&c.stats);
+        }
+        timings.add("capture.setup", start.elapsed());
 
         Prepared {
             input,
@@ -281,15 +288,17 @@ impl Prepared<'_, '_> {
         RasterStats { fragments }
     }
 
-    /// Scans strip `s`: every chunk's bin for the strip, in primitive order.
+    /// Scans strip `s`: every chunk's micro-triangle fragments and binned triangles for the strip,
+    /// in primitive order.
     fn scan_strip<S: FragmentSink>(&self, s: usize, sink: &mut S) -> u64 {
         let rows = self.layout.rows(s);
         let rows = (rows.start as i32, rows.end as i32 - 1);
         let (w, h) = (self.layout.width as i32, self.layout.height as i32);
         let mut n = 0u64;
         for chunk in self.chunks {
-            let bin = &chunk.bins[s];
+            let (bin, frags) = (&chunk.bins[s], &chunk.frags[s][..]);
             if bin.is_empty() {
+                n += replay(frags, sink);
                 continue;
             }
             let (shade, lit) = &self.shades[chunk.object];
@@ -299,13 +308,44 @@ impl Prepared<'_, '_> {
             let range = base..base + draw.positions.len();
             let verts = (&self.screen[range.clone()], &self.attrs[range]);
             n += if *lit {
-                scan_bin::<S, true>(bin, tris, verts, &chunk.clipped, rows, w, h, shade, sink)
+                scan_bin::<S, true>(
+                    bin,
+                    frags,
+                    tris,
+                    verts,
+                    &chunk.clipped,
+                    rows,
+                    w,
+                    h,
+                    shade,
+                    sink,
+                )
             } else {
-                scan_bin::<S, false>(bin, tris, verts, &chunk.clipped, rows, w, h, shade, sink)
+                scan_bin::<S, false>(
+                    bin,
+                    frags,
+                    tris,
+                    verts,
+                    &chunk.clipped,
+                    rows,
+                    w,
+                    h,
+                    shade,
+                    sink,
+                )
             };
         }
         n
     }
+}
+
+/// Pushes micro-triangle fragments into the sink.
+#[inline(always)]
+fn replay<S: FragmentSink>(frags: &[PixelFragment], sink: &mut S) -> u64 {
+    for f in frags {
+        sink.push(f.pixel, f.fragment);
+    }
+    frags.len() as u64
 }
 
 #[allow(
@@ -314,7 +354,8 @@ impl Prepared<'_, '_> {
 )]
 #[inline(never)]
 fn scan_bin<S: FragmentSink, const LIT: bool>(
-    bin: &[u32],
+    bin: &[u64],
+    frags: &[PixelFragment],
     tris: &[[u32; 3]],
     (screen, attrs): (&[ScreenPos], &[Attrs]),
     clipped: &[ClippedTriangle],
@@ -325,7 +366,11 @@ fn scan_bin<S: FragmentSink, const LIT: bool>(
     sink: &mut S,
 ) -> u64 {
     let mut n = 0u64;
-    for &r in bin {
+    let mut next = 0;
+    for &entry in bin {
+        let (r, cursor) = (entry as u32, (entry >> 32) as usize);
+        n += replay(&frags[next..cursor], sink);
+        next = cursor;
         n += u64::from(if r & CLIPPED == 0 {
             let [i0, i1, i2] = tris[r as usize].map(|i| i as usize);
             scan_triangle::<S, LIT>(
@@ -350,5 +395,5 @@ fn scan_bin<S: FragmentSink, const LIT: bool>(
             )
         });
     }
-    n
+    n + replay(&frags[next..], sink)
 }

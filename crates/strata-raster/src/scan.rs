@@ -1,47 +1,25 @@
-//! Scan conversion of one triangle into one strip: coverage, depth, shading, push.
+//! Scan conversion of one triangle into one strip: attributes, shading, push.
 //!
-//! # Coverage
-//!
-//! For an edge `p → q` and a sample `s` (all in 24.8 fixed point) the edge function
-//!
-//! ```text
-//! E(s) = (q.x − p.x)(s.y − p.y) − (q.y − p.y)(s.x − p.x)
-//! ```
-//!
-//! is evaluated exactly in `i64`. Triangles are put in the orientation where the interior has all
-//! three `E > 0` (swapping two vertices if needed: there is no culling). A sample exactly on an
-//! edge belongs to the triangle only if the edge is a *top* edge (horizontal, interior below) or a
-//! *left* edge (interior to the right) — with y pointing down and this orientation, that is
-//! `dy < 0 || (dy == 0 && dx > 0)`. Such edges test `E ≥ 0`, the others `E ≥ 1`; two triangles
-//! sharing an edge see it with opposite directions, so exactly one of them owns each sample on it.
-//!
-//! Pixel centres are at `(x + ½, y + ½)`. Per row, each edge's half-plane is intersected with the
-//! bounding box by one integer division, giving the exact span of covered pixels; very narrow
-//! bounding boxes (the common case for dense meshes) test each pixel instead. Edge values are kept
-//! with the bias subtracted, so the test is a sign check of the three values OR-ed together.
-//!
-//! # Attributes
-//!
+//! Coverage is decided by [`crate::coverage`]; this module turns covered samples into fragments.
 //! With `λ_a = E_bc / area` etc. (screen-space barycentrics, exact integers converted once):
 //!
 //! - depth `z = λ_a z_a + λ_b z_b + λ_c z_c` — window depth is affine in screen space. Samples with
 //!   `z > 1` lie beyond the far plane and are discarded; rounding below 0 is clamped to `+0`.
-//! - headlight: `n' = Σ λ_i (1/w_i) n_i`, `p' = Σ λ_i (1/w_i) p_i` are the perspective-correct
+//! - headlight: `n' = Σ λ_i (n_i / w_i)`, `p' = Σ λ_i (p_i / w_i)` are the perspective-correct
 //!   normal and eye position up to the common factor `1 / Σ λ_i/w_i`, which cancels in
 //!   `|N·L| = |n'·p'| / (|n'| |p'|)`.
+//!
+//! Attributes are loaded only once a triangle is known to cover something. Small triangles are
+//! shaded by [`shade_small`], which setup calls for micro-triangles and the scan for small clipped
+//! pieces; larger ones are scanned span by span by [`scan_triangle`].
 
 use glam::Vec3A;
 use strata_core::fragment::unorm8;
-use strata_core::material::headlight_factor;
 use strata_core::{Fragment, ObjectId, Rgba8};
 
-use crate::setup::{orient, pixel_bounds};
+use crate::coverage::{Edges, Micro, SMALL, Triangle};
 use crate::sink::FragmentSink;
-use crate::vertex::{Attrs, HALF, ONE, ScreenPos};
-
-/// Bounding boxes of at most `SMALL × SMALL` pixels are scanned as one coverage bitmask; larger
-/// ones row by row with exact spans.
-const SMALL: i32 = 4;
+use crate::vertex::{Attrs, ScreenPos};
 
 /// Per-object shading constants.
 #[derive(Clone, Copy, Debug)]
@@ -56,102 +34,7 @@ pub struct Shade {
     pub id: ObjectId,
 }
 
-/// The three edge functions of a triangle, evaluated incrementally over its bounding box.
-///
-/// Edge `k` is opposite vertex `k`, so `E_k / area` is vertex `k`'s barycentric weight. Each
-/// value is stored with its top-left bias already subtracted, so "inside" is `e ≥ 0` for all
-/// three; [`Edges::weights`] adds the bias back for interpolation.
-#[derive(Clone, Copy)]
-struct Edges {
-    /// Biased edge values at the current sample.
-    e: [i64; 3],
-    /// Change per pixel step in x.
-    dx: [i64; 3],
-    /// Change per pixel step in y.
-    dy: [i64; 3],
-    /// 0 for top and left edges, 1 otherwise.
-    bias: [i64; 3],
-}
-
-impl Edges {
-    /// Edges of the positively oriented triangle `abc`, evaluated at the centre of pixel `(x0, y0)`.
-    #[inline(always)]
-    fn new(a: ScreenPos, b: ScreenPos, c: ScreenPos, x0: i32, y0: i32) -> Edges {
-        let sx = i64::from(x0) * i64::from(ONE) + i64::from(HALF);
-        let sy = i64::from(y0) * i64::from(ONE) + i64::from(HALF);
-        let edge = |p: ScreenPos, q: ScreenPos| {
-            let ex = i64::from(q.x - p.x);
-            let ey = i64::from(q.y - p.y);
-            let bias = i64::from(!(ey < 0 || (ey == 0 && ex > 0)));
-            (
-                ex * (sy - i64::from(p.y)) - ey * (sx - i64::from(p.x)) - bias,
-                -ey * i64::from(ONE),
-                ex * i64::from(ONE),
-                bias,
-            )
-        };
-        let (e0, dx0, dy0, b0) = edge(b, c);
-        let (e1, dx1, dy1, b1) = edge(c, a);
-        let (e2, dx2, dy2, b2) = edge(a, b);
-        Edges {
-            e: [e0, e1, e2],
-            dx: [dx0, dx1, dx2],
-            dy: [dy0, dy1, dy2],
-            bias: [b0, b1, b2],
-        }
-    }
-
-    /// True if the sample with biased values `e` is covered.
-    #[inline(always)]
-    fn inside(e: [i64; 3]) -> bool {
-        (e[0] | e[1] | e[2]) >= 0
-    }
-
-    /// Unbiased edge values (barycentric numerators) of the sample with biased values `e`.
-    #[inline(always)]
-    fn weights(&self, e: [i64; 3]) -> [i64; 3] {
-        [
-            e[0] + self.bias[0],
-            e[1] + self.bias[1],
-            e[2] + self.bias[2],
-        ]
-    }
-
-    #[inline(always)]
-    fn step(e: [i64; 3], d: [i64; 3], n: i64) -> [i64; 3] {
-        [e[0] + d[0] * n, e[1] + d[1] * n, e[2] + d[2] * n]
-    }
-
-    /// Biased values at pixel offset `(i, j)` from the box's first pixel.
-    #[inline(always)]
-    fn at(&self, i: i32, j: i32) -> [i64; 3] {
-        Self::step(
-            Self::step(self.e, self.dx, i64::from(i)),
-            self.dy,
-            i64::from(j),
-        )
-    }
-
-    /// Coverage of a box of `(last_x + 1) × (last_y + 1)` ≤ `SMALL × SMALL` pixels as a bitmask,
-    /// bit `j * SMALL + i` for pixel offset `(i, j)`.
-    #[inline(always)]
-    fn coverage(&self, last_x: i32, last_y: i32) -> u32 {
-        let mut mask = 0u32;
-        let mut row = self.e;
-        for j in 0..=last_y {
-            let mut e = row;
-            for i in 0..=last_x {
-                mask |= u32::from(Self::inside(e)) << (j * SMALL + i);
-                e = Self::step(e, self.dx, 1);
-            }
-            row = Self::step(row, self.dy, 1);
-        }
-        mask
-    }
-}
-
-/// A triangle's interpolation constants, built at its first covered pixel (most triangles of a
-/// dense mesh cover none, and never load their attributes).
+/// A triangle's interpolation constants.
 struct Interp {
     inv_area: f32,
     z: [f32; 3],
@@ -163,30 +46,30 @@ struct Interp {
 
 impl Interp {
     #[inline(always)]
-    fn new<const LIT: bool>(attrs: [&Attrs; 3], area: i64) -> Interp {
+    fn new<const LIT: bool>(attrs: [&Attrs; 3], area: f32) -> Interp {
         let mut n = [Vec3A::ZERO; 3];
         let mut p = [Vec3A::ZERO; 3];
         if LIT {
             for k in 0..3 {
-                n[k] = Vec3A::from(attrs[k].n) * attrs[k].iw;
-                p[k] = Vec3A::from(attrs[k].p) * attrs[k].iw;
+                n[k] = Vec3A::from(attrs[k].n_w);
+                p[k] = Vec3A::from(attrs[k].p_w);
             }
         }
         Interp {
-            inv_area: 1.0 / area as f32,
+            inv_area: 1.0 / area,
             z: [attrs[0].z, attrs[1].z, attrs[2].z],
             n,
             p,
         }
     }
 
-    /// The fragment at a sample with edge values `e`, or `None` beyond the far plane.
+    /// The fragment at a sample with barycentric numerators `e`, or `None` beyond the far plane.
     #[inline(always)]
-    fn fragment<const LIT: bool>(&self, e: [i64; 3], shade: &Shade) -> Option<Fragment> {
+    fn fragment<const LIT: bool>(&self, e: [f32; 3], shade: &Shade) -> Option<Fragment> {
         let l = [
-            e[0] as f32 * self.inv_area,
-            e[1] as f32 * self.inv_area,
-            e[2] as f32 * self.inv_area,
+            e[0] * self.inv_area,
+            e[1] * self.inv_area,
+            e[2] * self.inv_area,
         ];
         let z = l[0] * self.z[0] + l[1] * self.z[1] + l[2] * self.z[2];
         if z > 1.0 || z.is_nan() {
@@ -196,7 +79,7 @@ impl Interp {
         let color = if LIT {
             let n = self.n[0] * l[0] + self.n[1] * l[1] + self.n[2] * l[2];
             let p = self.p[0] * l[0] + self.p[1] * l[1] + self.p[2] * l[2];
-            let f = headlight_factor(n.to_array(), p.to_array());
+            let f = headlight(n, p);
             Rgba8([
                 unorm8(shade.rgb[0] * f),
                 unorm8(shade.rgb[1] * f),
@@ -214,9 +97,55 @@ impl Interp {
     }
 }
 
+/// [`strata_core::material::headlight_factor`] on SIMD vectors.
+#[inline(always)]
+fn headlight(n: Vec3A, p: Vec3A) -> f32 {
+    let (nn, pp, np) = (n.dot(n), p.dot(p), n.dot(p));
+    let denom = (nn * pp).sqrt();
+    let cos = if denom > 0.0 {
+        (np.abs() / denom).min(1.0)
+    } else {
+        0.0
+    };
+    0.25 + 0.75 * cos
+}
+
+/// Shades the covered samples of a micro-triangle — `mask` is its coverage within its bounding
+/// box (see [`Micro::coverage`]) — calling `out(row, pixel, fragment)` for each, in sample order.
+/// Samples beyond the far plane are skipped.
+#[inline(always)]
+pub fn shade_small<const LIT: bool>(
+    t: &Micro,
+    attrs: [&Attrs; 3],
+    mut mask: u32,
+    width: i32,
+    shade: &Shade,
+    mut out: impl FnMut(i32, u32, Fragment),
+) {
+    if mask == 0 {
+        return;
+    }
+    let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
+    let interp = Interp::new::<LIT>(attrs, t.area as f32);
+    let [x0, _, y0, _] = t.bounds;
+    let first = y0 as u32 * width as u32 + x0 as u32;
+    while mask != 0 {
+        let bit = mask.trailing_zeros() as i32;
+        mask &= mask - 1;
+        let (i, j) = (bit % SMALL, bit / SMALL);
+        if let Some(f) = interp.fragment::<LIT>(t.weights(i, j), shade) {
+            out(y0 + j, first + j as u32 * width as u32 + i as u32, f);
+        }
+    }
+}
+
 /// Rasterises one triangle into the rows `rows.0 ..= rows.1` of a `width` × `height` image,
 /// pushing each covered sample into `sink`. Returns the number of fragments pushed.
 #[inline(always)]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the hot loop's inputs, kept as plain values"
+)]
 pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
     pos: [ScreenPos; 3],
     attrs: [&Attrs; 3],
@@ -226,55 +155,54 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
     shade: &Shade,
     sink: &mut S,
 ) -> u32 {
-    let [a, mut b, mut c] = pos;
-    let [aa, mut ab, mut ac] = attrs;
-    let mut area = orient(a, b, c);
-    if area == 0 {
-        return 0;
-    }
-    if area < 0 {
-        std::mem::swap(&mut b, &mut c);
-        std::mem::swap(&mut ab, &mut ac);
-        area = -area;
-    }
-    let Some([x0, x1, by0, by1]) = pixel_bounds(a, b, c, width, height) else {
-        return 0;
+    let mut count = 0u32;
+    let t = match Triangle::new(pos, width, height) {
+        None => return 0,
+        Some(Triangle::Micro(t)) => {
+            let [_, _, by0, by1] = t.bounds;
+            let (y0, y1) = (by0.max(rows.0), by1.min(rows.1));
+            if y0 > y1 {
+                return 0;
+            }
+            // Keep the samples in this strip's rows.
+            let rows_mask =
+                ((1u32 << ((y1 - by0 + 1) * SMALL)) - 1) & !((1u32 << ((y0 - by0) * SMALL)) - 1);
+            shade_small::<LIT>(
+                &t,
+                attrs,
+                t.coverage() & rows_mask,
+                width,
+                shade,
+                |_, pixel, f| {
+                    sink.push(pixel, f);
+                    count += 1;
+                },
+            );
+            return count;
+        }
+        Some(Triangle::Large(t)) => t,
     };
+    let [x0, x1, by0, by1] = t.bounds;
     let (y0, y1) = (by0.max(rows.0), by1.min(rows.1));
     if y0 > y1 {
         return 0;
     }
-    let edges = Edges::new(a, b, c, x0, y0);
-    let (last_x, last_y) = (x1 - x0, y1 - y0);
-    let first = y0 as u32 * width as u32 + x0 as u32;
-    let mut count = 0u32;
-
-    if last_x < SMALL && last_y < SMALL {
-        // Small box (most triangles of a dense mesh): coverage first, attributes only if needed.
-        let mut mask = edges.coverage(last_x, last_y);
-        if mask == 0 {
-            return 0;
-        }
-        let interp = Interp::new::<LIT>([aa, ab, ac], area);
-        while mask != 0 {
-            let bit = mask.trailing_zeros() as i32;
-            mask &= mask - 1;
-            let (i, j) = (bit % SMALL, bit / SMALL);
-            let pixel = first + j as u32 * width as u32 + i as u32;
-            count += emit::<S, LIT>(&interp, &edges, edges.at(i, j), pixel, shade, sink);
-        }
-        return count;
-    }
 
     // Large box: compute each row's covered span exactly, then emit without tests.
-    let interp = Interp::new::<LIT>([aa, ab, ac], area);
-    let mut row = edges.e;
-    let mut row_first = first;
-    for _ in 0..=last_y {
-        if let Some((lo, hi)) = span(row, edges.dx, last_x) {
+    let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
+    let interp = Interp::new::<LIT>(attrs, t.area as f32);
+    let edges = &t.edges;
+    let last_x = x1 - x0;
+    let mut row = edges.at(0, y0 - by0);
+    let mut row_first = y0 as u32 * width as u32 + x0 as u32;
+    for _ in y0..=y1 {
+        if let Some((lo, hi)) = edges.span(row, last_x) {
             let mut e = Edges::step(row, edges.dx, i64::from(lo));
             for i in lo..=hi {
-                count += emit::<S, LIT>(&interp, &edges, e, row_first + i as u32, shade, sink);
+                if let Some(f) = interp.fragment::<LIT>(edges.weights(e), shade) {
+                    sink.push(row_first + i as u32, f);
+                    count += 1;
+                }
                 e = Edges::step(e, edges.dx, 1);
             }
         }
@@ -284,53 +212,10 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
     count
 }
 
-/// Shades the covered sample with biased edge values `e` and pushes it; 1 if pushed, 0 if the
-/// sample lies beyond the far plane.
-#[inline(always)]
-fn emit<S: FragmentSink, const LIT: bool>(
-    interp: &Interp,
-    edges: &Edges,
-    e: [i64; 3],
-    pixel: u32,
-    shade: &Shade,
-    sink: &mut S,
-) -> u32 {
-    match interp.fragment::<LIT>(edges.weights(e), shade) {
-        Some(f) => {
-            sink.push(pixel, f);
-            1
-        }
-        None => 0,
-    }
-}
-
-/// The covered pixel offsets `lo..=hi` (relative to the box's first column, within `0..=last`) of
-/// a row whose biased edge values at the first column are `row`: the `i` with
-/// `row[k] + dx[k]·i ≥ 0` for every edge.
-#[inline(always)]
-fn span(row: [i64; 3], dx: [i64; 3], last: i32) -> Option<(i32, i32)> {
-    let (mut lo, mut hi) = (0i64, i64::from(last));
-    for k in 0..3 {
-        let (e, s) = (row[k], dx[k]);
-        if s > 0 {
-            if e < 0 {
-                lo = lo.max((-e + s - 1) / s);
-            }
-        } else if s < 0 {
-            if e < 0 {
-                return None;
-            }
-            hi = hi.min(e / -s);
-        } else if e < 0 {
-            return None;
-        }
-    }
-    (lo <= hi).then_some((lo as i32, hi as i32))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vertex::ONE;
 
     struct Collect(Vec<(u32, Fragment)>);
     impl FragmentSink for Collect {
@@ -349,8 +234,8 @@ mod tests {
     const ATTRS: Attrs = Attrs {
         z: 0.5,
         iw: 1.0,
-        p: [0.0, 0.0, -1.0],
-        n: [0.0, 0.0, 1.0],
+        p_w: [0.0, 0.0, -1.0],
+        n_w: [0.0, 0.0, 1.0],
     };
 
     const SHADE: Shade = Shade {
@@ -451,6 +336,26 @@ mod tests {
         scan_triangle::<_, false>([a, b, c], [&ATTRS; 3], (2, 3), 8, 8, &SHADE, &mut sink);
         assert!(sink.0.iter().all(|(p, _)| (16..32).contains(p)));
         assert_eq!(sink.0.len(), 5 + 4); // x + y < 8 at centres, hypotenuse (a right edge) excluded
+    }
+
+    #[test]
+    fn simd_headlight_matches_the_reference_formula() {
+        use strata_core::material::headlight_factor;
+        let cases = [
+            ([0.0, 0.0, 1.0], [0.0, 0.0, -2.0]),
+            ([0.3, -0.4, 0.5], [0.1, -0.2, -1.0]),
+            ([1.0, 0.0, 0.0], [0.0, 0.0, -2.0]),
+            ([0.0; 3], [0.0, 0.0, -1.0]),
+            ([1e-20, 2e-20, 0.0], [3.0, 4.0, -5.0]),
+        ];
+        for (n, p) in cases {
+            let simd = headlight(Vec3A::from(n), Vec3A::from(p));
+            let reference = headlight_factor(n, p);
+            assert!(
+                (simd - reference).abs() <= 1e-6,
+                "{n:?} {p:?}: {simd} vs {reference}"
+            );
+        }
     }
 
     #[test]

@@ -1,32 +1,63 @@
-//! Triangle setup and binning: cull, clip, and sort triangles into the strips they touch.
+//! Triangle setup and binning: cull, clip, rasterise micro-triangles, bin the rest.
 //!
 //! Work is cut into [`Chunk`]s of consecutive triangles of one object (at most
 //! [`crate::RasterConfig::chunk_triangles`]); chunks are set up in parallel, each by one worker
-//! that owns the chunk's bins. A chunk's output:
+//! that owns the chunk's output:
 //!
 //! ```text
-//! bins[s]   : Vec<u32>                 triangle references for strip s, in primitive order
-//!             r < CLIPPED              → triangle `triangles.start + r` of the object, vertices from
-//!                                        the frame's vertex array
-//!             r & CLIPPED != 0         → clipped[r & !CLIPPED], a piece made by the clipper
+//! frags[s]  : Vec<PixelFragment>       fragments of micro-triangles in strip s, primitive order
+//! bins[s]   : Vec<u64>                 triangles for the scan of strip s, primitive order:
+//!             low 32 bits r            r < CLIPPED → triangle `triangles.start + r` of the object,
+//!                                        vertices from the frame's vertex arrays;
+//!                                      r & CLIPPED != 0 → clipped[r & !CLIPPED], a piece made by
+//!                                        the clipper
+//!             high 32 bits             how many of frags[s] precede this triangle
 //! clipped   : Vec<ClippedTriangle>     projected pieces of triangles that crossed the near plane or
 //!                                      the guard band, in primitive order
 //! ```
 //!
 //! A triangle is culled when its three vertices lie outside the same view-volume plane, when its
-//! fixed-point area is zero, or when its bounding box contains no pixel centre. Nothing here
-//! allocates per triangle: bins and the clipped list keep their capacity from frame to frame.
-
-use std::ops::Range;
-
-use glam::{Mat4, Vec3};
+//! fixed-point area is zero, or when it covers no pixel centre.
+//!
+//! **Micro-triangles** — bounding box of at most [`crate::coverage::SMALL`]² pixel centres, most
+//! triangles of a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
+//! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
+//! are shaded at once, their fragments appended to the strip lists as 16-byte records. Setup has
+//! their vertices in registers already; binning them instead would make the scan load and set up
+//! every one again. The scan of a strip replays the records into the store, interleaved with the
+//! binned triangles by the cursor in each bin entry, so every pixel still receives its fragments
+//! in primitive order.
+//!
+//! Nothing here allocates per triangle: all lists keep their capacity from frame to frame.
 
 use crate::clip::{ClipVertex, Polygon};
 use crate::frame::DrawObject;
-use crate::vertex::{Attrs, HALF, ONE, SUBPIXEL_BITS, ScreenPos, Viewport, outcode};
+use std::ops::Range;
+
+use strata_core::Fragment;
+
+use crate::coverage::{Triangle, orient, pixel_bounds};
+use crate::scan::{Shade, shade_small};
+use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, outcode};
 
 /// Tag of a bin entry that refers to a clipped piece.
 pub const CLIPPED: u32 = 1 << 31;
+
+/// A bin entry: triangle reference and fragment-record cursor (see the module docs).
+#[inline(always)]
+pub fn bin_entry(reference: u32, cursor: usize) -> u64 {
+    u64::from(reference) | ((cursor as u64) << 32)
+}
+
+/// A fragment with its row-major pixel index: what micro-triangle setup hands to the scan.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
+pub struct PixelFragment {
+    /// Row-major pixel index.
+    pub pixel: u32,
+    /// The fragment.
+    pub fragment: Fragment,
+}
 
 /// What setup did with the frame's triangles.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -39,7 +70,11 @@ pub struct SetupStats {
     pub culled_empty: u64,
     /// Sent through the clipper (crossing the near plane or the guard band).
     pub clipped: u64,
-    /// Triangles (or clipped pieces) binned; one per strip they touch.
+    /// Micro-triangles rasterised in setup.
+    pub micro_triangles: u64,
+    /// Fragments of micro-triangles.
+    pub micro_fragments: u64,
+    /// Triangles (or clipped pieces) binned for the scan; one per strip they touch.
     pub bin_entries: u64,
 }
 
@@ -50,6 +85,8 @@ impl SetupStats {
         self.culled_outside += o.culled_outside;
         self.culled_empty += o.culled_empty;
         self.clipped += o.clipped;
+        self.micro_triangles += o.micro_triangles;
+        self.micro_fragments += o.micro_fragments;
         self.bin_entries += o.bin_entries;
     }
 }
@@ -70,8 +107,10 @@ pub struct Chunk {
     pub object: usize,
     /// The object's triangles this chunk covers.
     pub triangles: Range<usize>,
-    /// Per-strip triangle references; see the module docs.
-    pub bins: Vec<Vec<u32>>,
+    /// Per-strip bin entries; see the module docs.
+    pub bins: Vec<Vec<u64>>,
+    /// Per-strip micro-triangle fragments.
+    pub frags: Vec<Vec<PixelFragment>>,
     /// Clipped pieces.
     pub clipped: Vec<ClippedTriangle>,
     /// What setup did.
@@ -88,45 +127,25 @@ impl Chunk {
         for b in &mut self.bins {
             b.clear();
         }
+        self.frags.resize_with(strips, Vec::new);
+        self.frags.truncate(strips);
+        for f in &mut self.frags {
+            f.clear();
+        }
         self.clipped.clear();
         self.stats = SetupStats::default();
     }
 }
 
-/// Twice the signed area of `abc` in fixed point (y down: positive for clockwise on screen).
-#[inline(always)]
-pub fn orient(a: ScreenPos, b: ScreenPos, c: ScreenPos) -> i64 {
-    i64::from(b.x - a.x) * i64::from(c.y - a.y) - i64::from(c.x - a.x) * i64::from(b.y - a.y)
-}
-
-/// The pixels whose centres the triangle's bounding box contains, clamped to the image:
-/// `[x0, x1, y0, y1]` inclusive, or `None` if there are none.
-#[inline(always)]
-pub fn pixel_bounds(
-    a: ScreenPos,
-    b: ScreenPos,
-    c: ScreenPos,
-    width: i32,
-    height: i32,
-) -> Option<[i32; 4]> {
-    let min_x = a.x.min(b.x).min(c.x);
-    let max_x = a.x.max(b.x).max(c.x);
-    let min_y = a.y.min(b.y).min(c.y);
-    let max_y = a.y.max(b.y).max(c.y);
-    // First centre at or after the minimum (ceil), last at or before the maximum (floor);
-    // arithmetic shifts floor for negative values too.
-    let x0 = ((min_x - HALF + ONE - 1) >> SUBPIXEL_BITS).max(0);
-    let x1 = ((max_x - HALF) >> SUBPIXEL_BITS).min(width - 1);
-    let y0 = ((min_y - HALF + ONE - 1) >> SUBPIXEL_BITS).max(0);
-    let y1 = ((max_y - HALF) >> SUBPIXEL_BITS).min(height - 1);
-    (x0 <= x1 && y0 <= y1).then_some([x0, x1, y0, y1])
-}
-
-/// The frame-wide inputs of setup.
+/// The inputs of setup besides the vertex arrays.
 #[derive(Clone, Copy, Debug)]
 pub struct SetupContext<'a> {
-    /// Eye → clip, to rebuild clip positions for clipping.
-    pub projection: &'a Mat4,
+    /// The chunk's object's matrices, to recompute eye-space vertices for clipping.
+    pub transform: &'a ObjectTransform,
+    /// True if the object is lit (its normals matter).
+    pub lit: bool,
+    /// The object's shading constants.
+    pub shade: &'a Shade,
     /// Image size and guard band.
     pub viewport: &'a Viewport,
     /// `log2` of the strip height.
@@ -144,6 +163,21 @@ pub fn setup_chunk(
     attrs: &[Attrs],
     cx: &SetupContext<'_>,
 ) {
+    if cx.lit {
+        setup_chunk_impl::<true>(chunk, draw, screen, codes, attrs, cx);
+    } else {
+        setup_chunk_impl::<false>(chunk, draw, screen, codes, attrs, cx);
+    }
+}
+
+fn setup_chunk_impl<const LIT: bool>(
+    chunk: &mut Chunk,
+    draw: &DrawObject<'_>,
+    screen: &[ScreenPos],
+    codes: &[u8],
+    attrs: &[Attrs],
+    cx: &SetupContext<'_>,
+) {
     let vp = cx.viewport;
     let (w, h) = (vp.width as i32, vp.height as i32);
     let shift = cx.strip_shift;
@@ -151,13 +185,14 @@ pub fn setup_chunk(
         triangles: chunk.triangles.len() as u64,
         ..SetupStats::default()
     };
-    let bins = &mut chunk.bins;
-    let mut bin = |r: u32, y0: i32, y1: i32, stats: &mut SetupStats| {
-        for s in (y0 >> shift)..=(y1 >> shift) {
-            bins[s as usize].push(r);
-            stats.bin_entries += 1;
-        }
-    };
+    let (bins, frags) = (&mut chunk.bins, &mut chunk.frags);
+    let mut bin =
+        |r: u32, y0: i32, y1: i32, frags: &[Vec<PixelFragment>], stats: &mut SetupStats| {
+            for s in (y0 >> shift)..=(y1 >> shift) {
+                bins[s as usize].push(bin_entry(r, frags[s as usize].len()));
+                stats.bin_entries += 1;
+            }
+        };
     for (t, tri) in draw.triangles[chunk.triangles.clone()].iter().enumerate() {
         let [i0, i1, i2] = tri.map(|i| i as usize);
         let (o0, o1, o2) = (codes[i0], codes[i1], codes[i2]);
@@ -168,11 +203,11 @@ pub fn setup_chunk(
         if (o0 | o1 | o2) & outcode::CLIP != 0 {
             stats.clipped += 1;
             let cv = |i: usize| {
-                let p = Vec3::from(attrs[i].p);
+                let (p, n) = cx.transform.eye(draw.positions[i], draw.normals[i], cx.lit);
                 ClipVertex {
-                    c: *cx.projection * p.extend(1.0),
+                    c: cx.transform.projection * p.extend(1.0),
                     p,
-                    n: Vec3::from(attrs[i].n),
+                    n,
                 }
             };
             let poly = Polygon::triangle([cv(i0), cv(i1), cv(i2)]).clip_near_and_guard(vp.guard);
@@ -181,12 +216,7 @@ pub fn setup_chunk(
                 for (k, q) in piece.iter().enumerate() {
                     let (x, y, z, iw) = vp.project(q.c);
                     clipped.pos[k] = ScreenPos { x, y };
-                    clipped.attrs[k] = Attrs {
-                        z,
-                        iw,
-                        p: q.p.to_array(),
-                        n: q.n.to_array(),
-                    };
+                    clipped.attrs[k] = Attrs::new(z, iw, q.p, q.n);
                 }
                 let [a, b, c] = clipped.pos;
                 if orient(a, b, c) == 0 {
@@ -195,20 +225,39 @@ pub fn setup_chunk(
                 if let Some([_, _, y0, y1]) = pixel_bounds(a, b, c, w, h) {
                     let r = CLIPPED | chunk.clipped.len() as u32;
                     chunk.clipped.push(clipped);
-                    bin(r, y0, y1, &mut stats);
+                    bin(r, y0, y1, frags, &mut stats);
                 }
             }
             continue;
         }
-        let (a, b, c) = (screen[i0], screen[i1], screen[i2]);
-        if orient(a, b, c) == 0 {
+        let tri = match Triangle::new([screen[i0], screen[i1], screen[i2]], w, h) {
+            None => {
+                stats.culled_empty += 1;
+                continue;
+            }
+            Some(Triangle::Large(tri)) => {
+                bin(t as u32, tri.bounds[2], tri.bounds[3], frags, &mut stats);
+                continue;
+            }
+            Some(Triangle::Micro(tri)) => tri,
+        };
+        let mask = tri.coverage();
+        if mask == 0 {
             stats.culled_empty += 1;
             continue;
         }
-        match pixel_bounds(a, b, c, w, h) {
-            Some([_, _, y0, y1]) => bin(t as u32, y0, y1, &mut stats),
-            None => stats.culled_empty += 1,
-        }
+        stats.micro_triangles += 1;
+        shade_small::<LIT>(
+            &tri,
+            [&attrs[i0], &attrs[i1], &attrs[i2]],
+            mask,
+            w,
+            cx.shade,
+            |row, pixel, fragment| {
+                frags[(row >> shift) as usize].push(PixelFragment { pixel, fragment });
+            },
+        );
     }
+    stats.micro_fragments = chunk.frags.iter().map(|f| f.len() as u64).sum();
     chunk.stats = stats;
 }

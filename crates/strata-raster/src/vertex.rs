@@ -8,14 +8,19 @@
 //! ScreenPos  x, y : i32    window position in 24.8 fixed point (1/256 pixel), y down, row 0 on top
 //! outcode    u8            which clip planes and guard band the vertex lies outside of
 //! Attrs      z    : f32    window depth 0.5·z_ndc + 0.5
-//!            iw   : f32    1 / w_clip, for perspective-correct interpolation
-//!            p    : f32×3  eye-space position  (headlight: L = -p/|p|; clipping recomputes clip = P·p)
-//!            n    : f32×3  eye-space normal, unnormalised (inverse-transpose of the model-view)
+//!            iw   : f32    1 / w_clip
+//!            p_w  : f32×3  eye-space position / w_clip   (headlight: L = -p/|p|)
+//!            n_w  : f32×3  eye-space normal / w_clip, unnormalised (inverse-transpose of the
+//!                          model-view)
 //! ```
 //!
-//! `x, y, z, iw` are meaningful only for
-//! vertices in front of the near plane and inside the guard band; triangles touching any other
-//! vertex go through the clipper, which projects its own vertices with the same [`Viewport::project`].
+//! Position and normal are stored divided by `w`: perspective-correct interpolation weights each
+//! vertex's attribute by `1/w`, and these two are only ever used that way.
+//!
+//! Screen position and attributes are meaningful only
+//! for vertices in front of the near plane and inside the guard band; triangles touching any other
+//! vertex go through the clipper, which recomputes eye-space values from the object-space vertex
+//! and projects its own vertices with the same [`Viewport::project`].
 //!
 //! Snapping to 1/256 pixel *per vertex* is what makes the rasterizer watertight: two triangles
 //! sharing a vertex share its exact integer position, so their common edge has one integer edge
@@ -76,10 +81,23 @@ pub struct Attrs {
     pub z: f32,
     /// `1 / w_clip`.
     pub iw: f32,
-    /// Eye-space position.
-    pub p: [f32; 3],
-    /// Eye-space normal (unnormalised).
-    pub n: [f32; 3],
+    /// Eye-space position divided by `w_clip`.
+    pub p_w: [f32; 3],
+    /// Eye-space normal (unnormalised) divided by `w_clip`.
+    pub n_w: [f32; 3],
+}
+
+impl Attrs {
+    /// The attributes of an eye-space position `p` and normal `n` projected to `z` and `iw`.
+    #[inline]
+    pub fn new(z: f32, iw: f32, p: Vec3, n: Vec3) -> Attrs {
+        Attrs {
+            z,
+            iw,
+            p_w: (p * iw).to_array(),
+            n_w: (n * iw).to_array(),
+        }
+    }
 }
 
 /// Image size and the guard band, in the units the stages need.
@@ -172,6 +190,18 @@ pub struct ObjectTransform {
 }
 
 impl ObjectTransform {
+    /// Eye-space position and normal of an object-space vertex.
+    #[inline]
+    pub fn eye(&self, position: [f32; 3], normal: [f32; 3], with_normals: bool) -> (Vec3, Vec3) {
+        let p = self.model_view.transform_point3(Vec3::from(position));
+        let n = if with_normals {
+            self.normal * Vec3::from(normal)
+        } else {
+            Vec3::ZERO
+        };
+        (p, n)
+    }
+
     /// Matrices for one object.
     pub fn new(view: Mat4, model: Mat4, projection: Mat4) -> Self {
         let model_view = view * model;
@@ -204,24 +234,17 @@ pub fn transform_vertices(
     debug_assert_eq!(positions.len(), codes.len());
     debug_assert_eq!(positions.len(), attrs.len());
     for i in 0..positions.len() {
-        let p = t.model_view.transform_point3(Vec3::from(positions[i]));
+        let (p, n) = t.eye(positions[i], normals[i], with_normals);
         let c = t.projection * p.extend(1.0);
         let o = vp.outcode(c);
         codes[i] = o;
-        let a = &mut attrs[i];
-        a.p = p.to_array();
-        a.n = if with_normals {
-            (t.normal * Vec3::from(normals[i])).to_array()
-        } else {
-            [0.0; 3]
-        };
         if o & outcode::CLIP == 0 {
             let (x, y, z, iw) = vp.project(c);
             screen[i] = ScreenPos { x, y };
-            (a.z, a.iw) = (z, iw);
+            attrs[i] = Attrs::new(z, iw, p, n);
         } else {
             screen[i] = ScreenPos::default();
-            (a.z, a.iw) = (0.0, 0.0);
+            attrs[i] = Attrs::default();
         }
     }
 }

@@ -441,8 +441,8 @@ fn headlight_uses_the_perspective_correct_position() {
                 let p = o + d * t;
                 let cos = n.dot(-p.normalize()).abs();
                 let k = 0.25 + 0.75 * cos;
-                for ch in 0..3 {
-                    let want = rgb[ch] * k * 255.0;
+                for (ch, c) in rgb.iter().enumerate() {
+                    let want = c * k * 255.0;
                     assert!(
                         (f64::from(f.color.0[ch]) - want).abs() <= 0.51,
                         "({x}, {y}) channel {ch}: {} vs {want:.2}",

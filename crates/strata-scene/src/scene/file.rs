@@ -447,7 +447,7 @@ impl Resolver<'_> {
                 .into_iter()
                 .map(|p| LoadedPart {
                     name: p.name,
-                    mesh: Arc::new(p.mesh),
+                    mesh: Arc::new(p.mesh.locality_ordered()),
                     transform: p.transform,
                     base_color: p.base_color,
                 })
@@ -477,7 +477,7 @@ impl Resolver<'_> {
         })?;
         let parts = Arc::new(vec![LoadedPart {
             name: name.to_owned(),
-            mesh: Arc::new(mesh),
+            mesh: Arc::new(mesh.locality_ordered()),
             transform: Mat4::IDENTITY,
             base_color: None,
         }]);
