@@ -12,8 +12,9 @@ use clap::{Parser, Subcommand};
 ///
 /// SCENE arguments are a scene file (TOML, see `strata scenes --print slabs` for an example) or
 /// the name of a built-in scene (`strata scenes` lists them). Mesh files named by a scene are
-/// found next to the scene file, then in the directories of STRATA_MODEL_PATH (colon-separated),
-/// then in ~/.local/share/strata/models (where scripts/fetch-models puts them).
+/// found next to the scene file, then in --models directories, then in the directories of
+/// STRATA_MODEL_PATH (colon-separated), then in $XDG_DATA_HOME/strata/models (by default
+/// ~/.local/share/strata/models, where scripts/fetch-models puts them).
 #[derive(Parser, Debug)]
 #[command(name = "strata", version, about, long_about, propagate_version = true)]
 struct Cli {
@@ -34,7 +35,23 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) {
+                e.exit();
+            }
+            // clap renders "error: …" plus a usage hint; every strata error starts "strata: ".
+            eprint!("strata: {}", e.render());
+            return ExitCode::from(2);
+        }
+    };
     let result = match cli.command {
         Command::Render(a) => cmd::render::run(a),
         Command::Demo(a) => cmd::demo::run(a),
@@ -44,9 +61,16 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("strata: error: {e}");
+            let mut shown = e.to_string();
+            eprintln!("strata: error: {shown}");
+            // Print a cause only if the messages so far do not already say it (library errors
+            // often include their source's text).
             for cause in e.chain().skip(1) {
-                eprintln!("  caused by: {cause}");
+                let text = cause.to_string();
+                if !shown.contains(&text) {
+                    eprintln!("  caused by: {text}");
+                    shown.push_str(&text);
+                }
             }
             ExitCode::from(2)
         }

@@ -9,6 +9,17 @@ pub(crate) fn ms(d: std::time::Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
+/// Bytes a stored fragment costs: the memory holding this frame's data (per-pixel buffers
+/// included) over the fragments stored. Allocated but unused capacity is reported apart.
+pub(crate) fn bytes_per_fragment(r: &FrameResult) -> f64 {
+    let stored = r.capture.fragments_stored;
+    if stored == 0 {
+        0.0
+    } else {
+        r.used_memory_bytes as f64 / stored as f64
+    }
+}
+
 /// The statistics of one rendered frame, as written by `render --stats` and `demo`.
 pub(crate) fn stats_json(
     scene: &Scene,
@@ -47,7 +58,8 @@ pub(crate) fn stats_json(
         "depth_histogram": depth.trimmed_histogram(),
         "dropped_fragments": r.capture.dropped,
         "memory_bytes": r.memory_bytes,
-        "bytes_per_fragment": if stored > 0 { r.memory_bytes as f64 / stored as f64 } else { 0.0 },
+        "used_memory_bytes": r.used_memory_bytes,
+        "bytes_per_fragment": bytes_per_fragment(r),
         "pool_regrows": r.capture.regrows,
         "setup": {
             "triangles": s.triangles,
@@ -82,8 +94,10 @@ pub(crate) fn summary_line(scene: &Scene, r: &FrameResult) -> String {
         .collect();
     line.push_str(&passes.join(", "));
     line.push_str(&format!(
-        "; {:.1} MiB",
-        r.memory_bytes as f64 / (1 << 20) as f64
+        "; memory {:.1} MiB used of {:.1} MiB allocated ({:.1} B/fragment)",
+        r.used_memory_bytes as f64 / (1 << 20) as f64,
+        r.memory_bytes as f64 / (1 << 20) as f64,
+        bytes_per_fragment(r)
     ));
     if r.capture.dropped > 0 {
         line.push_str(&format!(

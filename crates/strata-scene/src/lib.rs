@@ -30,6 +30,15 @@ pub use search_path::SearchPath;
 /// files, so a typo in a path says "no such file" rather than "no such built-in scene".
 pub fn open_scene(spec: &str, search: &SearchPath) -> Result<Scene, SceneError> {
     let path = Path::new(spec);
+    if path.is_dir() {
+        return Err(SceneError::new(
+            spec,
+            None,
+            SceneErrorKind::Invalid(
+                "is a directory, not a scene file (give the .toml file inside it)".into(),
+            ),
+        ));
+    }
     let looks_like_path =
         spec.contains(std::path::MAIN_SEPARATOR) || spec.contains('/') || spec.ends_with(".toml");
     if path.is_file() || looks_like_path {

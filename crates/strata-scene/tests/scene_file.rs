@@ -944,8 +944,6 @@ fn check_frame_accepts_existing_frames_only() {
 /// Every other scene error names its origin as the file path or `built-in scene 'x'`;
 /// `Scene::check_frame` uses the scene's short name instead.
 #[test]
-#[ignore = "bug: Scene::check_frame names the scene by its stem ('frames'), not the file path or \
-            \"built-in scene 'slabs'\" (scene/mod.rs, check_frame uses &self.name as origin)"]
 fn check_frame_errors_name_the_scene_origin() {
     let dir = temp_dir();
     let path = write(

@@ -22,5 +22,5 @@ pub mod abuffer;
 pub mod method;
 pub mod registry;
 
-pub use method::{CaptureReport, FrameResult, Method, render_frame};
+pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
 pub use registry::{METHODS, MethodOptions, PoolCapacity, UnknownMethod, create};

@@ -5,6 +5,40 @@ use std::time::Instant;
 use strata_core::{DeepFrame, DeepFrameError, DepthStats, PassTimings, Rgb8Image};
 use strata_raster::{FrameInput, Rasterizer, SetupStats};
 
+/// Why a method could not render a frame.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum StoreError {
+    /// A buffer could not be allocated.
+    #[error("cannot allocate {what} ({:.1} GiB): {hint}", *.bytes as f64 / (1u64 << 30) as f64)]
+    OutOfMemory {
+        /// Which buffer.
+        what: String,
+        /// How many bytes it needed.
+        bytes: u64,
+        /// What to do about it.
+        hint: &'static str,
+    },
+}
+
+/// A vector of `n` default values, allocated fallibly and filled in parallel.
+pub(crate) fn try_alloc<T: Default + Send>(
+    n: usize,
+    what: impl FnOnce() -> String,
+    hint: &'static str,
+) -> Result<Vec<T>, StoreError> {
+    use rayon::prelude::*;
+    let mut v = Vec::new();
+    v.try_reserve_exact(n)
+        .map_err(|_| StoreError::OutOfMemory {
+            what: what(),
+            bytes: (n as u64).saturating_mul(size_of::<T>() as u64),
+            hint,
+        })?;
+    v.par_extend((0..n).into_par_iter().map(|_| T::default()));
+    Ok(v)
+}
+
 /// What a capture pass did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CaptureReport {
@@ -25,8 +59,9 @@ pub trait Method: Send {
     /// The name it is selected by (`--method`).
     fn name(&self) -> &'static str;
 
-    /// Resets per-pixel state for a `width` × `height` frame (the "clear" pass).
-    fn clear(&mut self, width: u32, height: u32);
+    /// Resets per-pixel state for a `width` × `height` frame (the "clear" pass), allocating
+    /// buffers on the first frame or when the size changes.
+    fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError>;
 
     /// Rasterises `input` into the store (the "capture" pass). Implementations record their
     /// stages as `capture.<stage>` in `timings`.
@@ -35,7 +70,7 @@ pub trait Method: Send {
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
-    ) -> CaptureReport;
+    ) -> Result<CaptureReport, StoreError>;
 
     /// Sorts and composites every pixel onto `background` (the "resolve" pass).
     fn resolve(&mut self, background: [f32; 3]) -> Rgb8Image;
@@ -45,6 +80,11 @@ pub trait Method: Send {
 
     /// Bytes of the buffers the method allocated for this frame (whether used or not).
     fn memory_bytes(&self) -> u64;
+
+    /// Bytes of those buffers that hold this frame's data (a node pool's used nodes, say).
+    fn used_memory_bytes(&self) -> u64 {
+        self.memory_bytes()
+    }
 
     /// The captured fragments as a DeepFrame; `None` for methods that do not keep fragments.
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>>;
@@ -63,6 +103,8 @@ pub struct FrameResult {
     pub depth: Option<DepthStats>,
     /// Bytes of the method's buffers.
     pub memory_bytes: u64,
+    /// Bytes of them holding this frame's data.
+    pub used_memory_bytes: u64,
 }
 
 /// Runs clear → capture → resolve and times each pass.
@@ -73,15 +115,15 @@ pub fn render_frame(
     raster: &mut Rasterizer,
     input: &FrameInput<'_>,
     background: [f32; 3],
-) -> FrameResult {
+) -> Result<FrameResult, StoreError> {
     let mut timings = PassTimings::new();
     let start = Instant::now();
-    method.clear(input.width, input.height);
+    method.clear(input.width, input.height)?;
     timings.add("clear", start.elapsed());
 
     let start = Instant::now();
     let mut stages = PassTimings::new();
-    let capture = method.capture(raster, input, &mut stages);
+    let capture = method.capture(raster, input, &mut stages)?;
     timings.add("capture", start.elapsed());
     timings.extend(&stages);
 
@@ -89,11 +131,12 @@ pub fn render_frame(
     let image = method.resolve(background);
     timings.add("resolve", start.elapsed());
 
-    FrameResult {
+    Ok(FrameResult {
         image,
         timings,
         capture,
         depth: method.depth_stats(),
         memory_bytes: method.memory_bytes(),
-    }
+        used_memory_bytes: method.used_memory_bytes(),
+    })
 }

@@ -45,7 +45,8 @@ fn render(
     let input = FrameInput::from_scene(scene, frame);
     let mut raster = Rasterizer::default();
     let result = pool(threads)
-        .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background));
+        .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))
+        .expect("render");
     let deep = method
         .deep_frame()
         .expect("exact method")
@@ -272,7 +273,7 @@ fn method_is_reusable_across_frames_and_sizes() {
     for (name, w, h) in [("slabs", 160, 90), ("overlap", 64, 48), ("slabs", 160, 90)] {
         let s = scene(name, w, h);
         let input = FrameInput::from_scene(&s, 0);
-        let r = render_frame(method.as_mut(), &mut raster, &input, s.background);
+        let r = render_frame(method.as_mut(), &mut raster, &input, s.background).expect("render");
         assert_eq!(r.image, brute_force(&s, 0), "{name} {w}x{h}");
     }
     assert_eq!(method.name(), "abuffer");

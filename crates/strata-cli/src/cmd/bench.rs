@@ -9,7 +9,8 @@ use serde_json::{Value, json};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::{FrameResult, MethodOptions, PoolCapacity, render_frame};
 
-use crate::options::{default_threads, open_scene, search_path, thread_pool};
+use crate::options::{check_output, default_threads, open_scene, search_path, thread_pool};
+use crate::report::bytes_per_fragment;
 
 /// Time each pass of a method on a scene: median, min and max over repeated runs.
 ///
@@ -108,6 +109,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
     } else {
         args.threads.clone()
     };
+    // Check everything that can be checked before minutes of measuring.
+    if threads.contains(&0) {
+        bail!("--threads must be at least 1 (got {threads:?})");
+    }
+    if let Some(path) = &args.json {
+        check_output(path)?;
+    }
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
@@ -135,7 +143,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let mut last = None;
         for run in 0..args.warmup + args.runs {
             let r = pool
-                .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background));
+                .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))?;
             if run >= args.warmup {
                 samples.add(&r);
             }
@@ -147,16 +155,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let (total_med, total_min, total_max) = stats(&samples.totals);
         println!();
         println!(
-            "threads {n}: {fragments} fragments, {} covered pixels, depth max {} mean {:.2}, memory {:.1} MiB = {:.1} B/fragment{}",
+            "threads {n}: {fragments} fragments, {} covered pixels, depth max {} mean {:.2}, memory {:.1} MiB used of {:.1} MiB allocated = {:.1} B/fragment{}",
             depth.covered_pixels(),
             depth.max_depth_complexity(),
             depth.mean_depth_complexity(),
+            last.used_memory_bytes as f64 / (1 << 20) as f64,
             last.memory_bytes as f64 / (1 << 20) as f64,
-            if fragments > 0 {
-                last.memory_bytes as f64 / fragments as f64
-            } else {
-                0.0
-            },
+            bytes_per_fragment(&last),
             if last.capture.dropped > 0 {
                 format!(", {} DROPPED", last.capture.dropped)
             } else {
@@ -197,7 +202,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "fragments": fragments,
             "fragments_per_second": fps,
             "memory_bytes": last.memory_bytes,
-            "bytes_per_fragment": if fragments > 0 { last.memory_bytes as f64 / fragments as f64 } else { 0.0 },
+            "used_memory_bytes": last.used_memory_bytes,
+            "bytes_per_fragment": bytes_per_fragment(&last),
             "dropped_fragments": last.capture.dropped,
             "max_depth_complexity": depth.max_depth_complexity(),
             "covered_pixels": depth.covered_pixels(),

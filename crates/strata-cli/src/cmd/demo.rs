@@ -57,7 +57,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let mut method = strata_stores::create(&args.render.method, &args.render.method_options())?;
         let input = FrameInput::from_scene(&scene, 0);
         let result =
-            pool.install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background));
+            pool.install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))?;
         // Check the exchange format on every demo frame: the DeepFrame must resolve to the same image.
         let deep_frame_ok = match method.deep_frame() {
             Some(df) => df?.resolve(scene.background) == result.image,

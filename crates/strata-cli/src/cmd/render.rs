@@ -6,7 +6,7 @@ use anyhow::{Context, Result};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::render_frame;
 
-use crate::options::{RenderOptions, open_scene, thread_pool};
+use crate::options::{RenderOptions, check_output, open_scene, thread_pool};
 use crate::report::{stats_json, summary_line};
 
 /// Render one frame of a scene to a PNG.
@@ -34,8 +34,23 @@ pub(crate) struct Args {
     pub(crate) render: RenderOptions,
 }
 
+/// The scene's short name as a scene would report it: a file's stem, or the built-in's name.
+fn scene_stem(spec: &str) -> String {
+    let p = std::path::Path::new(spec);
+    p.file_stem()
+        .map_or_else(|| spec.to_owned(), |s| s.to_string_lossy().into_owned())
+}
+
 /// Runs `strata render`.
 pub(crate) fn run(args: Args) -> Result<()> {
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("{}.png", scene_stem(&args.scene))));
+    check_output(&out)?;
+    if let Some(stats) = &args.stats {
+        check_output(stats)?;
+    }
     let scene = open_scene(&args.scene, &args.render.search_path())?;
     scene.check_frame(args.frame)?;
     let mut method = strata_stores::create(&args.render.method, &args.render.method_options())?;
@@ -43,11 +58,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let input = FrameInput::from_scene(&scene, args.frame);
     let mut raster = Rasterizer::default();
     let result =
-        pool.install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background));
-
-    let out = args
-        .out
-        .unwrap_or_else(|| PathBuf::from(format!("{}.png", scene.name)));
+        pool.install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))?;
     result.image.write_png(&out)?;
     if let Some(path) = &args.stats {
         let json = stats_json(

@@ -110,7 +110,7 @@ pub fn load(name: &str, search: &SearchPath) -> Result<Scene, SceneError> {
     find(name)
         .ok_or_else(|| {
             SceneError::new(
-                "strata",
+                name,
                 None,
                 SceneErrorKind::UnknownBuiltin {
                     what: "scene",

@@ -258,6 +258,7 @@ impl Resolver<'_> {
         };
         Ok(Scene {
             name: self.origin.name(),
+            origin: self.label.to_owned(),
             width,
             height,
             background,

@@ -38,6 +38,8 @@ use crate::mesh::Mesh;
 pub struct Scene {
     /// A short name: the file stem or the built-in scene's name.
     pub name: String,
+    /// Where it came from, as errors name it: the file path or `built-in scene 'name'`.
+    pub origin: String,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -123,7 +125,7 @@ impl Scene {
             Ok(())
         } else {
             Err(SceneError::new(
-                &self.name,
+                &self.origin,
                 Some("animation.frames".into()),
                 SceneErrorKind::Invalid(match self.animation {
                     Some(a) => format!(
@@ -163,8 +165,8 @@ pub enum SceneErrorKind {
     /// A mesh file was found but could not be loaded.
     #[error("{0}")]
     Load(#[source] Box<LoadError>),
-    /// No built-in scene or shape has that name.
-    #[error("no built-in {what} named '{name}' (known: {})", .known.join(", "))]
+    /// No built-in scene or shape has that name (for scenes: and no file of that name exists).
+    #[error("{} built-in {what} named '{name}' (known: {})", if *.what == "scene" { "no scene file and no" } else { "no" }, .known.join(", "))]
     UnknownBuiltin {
         /// "scene" or "shape".
         what: &'static str,

@@ -58,7 +58,7 @@ use strata_core::{
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
-use crate::method::{CaptureReport, Method};
+use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::registry::PoolCapacity;
 
 /// The end of a list.
@@ -158,14 +158,17 @@ impl LinkedListABuffer {
         n.clamp(1, MAX_CAPACITY)
     }
 
-    fn resize_pool(&mut self, n: u64) {
+    fn resize_pool(&mut self, n: u64) -> Result<(), StoreError> {
         let n = n.clamp(1, MAX_CAPACITY) as usize;
         if self.nodes.len() != n {
-            self.nodes.clear();
-            self.nodes.shrink_to_fit();
-            self.nodes.reserve_exact(n);
-            self.nodes.resize_with(n, Node::default);
+            self.nodes = Vec::new(); // free the old pool before allocating the new one
+            self.nodes = try_alloc(
+                n,
+                || format!("a node pool of {n} fragments"),
+                "give a smaller --pool (a multiple of the pixel count like 4x), or auto",
+            )?;
         }
+        Ok(())
     }
 
     fn reset_lists(&mut self) {
@@ -309,17 +312,25 @@ impl Method for LinkedListABuffer {
         "abuffer"
     }
 
-    fn clear(&mut self, width: u32, height: u32) {
+    fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         let pixels = width as usize * height as usize;
         assert!(
             (pixels as u64) < u64::from(EMPTY),
             "image too large for u32 pixel indices"
         );
         (self.width, self.height) = (width, height);
-        self.heads.resize(pixels, EMPTY);
-        self.resize_pool(self.wanted_capacity());
+        if self.heads.len() != pixels {
+            self.heads = Vec::new();
+            self.heads = try_alloc::<u32>(
+                pixels,
+                || format!("{pixels} list heads"),
+                "render a smaller image",
+            )?;
+        }
+        self.resize_pool(self.wanted_capacity())?;
         self.reset_lists();
         self.depth = None;
+        Ok(())
     }
 
     fn capture(
@@ -327,7 +338,7 @@ impl Method for LinkedListABuffer {
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
-    ) -> CaptureReport {
+    ) -> Result<CaptureReport, StoreError> {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
         let mut regrows = 0;
@@ -340,19 +351,19 @@ impl Method for LinkedListABuffer {
                 || self.capacity != PoolCapacity::Auto
                 || self.nodes.len() as u64 >= MAX_CAPACITY
             {
-                return CaptureReport {
+                return Ok(CaptureReport {
                     fragments_rasterized: stats.fragments,
                     fragments_stored: self.stored.load(Relaxed),
                     dropped,
                     regrows,
                     setup: prepared.setup_stats(),
-                };
+                });
             }
             // Grow to hold every fragment plus each strip's unused block tail, with headroom
             // for the next frames, and capture again.
             let start = Instant::now();
             let slack = prepared.layout().count() as u64 * u64::from(BLOCK);
-            self.resize_pool((stats.fragments + slack) * 5 / 4);
+            self.resize_pool((stats.fragments + slack) * 5 / 4)?;
             self.reset_lists();
             regrows += 1;
             timings.add("capture.regrow", start.elapsed());
@@ -413,6 +424,12 @@ impl Method for LinkedListABuffer {
         self.depth.clone()
     }
 
+    fn used_memory_bytes(&self) -> u64 {
+        (self.heads.len() * size_of::<u32>()) as u64
+            + self.stored.load(Relaxed) * size_of::<Node>() as u64
+            + size_of::<AtomicU32>() as u64
+    }
+
     fn memory_bytes(&self) -> u64 {
         (self.heads.len() * size_of::<u32>()
             + self.nodes.len() * size_of::<Node>()
@@ -467,7 +484,7 @@ mod tests {
             strip_height: 2,
         };
         let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(100));
-        ab.clear(4, 4);
+        ab.clear(4, 4).unwrap();
         capture(
             &mut ab,
             &layout,
@@ -498,7 +515,7 @@ mod tests {
             strip_height: 2,
         };
         let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(10));
-        ab.clear(2, 2);
+        ab.clear(2, 2).unwrap();
         let frags: Vec<_> = (0..25).map(|i| (i % 4, frag(i as f32 / 25.0, i))).collect();
         capture(&mut ab, &layout, &frags);
         assert_eq!(ab.stored.load(Relaxed), 10);
@@ -516,10 +533,10 @@ mod tests {
             strip_height: 1,
         };
         let mut ab = LinkedListABuffer::new(PoolCapacity::PerPixel(4.0));
-        ab.clear(2, 1);
+        ab.clear(2, 1).unwrap();
         assert_eq!(ab.capacity(), 8);
         capture(&mut ab, &layout, &[(0, frag(0.1, 0)), (1, frag(0.2, 1))]);
-        ab.clear(2, 1);
+        ab.clear(2, 1).unwrap();
         assert_eq!(ab.list(0).count() + ab.list(1).count(), 0);
         assert_eq!(ab.resolve([0.0, 0.0, 1.0]).pixel(0, 0), [0, 0, 255]);
     }
@@ -527,7 +544,7 @@ mod tests {
     #[test]
     fn memory_is_heads_plus_pool() {
         let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(1000));
-        ab.clear(10, 10);
+        ab.clear(10, 10).unwrap();
         assert_eq!(ab.memory_bytes(), 100 * 4 + 1000 * 16 + 4);
         assert_eq!(size_of::<Node>(), 16);
     }
