@@ -207,7 +207,9 @@ impl Rasterizer {
             .map(|o| ObjectTransform::new(input.view, o.model, input.projection))
             .collect();
         let (screen, codes, attrs) = (&self.screen, &self.codes, &self.attrs);
-        chunks.par_iter_mut().for_each(|chunk| {
+        // One job per chunk (and per strip below): work per item varies a lot, and rayon can
+        // only balance it by stealing whole jobs.
+        chunks.par_iter_mut().with_max_len(1).for_each(|chunk| {
             let o = chunk.object;
             let draw = &input.objects[o];
             let base = vertex_base[o];
@@ -278,6 +280,7 @@ impl Prepared<'_, '_> {
         assert_eq!(sinks.len(), self.layout.count(), "one sink per strip");
         let fragments = sinks
             .into_par_iter()
+            .with_max_len(1)
             .enumerate()
             .map(|(s, mut sink)| {
                 let n = self.scan_strip(s, &mut sink);

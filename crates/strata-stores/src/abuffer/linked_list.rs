@@ -377,6 +377,7 @@ impl Method for LinkedListABuffer {
         let depth = image
             .as_bytes_mut()
             .par_chunks_mut(RESOLVE_PIXELS_PER_TASK * 3)
+            .with_max_len(1)
             .enumerate()
             .map_init(
                 || {
