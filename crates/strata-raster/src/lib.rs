@@ -9,24 +9,28 @@
 //! # Stages
 //!
 //! ```text
-//! FrameInput ──► vertex ──► setup + bin ──► scan (per strip) ──► FragmentSink (per strip)
-//!               (par. over   (par. over       (par. over
-//!                vertices)    triangle chunks)  strips)
+//! FrameInput ──► vertex ──────► setup + bin ─────────────► scan (per strip) ──► FragmentSink
+//!               (par. over     (par. over triangle         (par. over           (one per strip)
+//!                vertices)      chunks; micro-triangles     strips)
+//!                               rasterised here)
 //! ```
 //!
-//! 1. **vertex** ([`vertex`]): every vertex to eye space (position, normal) and clip space, an
-//!    outcode against the view volume and a guard band, and — for vertices in front of the near
-//!    plane — 24.8 fixed-point window coordinates, window depth and `1/w`. One flat array of
-//!    position, outcode and attribute arrays for all objects ([`vertex`]).
+//! 1. **vertex** ([`vertex`]): every vertex to eye space and clip space, an outcode against the
+//!    view volume and a guard band, and — for vertices in front of the near plane — 24.8
+//!    fixed-point window coordinates, window depth and the perspective-weighted attributes. Three
+//!    flat arrays (positions, outcodes, attributes) for all objects of the frame.
 //! 2. **setup + bin** ([`setup`]): triangles in chunks of consecutive primitives of one object.
 //!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
-//!    culled here (small triangles get their exact coverage bitmask here, [`coverage`]); one that crosses the near plane or the guard band is clipped exactly in clip
-//!    space ([`clip`]) and its pieces kept in the chunk. Survivors are appended to the chunk's bin
-//!    of every *strip* their pixel rows touch.
-//! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order and
-//!    each chunk's bin in order, so every pixel receives its fragments in primitive order, from one
-//!    thread, whatever the thread count. Coverage uses exact integer edge functions with the
-//!    top-left rule ([`coverage`]); depth is affine in screen space; normals and eye positions are interpolated
+//!    culled; one that crosses the near plane or the guard band is clipped exactly in clip space
+//!    ([`clip`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres) are finished here:
+//!    exact coverage as one SIMD bitmask ([`coverage`]), shading, and 16-byte fragment records
+//!    appended to per-strip lists. Larger triangles and clipped pieces are appended to the bin of
+//!    every *strip* their rows touch, with a cursor into the strip's record list.
+//! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order,
+//!    and in each chunk replays the micro-triangle records and scans the binned triangles,
+//!    interleaved by the cursors — so every pixel receives its fragments in primitive order, from
+//!    one thread, whatever the thread count. Large triangles are scanned row by row over exact
+//!    spans; depth is affine in screen space; normals and eye positions are interpolated
 //!    perspective-correctly for the headlight.
 //!
 //! # Why strips
@@ -45,8 +49,9 @@
 //!
 //! # Allocation
 //!
-//! [`Rasterizer`] owns its buffers (vertices, chunks, bins) and reuses their capacity from frame to
-//! frame; nothing is allocated per triangle or per fragment.
+//! [`Rasterizer`] owns its buffers (vertices, chunks, bins, fragment records) and reuses their
+//! capacity from frame to frame; nothing is allocated per triangle or per fragment once the
+//! buffers have grown to the scene's needs.
 
 pub mod clip;
 pub mod coverage;

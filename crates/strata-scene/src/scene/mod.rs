@@ -1,6 +1,6 @@
 //! A loaded scene: image size, background, camera, objects with their meshes, and the animation.
 //!
-//! A [`Scene`] is what the scene file (DESIGN §2, parsed in [`file`]) or a built-in scene resolves
+//! A [`Scene`] is what the scene file (DESIGN §2, parsed in [`file`](mod@file)) or a built-in scene resolves
 //! to: every mesh loaded and validated, every glTF mesh node expanded into its own object with its
 //! own [`ObjectId`], `fit` folded into each object's base transform. Nothing in a `Scene` refers
 //! back to files, so rendering it cannot fail.
