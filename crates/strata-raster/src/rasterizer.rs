@@ -307,35 +307,22 @@ impl Prepared<'_, '_> {
             let (shade, lit) = &self.shades[chunk.object];
             let draw = &self.input.objects[chunk.object];
             let base = self.vertex_base[chunk.object];
-            let tris = &draw.triangles[chunk.triangles.clone()];
             let range = base..base + draw.positions.len();
-            let verts = (&self.screen[range.clone()], &self.attrs[range]);
+            let job = BinScan {
+                bin,
+                frags,
+                tris: &draw.triangles[chunk.triangles.clone()],
+                screen: &self.screen[range.clone()],
+                attrs: &self.attrs[range],
+                clipped: &chunk.clipped,
+                rows,
+                size: (w, h),
+                shade,
+            };
             n += if *lit {
-                scan_bin::<S, true>(
-                    bin,
-                    frags,
-                    tris,
-                    verts,
-                    &chunk.clipped,
-                    rows,
-                    w,
-                    h,
-                    shade,
-                    sink,
-                )
+                job.run::<S, true>(sink)
             } else {
-                scan_bin::<S, false>(
-                    bin,
-                    frags,
-                    tris,
-                    verts,
-                    &chunk.clipped,
-                    rows,
-                    w,
-                    h,
-                    shade,
-                    sink,
-                )
+                job.run::<S, false>(sink)
             };
         }
         n
@@ -351,52 +338,44 @@ fn replay<S: FragmentSink>(frags: &[PixelFragment], sink: &mut S) -> u64 {
     frags.len() as u64
 }
 
-#[allow(
-    clippy::too_many_arguments,
-    reason = "the hot loop's inputs, kept as plain slices"
-)]
-#[inline(never)]
-fn scan_bin<S: FragmentSink, const LIT: bool>(
-    bin: &[u64],
-    frags: &[PixelFragment],
-    tris: &[[u32; 3]],
-    (screen, attrs): (&[ScreenPos], &[Attrs]),
-    clipped: &[ClippedTriangle],
+/// One chunk's bin for one strip, with everything its triangles refer to.
+struct BinScan<'a> {
+    bin: &'a [u64],
+    frags: &'a [PixelFragment],
+    tris: &'a [[u32; 3]],
+    screen: &'a [ScreenPos],
+    attrs: &'a [Attrs],
+    clipped: &'a [ClippedTriangle],
     rows: (i32, i32),
-    w: i32,
-    h: i32,
-    shade: &Shade,
-    sink: &mut S,
-) -> u64 {
-    let mut n = 0u64;
-    let mut next = 0;
-    for &entry in bin {
-        let (r, cursor) = (entry as u32, (entry >> 32) as usize);
-        n += replay(&frags[next..cursor], sink);
-        next = cursor;
-        n += u64::from(if r & CLIPPED == 0 {
-            let [i0, i1, i2] = tris[r as usize].map(|i| i as usize);
-            scan_triangle::<S, LIT>(
-                [screen[i0], screen[i1], screen[i2]],
-                [&attrs[i0], &attrs[i1], &attrs[i2]],
-                rows,
-                w,
-                h,
-                shade,
-                sink,
-            )
-        } else {
-            let t = &clipped[(r & !CLIPPED) as usize];
-            scan_triangle::<S, LIT>(
-                t.pos,
-                [&t.attrs[0], &t.attrs[1], &t.attrs[2]],
-                rows,
-                w,
-                h,
-                shade,
-                sink,
-            )
-        });
+    size: (i32, i32),
+    shade: &'a Shade,
+}
+
+impl BinScan<'_> {
+    /// Replays micro-triangle records and scans binned triangles, in primitive order.
+    #[inline(never)]
+    fn run<S: FragmentSink, const LIT: bool>(&self, sink: &mut S) -> u64 {
+        let (w, h) = self.size;
+        let mut n = 0u64;
+        let mut next = 0;
+        for &entry in self.bin {
+            let (r, cursor) = (entry as u32, (entry >> 32) as usize);
+            n += replay(&self.frags[next..cursor], sink);
+            next = cursor;
+            let (pos, attrs) = if r & CLIPPED == 0 {
+                let [i0, i1, i2] = self.tris[r as usize].map(|i| i as usize);
+                (
+                    [self.screen[i0], self.screen[i1], self.screen[i2]],
+                    [&self.attrs[i0], &self.attrs[i1], &self.attrs[i2]],
+                )
+            } else {
+                let t = &self.clipped[(r & !CLIPPED) as usize];
+                (t.pos, [&t.attrs[0], &t.attrs[1], &t.attrs[2]])
+            };
+            n += u64::from(scan_triangle::<S, LIT>(
+                pos, attrs, self.rows, w, h, self.shade, sink,
+            ));
+        }
+        n + replay(&self.frags[next..], sink)
     }
-    n + replay(&frags[next..], sink)
 }

@@ -113,6 +113,36 @@ fn mib(b: u64) -> f64 {
     b as f64 / (1 << 20) as f64
 }
 
+/// Column titles of the report table.
+const COLUMNS: [&str; 10] = [
+    "scene",
+    "triangles",
+    "fragments",
+    "covered px",
+    "max depth",
+    "mean depth",
+    "memory MiB",
+    "capture ms",
+    "resolve ms",
+    "DeepFrame = image",
+];
+
+/// The table cells of one scene, in [`COLUMNS`] order, for both report formats.
+fn cells(r: &Row) -> [String; 10] {
+    [
+        r.name.to_owned(),
+        r.triangles.to_string(),
+        r.fragments.to_string(),
+        r.covered.to_string(),
+        r.max_depth.to_string(),
+        format!("{:.2}", r.mean_depth),
+        format!("{:.1}", mib(r.memory)),
+        format!("{:.2}", r.capture_ms),
+        format!("{:.2}", r.resolve_ms),
+        (if r.deep_frame_ok { "yes" } else { "NO" }).to_owned(),
+    ]
+}
+
 fn write_markdown(
     dir: &std::path::Path,
     rows: &[Row],
@@ -127,29 +157,14 @@ fn write_markdown(
         "Method `{method}`, {threads} thread(s), frame 0 of each scene. Every pixel keeps all its fragments, \
          sorted and composited front to back with OVER. Times are one run's wall clock (use `strata bench` for medians).\n"
     )?;
+    writeln!(md, "| {} |", COLUMNS.join(" | "))?;
     writeln!(
         md,
-        "| scene | triangles | fragments | covered px | max depth | mean depth | memory MiB | capture ms | resolve ms | DeepFrame = image |"
-    )?;
-    writeln!(
-        md,
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | :---: |"
+        "| --- |{}",
+        " ---: |".repeat(COLUMNS.len() - 2) + " :---: |"
     )?;
     for r in rows {
-        writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {:.2} | {:.1} | {:.2} | {:.2} | {} |",
-            r.name,
-            r.triangles,
-            r.fragments,
-            r.covered,
-            r.max_depth,
-            r.mean_depth,
-            mib(r.memory),
-            r.capture_ms,
-            r.resolve_ms,
-            if r.deep_frame_ok { "yes" } else { "NO" }
-        )?;
+        writeln!(md, "| {} |", cells(r).join(" | "))?;
     }
     writeln!(md)?;
     for r in rows {
@@ -194,25 +209,10 @@ fn write_html(
         "<p>Method <code>{}</code>, {threads} thread(s), frame 0 of each scene. Every pixel keeps all its fragments, sorted and composited front to back with OVER. Times are one run's wall clock (use <code>strata bench</code> for medians).</p>",
         html_escape(method)
     )?;
-    writeln!(
-        h,
-        "<table><tr><th>scene</th><th>triangles</th><th>fragments</th><th>covered px</th><th>max depth</th><th>mean depth</th><th>memory MiB</th><th>capture ms</th><th>resolve ms</th><th>DeepFrame = image</th></tr>"
-    )?;
+    writeln!(h, "<table><tr><th>{}</th></tr>", COLUMNS.join("</th><th>"))?;
     for r in rows {
-        writeln!(
-            h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td></tr>",
-            r.name,
-            r.triangles,
-            r.fragments,
-            r.covered,
-            r.max_depth,
-            r.mean_depth,
-            mib(r.memory),
-            r.capture_ms,
-            r.resolve_ms,
-            if r.deep_frame_ok { "yes" } else { "NO" }
-        )?;
+        let cells = cells(r).map(|c| html_escape(&c));
+        writeln!(h, "<tr><td>{}</td></tr>", cells.join("</td><td>"))?;
     }
     writeln!(h, "</table><div class=\"grid\">")?;
     for r in rows {

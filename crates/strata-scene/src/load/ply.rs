@@ -452,6 +452,19 @@ fn plan(elements: &[Element]) -> Result<Vec<Plan>, Fail> {
 }
 
 /// The message for an index outside `0..vertex_count`.
+/// `index` as a vertex index of a mesh with `vertex_count` vertices, or the error for face `i`.
+fn vertex_index(
+    element: &str,
+    i: u64,
+    index: i64,
+    vertex_count: u64,
+) -> Result<u32, LoadErrorKind> {
+    match u32::try_from(index) {
+        Ok(v) if u64::from(v) < vertex_count => Ok(v),
+        _ => Err(bad_index(element, i, index, vertex_count)),
+    }
+}
+
 fn bad_index(element: &str, i: u64, index: i64, vertex_count: u64) -> LoadErrorKind {
     LoadErrorKind::Invalid(if index < 0 {
         format!("{element} {i} has a negative vertex index {index}")
@@ -637,17 +650,9 @@ fn ascii_instance(
                                 )),
                             )
                         })?;
-                        match u32::try_from(index) {
-                            Ok(v) if u64::from(v) < build.vertex_count => {
-                                fan.push(v, &mut build.triangles)
-                            }
-                            _ => {
-                                return Err(Fail::line(
-                                    line,
-                                    bad_index(&e.name, i, index, build.vertex_count),
-                                ));
-                            }
-                        }
+                        let v = vertex_index(&e.name, i, index, build.vertex_count)
+                            .map_err(|k| Fail::line(line, k))?;
+                        fan.push(v, &mut build.triangles);
                     }
                 } else {
                     for _ in 0..n {
@@ -819,17 +824,9 @@ fn read_binary_instances(
                             let v = r.read(item).ok_or_else(|| truncated(at, i))?;
                             // Integer types only (checked in `plan`): exact in i64.
                             let index = v as i64;
-                            match u32::try_from(index) {
-                                Ok(v) if u64::from(v) < build.vertex_count => {
-                                    fan.push(v, &mut build.triangles)
-                                }
-                                _ => {
-                                    return Err(Fail::byte(
-                                        at,
-                                        bad_index(&e.name, i, index, build.vertex_count),
-                                    ));
-                                }
-                            }
+                            let v = vertex_index(&e.name, i, index, build.vertex_count)
+                                .map_err(|k| Fail::byte(at, k))?;
+                            fan.push(v, &mut build.triangles);
                         }
                     } else {
                         let bytes = usize::try_from(n)
