@@ -97,11 +97,7 @@ impl Rasterizer {
     /// If the image is empty, or an object has a different number of normals than positions.
     pub fn prepare<'r, 'a>(&'r mut self, input: &'r FrameInput<'a>) -> Prepared<'r, 'a> {
         assert!(input.width > 0 && input.height > 0, "empty image");
-        let config = if self.config.strip_height == 0 {
-            RasterConfig::default()
-        } else {
-            self.config
-        };
+        let config = self.config;
         let vp = Viewport::new(input.width, input.height);
         let layout = StripLayout {
             width: input.width,
