@@ -32,6 +32,8 @@ enum Command {
     Bench(cmd::bench::Args),
     /// List the built-in scenes, or print one as a scene file.
     Scenes(cmd::scenes::Args),
+    /// List the fragment stores (`--method`).
+    Methods(cmd::methods::Args),
 }
 
 fn main() -> ExitCode {
@@ -57,6 +59,7 @@ fn main() -> ExitCode {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Bench(a) => cmd::bench::run(a),
         Command::Scenes(a) => cmd::scenes::run(a),
+        Command::Methods(a) => cmd::methods::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

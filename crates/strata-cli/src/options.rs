@@ -6,19 +6,122 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Args;
 use strata_scene::{Scene, SearchPath};
-use strata_stores::{MethodOptions, PoolCapacity};
+use strata_stores::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
+
+/// Parameters of the fragment stores; each method reads the ones it understands.
+#[derive(Args, Debug, Clone)]
+#[command(next_help_heading = "Method options")]
+pub(crate) struct MethodParams {
+    /// abuffer: node pool — `auto` (grow to fit, never drop), a multiple of the pixel count
+    /// (`4x`), or a number of fragments. Fixed pools drop and count what overflows.
+    #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<PoolCapacity>())]
+    pub(crate) pool: PoolCapacity,
+
+    /// abuffer-array: fragments per pixel (A).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub(crate) array_size: u32,
+
+    /// kbuffer: fragments kept per pixel (k).
+    #[arg(short, long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub(crate) k: u32,
+
+    /// kbuffer: blend the fragments beyond the k nearest behind them instead of dropping them.
+    #[arg(long)]
+    pub(crate) tail_blend: bool,
+
+    /// vkbuffer: memory budget — a share of the frame's fragments (`50%`), an average per pixel
+    /// (`2x`), bytes (`20MB`, `16MiB`) or a number of fragments.
+    #[arg(long, default_value = "50%", value_parser = |s: &str| s.parse::<Budget>())]
+    pub(crate) budget: Budget,
+
+    /// vkbuffer: where k(p) comes from — `importance` maps or the `optimal` (Optimal-K) oracle.
+    #[arg(long, default_value = "importance", value_parser = |s: &str| s.parse::<KFrom>())]
+    pub(crate) k_from: KFrom,
+
+    /// vkbuffer importance: periphery fall-off exponent d.
+    #[arg(long, default_value_t = 2.0)]
+    pub(crate) periphery_exponent: f64,
+
+    /// vkbuffer importance: depth-complexity range bias α in [0, 1].
+    #[arg(long, default_value_t = 0.1)]
+    pub(crate) alpha: f64,
+
+    /// vkbuffer importance: N_limit, the layer count of full importance (default: the frame's
+    /// largest per-pixel fragment count).
+    #[arg(long)]
+    pub(crate) n_limit: Option<u32>,
+
+    /// vkbuffer importance: noise level λ.
+    #[arg(long, default_value_t = 0.1)]
+    pub(crate) noise: f64,
+
+    /// vkbuffer importance: point of interest as `x,y` fractions of the image (0.5,0.5 = centre).
+    #[arg(long, default_value = "0.5,0.5", value_parser = parse_point)]
+    pub(crate) point_of_interest: [f64; 2],
+
+    /// vkbuffer importance: seed of the noise.
+    #[arg(long, default_value_t = 0)]
+    pub(crate) seed: u64,
+
+    /// tfss: fragments per T-buffer section (L_num).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub(crate) l_num: u32,
+
+    /// tfss: leading-zeros elimination of colours, with a Length table.
+    #[arg(long)]
+    pub(crate) leading_zeros: bool,
+
+    /// depth-peeling, dual-depth-peeling: most layers to peel (0: until nothing is left).
+    #[arg(long, default_value_t = 0)]
+    pub(crate) max_layers: u32,
+}
+
+fn parse_point(s: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<f64> = s
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}': expected x,y such as 0.5,0.5"))?;
+    match parts[..] {
+        [x, y] if x.is_finite() && y.is_finite() => Ok([x, y]),
+        _ => Err(format!("'{s}': expected two numbers x,y such as 0.5,0.5")),
+    }
+}
+
+impl MethodParams {
+    /// The options the methods read.
+    pub(crate) fn method_options(&self) -> MethodOptions {
+        MethodOptions {
+            pool: self.pool,
+            array_size: self.array_size,
+            k: self.k,
+            tail_blend: self.tail_blend,
+            budget: self.budget,
+            k_from: self.k_from,
+            importance: ImportanceParams {
+                periphery_exponent: self.periphery_exponent,
+                alpha: self.alpha,
+                n_limit: self.n_limit,
+                noise: self.noise,
+                point_of_interest: self.point_of_interest,
+                seed: self.seed,
+            },
+            l_num: self.l_num,
+            leading_zeros: self.leading_zeros,
+            max_layers: self.max_layers,
+        }
+    }
+}
 
 /// How to render: which method, with which options, on how many threads.
 #[derive(Args, Debug, Clone)]
 pub(crate) struct RenderOptions {
-    /// Fragment store to use (`abuffer`: the per-pixel linked-list A-buffer).
+    /// Fragment store to use (`strata methods` lists them).
     #[arg(long, short, default_value = "abuffer")]
     pub(crate) method: String,
 
-    /// Node pool of the linked-list A-buffer: `auto` (grow to fit, never drop), a multiple of the
-    /// pixel count (`4x`), or a number of fragments. Fixed pools drop and count what overflows.
-    #[arg(long, default_value = "auto", value_parser = parse_pool)]
-    pub(crate) pool: PoolCapacity,
+    #[command(flatten)]
+    pub(crate) params: MethodParams,
 
     /// Worker threads (default: every available core).
     #[arg(long, short = 'j')]
@@ -29,14 +132,10 @@ pub(crate) struct RenderOptions {
     pub(crate) model_dirs: Vec<PathBuf>,
 }
 
-fn parse_pool(s: &str) -> Result<PoolCapacity, String> {
-    s.parse()
-}
-
 impl RenderOptions {
     /// The options the methods read.
     pub(crate) fn method_options(&self) -> MethodOptions {
-        MethodOptions { pool: self.pool }
+        self.params.method_options()
     }
 
     /// The mesh search path: `--models` directories, then the environment's.

@@ -91,7 +91,7 @@ pub fn unorm8(v: f32) -> u8 {
 }
 
 /// One colour fragment: what a fragment store keeps per rasterised sample.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C)]
 pub struct Fragment {
     /// Window-space depth, `0.5 * z_ndc + 0.5`, in `[0, 1]`; smaller is nearer.

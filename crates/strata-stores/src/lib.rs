@@ -19,8 +19,12 @@
 //! | `abuffer` | [`abuffer::linked_list`] | 000 §2, 001 Alg. 4–6 |
 
 pub mod abuffer;
+pub mod count;
 pub mod method;
+pub mod options;
+pub mod regions;
 pub mod registry;
 
 pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
-pub use registry::{METHODS, MethodOptions, PoolCapacity, UnknownMethod, create};
+pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
+pub use registry::{METHODS, UnknownMethod, create};

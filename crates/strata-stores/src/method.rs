@@ -72,8 +72,9 @@ pub trait Method: Send {
         timings: &mut PassTimings,
     ) -> Result<CaptureReport, StoreError>;
 
-    /// Sorts and composites every pixel onto `background` (the "resolve" pass).
-    fn resolve(&mut self, background: [f32; 3]) -> Rgb8Image;
+    /// Sorts and composites every pixel onto `background` (the "resolve" pass). Implementations
+    /// record their stages as `resolve.<stage>` in `timings`.
+    fn resolve(&mut self, background: [f32; 3], timings: &mut PassTimings) -> Rgb8Image;
 
     /// Depth complexity of what the store holds, as seen by the last resolve.
     fn depth_stats(&self) -> Option<DepthStats>;
@@ -128,8 +129,10 @@ pub fn render_frame(
     timings.extend(&stages);
 
     let start = Instant::now();
-    let image = method.resolve(background);
+    let mut stages = PassTimings::new();
+    let image = method.resolve(background, &mut stages);
     timings.add("resolve", start.elapsed());
+    timings.extend(&stages);
 
     Ok(FrameResult {
         image,

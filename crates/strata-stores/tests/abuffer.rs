@@ -39,6 +39,7 @@ fn render(
         "abuffer",
         &MethodOptions {
             pool: pool_capacity,
+            ..MethodOptions::default()
         },
     )
     .expect("abuffer exists");

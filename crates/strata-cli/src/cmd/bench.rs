@@ -7,9 +7,11 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use strata_raster::{FrameInput, Rasterizer};
-use strata_stores::{FrameResult, MethodOptions, PoolCapacity, render_frame};
+use strata_stores::{FrameResult, render_frame};
 
-use crate::options::{check_output, default_threads, open_scene, search_path, thread_pool};
+use crate::options::{
+    MethodParams, check_output, default_threads, open_scene, search_path, thread_pool,
+};
 use crate::report::bytes_per_fragment;
 
 /// Time each pass of a method on a scene: median, min and max over repeated runs.
@@ -26,9 +28,8 @@ pub(crate) struct Args {
     #[arg(long, short, default_value = "abuffer")]
     pub(crate) method: String,
 
-    /// Node pool of the linked-list A-buffer (`auto`, `4x`, or a number of fragments).
-    #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<PoolCapacity>())]
-    pub(crate) pool: PoolCapacity,
+    #[command(flatten)]
+    pub(crate) params: MethodParams,
 
     /// Timed runs per thread count.
     #[arg(long, default_value_t = 15)]
@@ -119,7 +120,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
-    let options = MethodOptions { pool: args.pool };
+    let options = args.params.method_options();
     strata_stores::create(&args.method, &options)?; // fail early on a bad name
 
     println!(

@@ -2,5 +2,6 @@
 
 pub(crate) mod bench;
 pub(crate) mod demo;
+pub(crate) mod methods;
 pub(crate) mod render;
 pub(crate) mod scenes;

@@ -59,7 +59,7 @@ use strata_core::{
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
-use crate::registry::PoolCapacity;
+use crate::options::PoolCapacity;
 
 /// The end of a list.
 pub const EMPTY: u32 = u32::MAX;
@@ -370,7 +370,7 @@ impl Method for LinkedListABuffer {
         }
     }
 
-    fn resolve(&mut self, background: [f32; 3]) -> Rgb8Image {
+    fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
         let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let bg = composite::background_pixel(background);
         let this = &*self;
@@ -498,7 +498,7 @@ mod tests {
         assert_eq!(ab.list(0).count(), 0);
         let df = ab.deep_frame().unwrap().unwrap();
         assert_eq!(df.pixel(1, 1).depth, &[0.2, 0.5]);
-        let img = ab.resolve([1.0; 3]);
+        let img = ab.resolve([1.0; 3], &mut PassTimings::new());
         assert_eq!(img.pixel(1, 1), [2, 0, 0]); // opaque fragment of object 2 in front
         assert_eq!(img, df.resolve([1.0; 3]));
         let s = ab.depth_stats().unwrap();
@@ -539,7 +539,11 @@ mod tests {
         capture(&mut ab, &layout, &[(0, frag(0.1, 0)), (1, frag(0.2, 1))]);
         ab.clear(2, 1).unwrap();
         assert_eq!(ab.list(0).count() + ab.list(1).count(), 0);
-        assert_eq!(ab.resolve([0.0, 0.0, 1.0]).pixel(0, 0), [0, 0, 255]);
+        assert_eq!(
+            ab.resolve([0.0, 0.0, 1.0], &mut PassTimings::new())
+                .pixel(0, 0),
+            [0, 0, 255]
+        );
     }
 
     #[test]

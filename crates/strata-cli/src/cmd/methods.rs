@@ -1,0 +1,15 @@
+//! `strata methods`: the fragment stores and what each is.
+
+use anyhow::Result;
+
+/// List the fragment stores `--method` accepts.
+#[derive(clap::Args, Debug)]
+pub(crate) struct Args {}
+
+/// Runs `strata methods`.
+pub(crate) fn run(_args: Args) -> Result<()> {
+    for (name, what) in strata_stores::METHODS {
+        println!("{name:<20} {what}");
+    }
+    Ok(())
+}

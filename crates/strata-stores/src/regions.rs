@@ -1,0 +1,557 @@
+//! Per-pixel regions in one fragment array: the storage shared by the fixed-array A-buffer, the
+//! S-buffer and the k-buffers.
+//!
+//! # Layout (the S-buffer layout of seed 001 §3.1.3)
+//!
+//! ```text
+//! offsets: [u32; w*h + 1]   pixel p (row-major) owns slots offsets[p] .. offsets[p+1]
+//! fill:    [u32; w*h]       how many of its slots pixel p has used
+//! slots:   [Fragment; n]    12 bytes each (depth, RGBA8, object id)
+//! ```
+//!
+//! The methods differ only in how they size the regions and what a full region does:
+//!
+//! | method | capacity of pixel `p` | a fragment arriving at a full region |
+//! | --- | --- | --- |
+//! | fixed-array A-buffer (seed 001 Alg. 1–3) | `A` for every pixel | is dropped and counted ([`Policy::Append`]) |
+//! | S-buffer (Alg. 7–12) | its exact fragment count (a counting pass) | cannot happen |
+//! | k-buffer (Alg. 13–15) | `k` for every pixel | replaces the farthest kept one if nearer ([`Policy::KeepNearest`]) |
+//! | variable k-buffer (Alg. 16–21) | `k(p)` from an importance map | as the k-buffer |
+//!
+//! Under [`Policy::KeepNearest`] a region is kept sorted front to back by insertion (seed 001
+//! Alg. 14); the fragment that falls off the end — the new one or the farthest kept — is *evicted*
+//! and reported to an optional [`Evicted`] callback (the k-buffer's tail blend).
+//!
+//! Regions are row-major and contiguous, so a strip of rows owns one contiguous range of `fill`
+//! and of `slots`: [`Regions::strips`] hands each rasterizer strip its own `&mut` slices, and
+//! capture needs no atomics (the CPU analogue of the seed's pixel synchronisation).
+
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+
+use rayon::prelude::*;
+use strata_core::fragment::sort_front_to_back;
+use strata_core::{DeepFrame, DeepFrameError, DepthStats, Fragment, Rgb8Image, composite};
+use strata_raster::{CaptureTarget, FragmentSink, StripLayout};
+
+use crate::method::{StoreError, try_alloc};
+
+/// What a full region does with one more fragment.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Policy {
+    /// Keep the first fragments to arrive; drop later ones (A-buffer arrays, S-buffer).
+    Append,
+    /// Keep the nearest fragments, sorted front to back by insertion (k-buffers).
+    KeepNearest,
+}
+
+/// Receives fragments a [`Policy::KeepNearest`] region evicts, with their pixel.
+pub trait Evicted: Send + Sync {
+    /// `fragment` at row-major pixel `pixel` fell off the region.
+    fn evicted(&self, pixel: usize, fragment: Fragment);
+}
+
+/// Per-pixel regions; see the module docs.
+#[derive(Debug, Default)]
+pub struct Regions {
+    width: u32,
+    height: u32,
+    offsets: Vec<u32>,
+    fill: Vec<u32>,
+    slots: Vec<Fragment>,
+    /// Fragments dropped (Append) or evicted (KeepNearest) since the last clear; strips add
+    /// theirs when they finish.
+    lost: AtomicU64,
+}
+
+/// Pixels per parallel work item in per-pixel passes.
+const PIXELS_PER_TASK: usize = 8 * 1024;
+
+impl Regions {
+    /// Empty regions; size them with [`Regions::with_capacities`] or [`Regions::uniform`].
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sizes the regions of a `width` × `height` frame from per-pixel capacities (row-major),
+    /// reusing the allocations where they suffice, and empties them.
+    pub fn with_capacities(
+        &mut self,
+        width: u32,
+        height: u32,
+        capacity: &[u32],
+    ) -> Result<(), StoreError> {
+        let pixels = width as usize * height as usize;
+        assert_eq!(capacity.len(), pixels, "one capacity per pixel");
+        let (offsets, total) = exclusive_prefix_sum(capacity);
+        let total = usize::try_from(total)
+            .ok()
+            .filter(|&t| u32::try_from(t).is_ok())
+            .ok_or(StoreError::OutOfMemory {
+                what: format!("{total} fragment slots"),
+                bytes: total.saturating_mul(size_of::<Fragment>() as u64),
+                hint: "lower the per-pixel capacity or the budget",
+            })?;
+        self.resize(width, height, total)?;
+        self.offsets = offsets;
+        Ok(())
+    }
+
+    /// Sizes every region of a `width` × `height` frame to `capacity` fragments.
+    pub fn uniform(&mut self, width: u32, height: u32, capacity: u32) -> Result<(), StoreError> {
+        let pixels = width as usize * height as usize;
+        let total = pixels as u64 * u64::from(capacity);
+        if total > u64::from(u32::MAX) {
+            return Err(StoreError::OutOfMemory {
+                what: format!("{pixels} pixels × {capacity} fragment slots"),
+                bytes: total.saturating_mul(size_of::<Fragment>() as u64),
+                hint: "lower the per-pixel capacity",
+            });
+        }
+        self.resize(width, height, total as usize)?;
+        self.offsets.clear();
+        self.offsets
+            .extend((0..=pixels as u64).map(|p| (p * u64::from(capacity)) as u32));
+        Ok(())
+    }
+
+    fn resize(&mut self, width: u32, height: u32, slots: usize) -> Result<(), StoreError> {
+        let pixels = width as usize * height as usize;
+        (self.width, self.height) = (width, height);
+        if self.fill.len() != pixels {
+            self.fill = Vec::new();
+            self.fill = try_alloc(
+                pixels,
+                || format!("{pixels} region counters"),
+                "render a smaller image",
+            )?;
+        }
+        if self.slots.len() < slots || self.slots.len() > 2 * slots.max(1 << 16) {
+            self.slots = Vec::new();
+            self.slots = try_alloc(
+                slots,
+                || format!("{slots} fragment slots"),
+                "lower the per-pixel capacity or the budget",
+            )?;
+        }
+        self.clear();
+        Ok(())
+    }
+
+    /// Empties every region (keeps the sizes).
+    pub fn clear(&mut self) {
+        self.fill.par_iter_mut().for_each(|f| *f = 0);
+        self.lost.store(0, Relaxed);
+    }
+
+    /// Width of the frame.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height of the frame.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Slots of pixel `p`.
+    pub fn capacity(&self, p: usize) -> u32 {
+        self.offsets[p + 1] - self.offsets[p]
+    }
+
+    /// Total slots.
+    pub fn total_capacity(&self) -> u64 {
+        u64::from(self.offsets.last().copied().unwrap_or(0))
+    }
+
+    /// Fragments stored in pixel `p`'s region (sorted front to back under KeepNearest, in arrival
+    /// order under Append).
+    pub fn stored(&self, p: usize) -> &[Fragment] {
+        let start = self.offsets[p] as usize;
+        &self.slots[start..start + self.fill[p] as usize]
+    }
+
+    /// Fragments stored in all regions.
+    pub fn stored_count(&self) -> u64 {
+        self.fill.par_iter().map(|&f| u64::from(f)).sum()
+    }
+
+    /// Fragments dropped or evicted since the last clear.
+    pub fn lost(&self) -> u64 {
+        self.lost.load(Relaxed)
+    }
+
+    /// Bytes allocated: offsets, fill counters and all slots of this frame.
+    pub fn memory_bytes(&self) -> u64 {
+        (self.offsets.len() * 4 + self.fill.len() * 4) as u64
+            + self.total_capacity() * size_of::<Fragment>() as u64
+    }
+
+    /// Bytes holding this frame's data: offsets, fill counters and the used slots.
+    pub fn used_memory_bytes(&self) -> u64 {
+        (self.offsets.len() * 4 + self.fill.len() * 4) as u64
+            + self.stored_count() * size_of::<Fragment>() as u64
+    }
+
+    /// One sink per strip of `layout`, each owning its rows' counters and slots.
+    pub fn strips<'a>(
+        &'a mut self,
+        layout: &StripLayout,
+        policy: Policy,
+        evicted: Option<&'a dyn Evicted>,
+    ) -> Vec<RegionSink<'a>> {
+        assert_eq!(
+            (layout.width, layout.height),
+            (self.width, self.height),
+            "size the regions before capture"
+        );
+        let (offsets, lost_total) = (&self.offsets, &self.lost);
+        let mut slots = &mut self.slots[..];
+        let mut fill = &mut self.fill[..];
+        let mut consumed = 0usize;
+        let mut sinks = Vec::with_capacity(layout.count());
+        for s in 0..layout.count() {
+            let pixels = layout.pixels(s);
+            let (f, rest) = std::mem::take(&mut fill).split_at_mut(pixels.len());
+            fill = rest;
+            let end = offsets[pixels.end] as usize;
+            let (sl, rest) = std::mem::take(&mut slots).split_at_mut(end - consumed);
+            slots = rest;
+            sinks.push(RegionSink {
+                first_pixel: pixels.start,
+                base: consumed,
+                offsets,
+                fill: f,
+                slots: sl,
+                policy,
+                evicted,
+                lost: 0,
+                lost_total,
+            });
+            consumed = end;
+        }
+        sinks
+    }
+
+    /// Sorts every region front to back (Append regions arrive unsorted) and composites it onto
+    /// `background`; returns the image and the depth statistics of what the regions hold.
+    pub fn resolve(&mut self, background: [f32; 3], sort: bool) -> (Rgb8Image, DepthStats) {
+        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
+        let bg = composite::background_pixel(background);
+        let (offsets, fill) = (&self.offsets, &self.fill);
+        // Regions are disjoint and row-major: cut the slots at task boundaries.
+        let pixels = fill.len();
+        let mut tasks = Vec::new();
+        let mut slots = &mut self.slots[..];
+        let mut consumed = 0usize;
+        for (t, out) in image
+            .as_bytes_mut()
+            .chunks_mut(PIXELS_PER_TASK * 3)
+            .enumerate()
+        {
+            let first = t * PIXELS_PER_TASK;
+            let last = (first + PIXELS_PER_TASK).min(pixels);
+            let end = offsets[last] as usize;
+            let (sl, rest) = std::mem::take(&mut slots).split_at_mut(end - consumed);
+            slots = rest;
+            tasks.push((first, consumed, sl, out));
+            consumed = end;
+        }
+        let stats = tasks
+            .into_par_iter()
+            .with_max_len(1)
+            .map(|(first, base, slots, out)| {
+                let mut stats = DepthStats::default();
+                for (i, px) in out.chunks_exact_mut(3).enumerate() {
+                    let p = first + i;
+                    let start = offsets[p] as usize - base;
+                    let run = &mut slots[start..start + fill[p] as usize];
+                    stats.record(run.len() as u32);
+                    let rgb = if run.is_empty() {
+                        bg
+                    } else {
+                        if sort {
+                            sort_front_to_back(run);
+                        }
+                        composite::resolve_pixel(run.iter().map(|f| f.color), background)
+                    };
+                    px.copy_from_slice(&rgb);
+                }
+                stats
+            })
+            .reduce(DepthStats::default, |mut a, b| {
+                a.merge(&b);
+                a
+            });
+        (image, stats)
+    }
+
+    /// The stored fragments as a DeepFrame.
+    pub fn deep_frame(&self) -> Result<DeepFrame, DeepFrameError> {
+        let counts: Vec<u32> = self.fill.clone();
+        DeepFrame::build(self.width, self.height, &counts, |p, out| {
+            out.extend_from_slice(self.stored(p))
+        })
+    }
+}
+
+/// Regions as a capture target with a given policy: what a method hands to
+/// [`strata_raster::Prepared::rasterize`].
+pub struct RegionCapture<'a> {
+    /// The regions to fill.
+    pub regions: &'a mut Regions,
+    /// What a full region does.
+    pub policy: Policy,
+    /// Where evicted fragments go, if anywhere.
+    pub evicted: Option<&'a dyn Evicted>,
+}
+
+impl CaptureTarget for RegionCapture<'_> {
+    type Sink<'s>
+        = RegionSink<'s>
+    where
+        Self: 's;
+
+    fn sinks(&mut self, layout: &StripLayout) -> Vec<RegionSink<'_>> {
+        self.regions.strips(layout, self.policy, self.evicted)
+    }
+}
+
+/// Capture into the regions of one strip of rows.
+pub struct RegionSink<'a> {
+    first_pixel: usize,
+    /// Index of this strip's first slot in the whole slot array.
+    base: usize,
+    offsets: &'a [u32],
+    fill: &'a mut [u32],
+    slots: &'a mut [Fragment],
+    policy: Policy,
+    evicted: Option<&'a dyn Evicted>,
+    lost: u64,
+    lost_total: &'a AtomicU64,
+}
+
+impl std::fmt::Debug for RegionSink<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RegionSink")
+            .field("first_pixel", &self.first_pixel)
+            .field("lost", &self.lost)
+            .finish()
+    }
+}
+
+impl FragmentSink for RegionSink<'_> {
+    #[inline(always)]
+    fn push(&mut self, pixel: u32, fragment: Fragment) {
+        let p = pixel as usize;
+        let local = p - self.first_pixel;
+        let start = self.offsets[p] as usize - self.base;
+        let capacity = (self.offsets[p + 1] - self.offsets[p]) as usize;
+        let n = self.fill[local] as usize;
+        let region = &mut self.slots[start..start + capacity];
+        match self.policy {
+            Policy::Append => {
+                if n < capacity {
+                    region[n] = fragment;
+                    self.fill[local] += 1;
+                } else {
+                    self.lost += 1;
+                }
+            }
+            Policy::KeepNearest => {
+                let key = fragment.order_key();
+                if n == capacity {
+                    // Full: the new fragment enters only if nearer than the farthest kept one.
+                    if capacity == 0 || region[n - 1].order_key() <= key {
+                        self.lost += 1;
+                        if let Some(e) = self.evicted {
+                            e.evicted(p, fragment);
+                        }
+                        return;
+                    }
+                    self.lost += 1;
+                    if let Some(e) = self.evicted {
+                        e.evicted(p, region[n - 1]);
+                    }
+                } else {
+                    self.fill[local] += 1;
+                }
+                // Insertion: shift farther fragments back by one.
+                let mut j = n.min(capacity - 1);
+                while j > 0 && region[j - 1].order_key() > key {
+                    region[j] = region[j - 1];
+                    j -= 1;
+                }
+                region[j] = fragment;
+            }
+        }
+    }
+
+    fn finish(&mut self) {
+        self.lost_total.fetch_add(self.lost, Relaxed);
+    }
+}
+
+/// Exclusive prefix sum of per-pixel counts, in parallel: `offsets[p] = Σ counts[..p]`, plus the
+/// total as `offsets[n]`. Replaces the seed S-buffer's hashed group counters (a GPU device for
+/// atomic contention) with the plain two-level parallel scan a CPU wants.
+pub fn exclusive_prefix_sum(counts: &[u32]) -> (Vec<u32>, u64) {
+    const BLOCK: usize = 64 * 1024;
+    let block_sums: Vec<u64> = counts
+        .par_chunks(BLOCK)
+        .map(|b| b.iter().map(|&c| u64::from(c)).sum())
+        .collect();
+    let mut starts = Vec::with_capacity(block_sums.len());
+    let mut total = 0u64;
+    for s in &block_sums {
+        starts.push(total);
+        total += s;
+    }
+    let mut offsets = vec![0u32; counts.len() + 1];
+    if total <= u64::from(u32::MAX) {
+        offsets[..counts.len()]
+            .par_chunks_mut(BLOCK)
+            .zip(counts.par_chunks(BLOCK))
+            .zip(starts.par_iter())
+            .for_each(|((out, c), &start)| {
+                let mut acc = start as u32;
+                for (o, &v) in out.iter_mut().zip(c) {
+                    *o = acc;
+                    acc += v;
+                }
+            });
+        offsets[counts.len()] = total as u32;
+    }
+    (offsets, total)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_core::{ObjectId, Rgba8};
+
+    fn frag(depth: f32, o: u32) -> Fragment {
+        Fragment {
+            depth,
+            color: Rgba8([o as u8, 0, 0, 128]),
+            object: ObjectId(o),
+        }
+    }
+
+    fn push_all(
+        r: &mut Regions,
+        layout: &StripLayout,
+        policy: Policy,
+        frags: &[(u32, Fragment)],
+        ev: Option<&dyn Evicted>,
+    ) {
+        let mut sinks = r.strips(layout, policy, ev);
+        for &(p, f) in frags {
+            sinks[p as usize / layout.pixels_per_strip()].push(p, f);
+        }
+        for s in &mut sinks {
+            s.finish();
+        }
+    }
+
+    #[test]
+    fn prefix_sum_matches_sequential() {
+        let counts: Vec<u32> = (0..200_000u32).map(|i| i % 7).collect();
+        let (offsets, total) = exclusive_prefix_sum(&counts);
+        let mut acc = 0u32;
+        for (p, &c) in counts.iter().enumerate() {
+            assert_eq!(offsets[p], acc);
+            acc += c;
+        }
+        assert_eq!((offsets[counts.len()], total), (acc, u64::from(acc)));
+    }
+
+    #[test]
+    fn append_keeps_the_first_and_counts_the_rest() {
+        let layout = StripLayout {
+            width: 2,
+            height: 2,
+            strip_height: 1,
+        };
+        let mut r = Regions::new();
+        r.uniform(2, 2, 2).unwrap();
+        push_all(
+            &mut r,
+            &layout,
+            Policy::Append,
+            &[
+                (3, frag(0.9, 1)),
+                (3, frag(0.1, 2)),
+                (3, frag(0.5, 3)),
+                (0, frag(0.2, 4)),
+            ],
+            None,
+        );
+        assert_eq!(r.stored(3), &[frag(0.9, 1), frag(0.1, 2)]);
+        assert_eq!(r.stored(0), &[frag(0.2, 4)]);
+        assert_eq!((r.lost(), r.stored_count()), (1, 3));
+    }
+
+    #[test]
+    fn keep_nearest_keeps_the_k_nearest_sorted_and_reports_evictions() {
+        use std::sync::Mutex;
+        struct Log(Mutex<Vec<(usize, f32)>>);
+        impl Evicted for Log {
+            fn evicted(&self, pixel: usize, f: Fragment) {
+                self.0.lock().unwrap().push((pixel, f.depth));
+            }
+        }
+        let log = Log(Mutex::new(Vec::new()));
+        let layout = StripLayout {
+            width: 1,
+            height: 1,
+            strip_height: 1,
+        };
+        let mut r = Regions::new();
+        r.uniform(1, 1, 3).unwrap();
+        let depths = [0.5, 0.9, 0.1, 0.7, 0.3, 0.95, 0.2];
+        let frags: Vec<_> = depths
+            .iter()
+            .enumerate()
+            .map(|(i, &d)| (0, frag(d, i as u32)))
+            .collect();
+        push_all(&mut r, &layout, Policy::KeepNearest, &frags, Some(&log));
+        let kept: Vec<f32> = r.stored(0).iter().map(|f| f.depth).collect();
+        assert_eq!(kept, [0.1, 0.2, 0.3]);
+        assert_eq!(r.lost(), 4);
+        let mut evicted: Vec<f32> = log.0.lock().unwrap().iter().map(|e| e.1).collect();
+        evicted.sort_by(f32::total_cmp);
+        assert_eq!(evicted, [0.5, 0.7, 0.9, 0.95]);
+    }
+
+    #[test]
+    fn variable_capacities_and_zero_capacity_regions() {
+        let layout = StripLayout {
+            width: 3,
+            height: 1,
+            strip_height: 1,
+        };
+        let mut r = Regions::new();
+        r.with_capacities(3, 1, &[0, 1, 2]).unwrap();
+        push_all(
+            &mut r,
+            &layout,
+            Policy::KeepNearest,
+            &[
+                (0, frag(0.5, 0)),
+                (1, frag(0.5, 1)),
+                (1, frag(0.4, 2)),
+                (2, frag(0.3, 3)),
+            ],
+            None,
+        );
+        assert!(r.stored(0).is_empty());
+        assert_eq!(r.stored(1), &[frag(0.4, 2)]);
+        assert_eq!(r.stored(2), &[frag(0.3, 3)]);
+        assert_eq!(r.lost(), 2);
+        let (img, stats) = r.resolve([1.0; 3], false);
+        assert_eq!(img.pixel(0, 0), [255, 255, 255]);
+        assert_eq!(stats.fragments(), 2);
+        assert_eq!(r.deep_frame().unwrap().fragment_count(), 2);
+        assert_eq!(r.memory_bytes(), 4 * 4 + 3 * 4 + 3 * 12);
+    }
+}
