@@ -30,6 +30,8 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Time each pass of a method on a scene over repeated runs: median, min, max.
     Bench(cmd::bench::Args),
+    /// Compare methods on a scene: per-pass times, memory, RMSE, FLIP, bad pixels, heat maps.
+    Compare(cmd::compare::Args),
     /// List the built-in scenes, or print one as a scene file.
     Scenes(cmd::scenes::Args),
     /// List the fragment stores (`--method`).
@@ -58,6 +60,7 @@ fn main() -> ExitCode {
         Command::Render(a) => cmd::render::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Compare(a) => cmd::compare::run(a),
         Command::Scenes(a) => cmd::scenes::run(a),
         Command::Methods(a) => cmd::methods::run(a),
     };

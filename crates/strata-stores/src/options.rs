@@ -221,6 +221,51 @@ impl Default for MethodOptions {
     }
 }
 
+impl MethodOptions {
+    /// Sets one option by its command-line name (`k`, `budget`, `k-from`, `tail-blend`, …), as
+    /// method specs like `kbuffer:k=8` or `vkbuffer:budget=25%:k-from=optimal` write them. A flag
+    /// given without a value (`kbuffer:tail-blend`) is `true`.
+    pub fn set(&mut self, key: &str, value: Option<&str>) -> Result<(), String> {
+        fn num<T: std::str::FromStr>(key: &str, v: Option<&str>) -> Result<T, String> {
+            let v = v.ok_or_else(|| format!("{key} needs a value ({key}=…)"))?;
+            v.trim()
+                .parse()
+                .map_err(|_| format!("{key}={v}: not a valid number"))
+        }
+        fn flag(key: &str, v: Option<&str>) -> Result<bool, String> {
+            match v.map(str::trim) {
+                None | Some("true" | "yes" | "on" | "1") => Ok(true),
+                Some("false" | "no" | "off" | "0") => Ok(false),
+                Some(v) => Err(format!("{key}={v}: expected true or false")),
+            }
+        }
+        let val = |key: &str| value.ok_or_else(|| format!("{key} needs a value ({key}=…)"));
+        match key.trim() {
+            "pool" => self.pool = val(key)?.parse()?,
+            "array-size" | "a" => self.array_size = num(key, value)?,
+            "k" => self.k = num(key, value)?,
+            "tail-blend" => self.tail_blend = flag(key, value)?,
+            "budget" => self.budget = val(key)?.parse()?,
+            "k-from" => self.k_from = val(key)?.parse()?,
+            "periphery-exponent" | "d" => self.importance.periphery_exponent = num(key, value)?,
+            "alpha" => self.importance.alpha = num(key, value)?,
+            "n-limit" => self.importance.n_limit = Some(num(key, value)?),
+            "noise" | "lambda" => self.importance.noise = num(key, value)?,
+            "seed" => self.importance.seed = num(key, value)?,
+            "l-num" => self.l_num = num(key, value)?,
+            "leading-zeros" => self.leading_zeros = flag(key, value)?,
+            "max-layers" => self.max_layers = num(key, value)?,
+            other => {
+                return Err(format!(
+                    "unknown option '{other}' (known: pool, array-size, k, tail-blend, budget, k-from, \
+                     periphery-exponent, alpha, n-limit, noise, seed, l-num, leading-zeros, max-layers)"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -249,6 +294,27 @@ mod tests {
         assert_eq!(Budget::SceneShare(0.25).fragments(100, 1000), 250);
         assert_eq!(Budget::PerPixel(2.0).fragments(100, 1000), 200);
         assert_eq!(Budget::Bytes(1200).fragments(100, 1000), 100);
+    }
+
+    #[test]
+    fn options_set_by_name() {
+        let mut o = MethodOptions::default();
+        o.set("k", Some("8")).unwrap();
+        o.set("budget", Some("25%")).unwrap();
+        o.set("k-from", Some("optimal")).unwrap();
+        o.set("tail-blend", None).unwrap();
+        o.set("leading-zeros", Some("false")).unwrap();
+        assert_eq!(
+            (o.k, o.budget, o.k_from, o.tail_blend, o.leading_zeros),
+            (8, Budget::SceneShare(0.25), KFrom::Optimal, true, false)
+        );
+        assert!(o.set("k", Some("many")).unwrap_err().contains("k=many"));
+        assert!(o.set("k", None).is_err());
+        assert!(
+            o.set("colour", Some("red"))
+                .unwrap_err()
+                .contains("unknown option 'colour'")
+        );
     }
 
     #[test]

@@ -1,0 +1,459 @@
+//! `strata compare`: every method on one scene, timed and measured against a reference.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde_json::{Value, json};
+use strata_core::metrics::{self, BadPixels};
+use strata_raster::{FrameInput, Rasterizer};
+use strata_stores::{FrameResult, MethodOptions, render_frame};
+
+use crate::options::{MethodParams, open_scene, search_path, thread_pool};
+use crate::report::ms;
+
+/// Render a scene with several methods and compare them with a reference, the way seed 001's
+/// demo application does: per-pass times, memory, fragments kept and lost, RMSE, mean FLIP and
+/// bad pixels, side by side with FLIP heat maps.
+///
+/// A method may carry its own options after colons, overriding the method options given on the
+/// command line: `kbuffer:k=8`, `vkbuffer:budget=25%:k-from=optimal`, `kbuffer:k=2:tail-blend`.
+/// Writes OUT_DIR/report.json, report.md, report.html, one PNG per method and one FLIP heat map
+/// per method (`<name>-flip.png`), and prints the table.
+#[derive(clap::Args, Debug)]
+pub(crate) struct Args {
+    /// Scene file (TOML) or built-in scene name.
+    pub(crate) scene: String,
+
+    /// Methods to compare, comma-separated, each optionally with `:key=value` options.
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub(crate) methods: Vec<String>,
+
+    /// The method whose image the others are measured against (an exact method).
+    #[arg(long, default_value = "abuffer")]
+    pub(crate) reference: String,
+
+    /// Folder to write the report, images and heat maps into.
+    #[arg(long, default_value = "strata-compare")]
+    pub(crate) out_dir: PathBuf,
+
+    /// Timed runs per method (the table shows medians).
+    #[arg(long, default_value_t = 5)]
+    pub(crate) runs: usize,
+
+    /// Untimed runs first.
+    #[arg(long, default_value_t = 1)]
+    pub(crate) warmup: usize,
+
+    /// Animation frame to pose the scene at.
+    #[arg(long, default_value_t = 0)]
+    pub(crate) frame: u32,
+
+    /// Worker threads (default: every available core).
+    #[arg(long, short = 'j')]
+    pub(crate) threads: Option<usize>,
+
+    /// Extra directory to look for mesh files in (repeatable).
+    #[arg(long = "models", value_name = "DIR")]
+    pub(crate) model_dirs: Vec<PathBuf>,
+
+    /// FLIP's pixels per degree (viewing distance and screen density).
+    #[arg(long, default_value_t = metrics::DEFAULT_PIXELS_PER_DEGREE)]
+    pub(crate) ppd: f32,
+
+    /// A pixel is bad if some channel differs from the reference by more than this many 8-bit
+    /// steps (DESIGN: 2).
+    #[arg(long, default_value_t = metrics::DEFAULT_BAD_PIXEL_THRESHOLD)]
+    pub(crate) threshold: u8,
+
+    #[command(flatten)]
+    pub(crate) params: MethodParams,
+}
+
+/// One entry of `--methods`: the method, its options and how the report names it.
+struct Spec {
+    label: String,
+    method: String,
+    options: MethodOptions,
+    file: String,
+}
+
+/// `name[:key=value[:key]…]` on top of the command line's options.
+fn parse_spec(spec: &str, base: &MethodOptions) -> Result<Spec> {
+    let mut parts = spec.split(':');
+    let method = parts.next().unwrap_or_default().trim().to_owned();
+    if method.is_empty() {
+        bail!("'{spec}': a method spec starts with the method's name (strata methods lists them)");
+    }
+    let mut options = base.clone();
+    for part in parts {
+        let (key, value) = match part.split_once('=') {
+            Some((k, v)) => (k, Some(v)),
+            None => (part, None),
+        };
+        options
+            .set(key, value)
+            .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
+    }
+    let file: String = spec
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    Ok(Spec {
+        label: spec.trim().to_owned(),
+        method,
+        options,
+        file,
+    })
+}
+
+/// What one method measured.
+struct Measured {
+    spec_index: usize,
+    passes: Vec<(&'static str, f64)>,
+    total_ms: f64,
+    last: FrameResult,
+    rmse: f64,
+    flip: f64,
+    bad: BadPixels,
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+/// Runs `strata compare`.
+pub(crate) fn run(args: Args) -> Result<()> {
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let base = args.params.method_options();
+    let specs: Vec<Spec> = args
+        .methods
+        .iter()
+        .filter(|m| !m.trim().is_empty())
+        .map(|m| parse_spec(m, &base))
+        .collect::<Result<_>>()?;
+    if specs.is_empty() {
+        bail!("--methods names no method");
+    }
+    let mut seen = std::collections::HashSet::new();
+    for s in &specs {
+        strata_stores::create(&s.method, &s.options)?;
+        if !seen.insert(s.file.clone()) {
+            bail!("'{}' is listed twice", s.label);
+        }
+    }
+    strata_stores::create(&args.reference, &base)?;
+    // Create the output folder before the (long) measuring, so a bad path fails at once.
+    let dir = &args.out_dir;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+
+    let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
+    scene.check_frame(args.frame)?;
+    let input = FrameInput::from_scene(&scene, args.frame);
+    let pool = thread_pool(args.threads)?;
+    let threads = pool.current_num_threads();
+    let mut raster = Rasterizer::default();
+
+    eprintln!("reference: {} …", args.reference);
+    let mut reference = strata_stores::create(&args.reference, &base)?;
+    let reference_result =
+        pool.install(|| render_frame(reference.as_mut(), &mut raster, &input, scene.background))?;
+    let reference_image = reference_result.image;
+    drop(reference);
+    reference_image.write_png(dir.join("reference.png"))?;
+
+    let mut measured = Vec::new();
+    for (i, spec) in specs.iter().enumerate() {
+        eprintln!(
+            "[{}/{}] {}: {} warm-up + {} timed runs …",
+            i + 1,
+            specs.len(),
+            spec.label,
+            args.warmup,
+            args.runs
+        );
+        let mut method = strata_stores::create(&spec.method, &spec.options)?;
+        let mut per_pass: Vec<(&'static str, Vec<f64>)> = Vec::new();
+        let mut totals = Vec::new();
+        let mut last = None;
+        for run in 0..args.warmup + args.runs {
+            let r = pool
+                .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))?;
+            if run >= args.warmup {
+                for (name, d) in r.timings.iter() {
+                    match per_pass.iter_mut().find(|(n, _)| *n == name) {
+                        Some((_, v)) => v.push(ms(d)),
+                        None => per_pass.push((name, vec![ms(d)])),
+                    }
+                }
+                totals.push(ms(r.timings.total()));
+            }
+            last = Some(r);
+        }
+        let last = last.context("no run")?;
+        let rmse = metrics::rmse(&reference_image, &last.image)?;
+        let flip = metrics::flip(&reference_image, &last.image, args.ppd)?;
+        let bad = metrics::bad_pixels(&reference_image, &last.image, args.threshold)?;
+        last.image
+            .write_png(dir.join(format!("{}.png", spec.file)))?;
+        flip.heatmap
+            .write_png(dir.join(format!("{}-flip.png", spec.file)))?;
+        measured.push(Measured {
+            spec_index: i,
+            passes: per_pass
+                .into_iter()
+                .map(|(n, mut v)| (n, median(&mut v)))
+                .collect(),
+            total_ms: median(&mut totals),
+            last,
+            rmse,
+            flip: flip.mean,
+            bad,
+        });
+    }
+
+    print_table(&args, &specs, &measured, &scene.name, threads);
+    let report = report_json(&args, &specs, &measured, &scene, threads);
+    std::fs::write(
+        dir.join("report.json"),
+        serde_json::to_string_pretty(&report)? + "\n",
+    )
+    .with_context(|| format!("cannot write {}", dir.join("report.json").display()))?;
+    write_pages(dir, &args, &specs, &measured, &scene.name, threads)?;
+    eprintln!("wrote {}", dir.join("report.html").display());
+    Ok(())
+}
+
+fn mib(b: u64) -> f64 {
+    b as f64 / (1 << 20) as f64
+}
+
+fn pass(m: &Measured, name: &str) -> f64 {
+    m.passes
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map_or(0.0, |(_, v)| *v)
+}
+
+/// Column titles and cells of the comparison table (stdout, markdown and HTML share them).
+const COLUMNS: [&str; 11] = [
+    "method",
+    "total ms",
+    "capture ms",
+    "resolve ms",
+    "memory MiB",
+    "used MiB",
+    "fragments",
+    "lost",
+    "RMSE",
+    "mean FLIP",
+    "bad pixels",
+];
+
+fn cells(spec: &Spec, m: &Measured) -> [String; 11] {
+    let c = &m.last.capture;
+    [
+        spec.label.clone(),
+        format!("{:.2}", m.total_ms),
+        format!("{:.2}", pass(m, "capture")),
+        format!("{:.2}", pass(m, "resolve")),
+        format!("{:.1}", mib(m.last.memory_bytes)),
+        format!("{:.1}", mib(m.last.used_memory_bytes)),
+        c.fragments_stored.to_string(),
+        c.dropped.to_string(),
+        format!("{:.5}", m.rmse),
+        format!("{:.5}", m.flip),
+        format!("{:.3} %", 100.0 * m.bad.share()),
+    ]
+}
+
+fn print_table(args: &Args, specs: &[Spec], measured: &[Measured], scene: &str, threads: usize) {
+    println!(
+        "strata compare: {scene}, frame {}, {threads} thread(s), medians of {} runs; reference {}; \
+         bad pixels: a channel off by more than {}/255; FLIP at {} pixels per degree",
+        args.frame, args.runs, args.reference, args.threshold, args.ppd
+    );
+    let rows: Vec<[String; 11]> = measured
+        .iter()
+        .map(|m| cells(&specs[m.spec_index], m))
+        .collect();
+    let widths: Vec<usize> = (0..COLUMNS.len())
+        .map(|i| {
+            rows.iter()
+                .map(|r| r[i].len())
+                .chain([COLUMNS[i].len()])
+                .max()
+                .unwrap_or(0)
+        })
+        .collect();
+    let line = |cells: &[String]| {
+        cells
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                if i == 0 {
+                    format!("{c:<w$}", w = widths[i])
+                } else {
+                    format!("{c:>w$}", w = widths[i])
+                }
+            })
+            .collect::<Vec<_>>()
+            .join("  ")
+    };
+    println!("{}", line(&COLUMNS.map(str::to_owned)));
+    for r in &rows {
+        println!("{}", line(r));
+    }
+}
+
+fn report_json(
+    args: &Args,
+    specs: &[Spec],
+    measured: &[Measured],
+    scene: &strata_scene::Scene,
+    threads: usize,
+) -> Value {
+    let methods: Vec<Value> = measured
+        .iter()
+        .map(|m| {
+            let spec = &specs[m.spec_index];
+            let c = &m.last.capture;
+            let passes: serde_json::Map<String, Value> = m
+                .passes
+                .iter()
+                .map(|(n, v)| ((*n).to_owned(), json!(v)))
+                .collect();
+            json!({
+                "label": spec.label,
+                "method": spec.method,
+                "passes_ms": Value::Object(passes),
+                "total_ms": m.total_ms,
+                "memory_bytes": m.last.memory_bytes,
+                "used_memory_bytes": m.last.used_memory_bytes,
+                "fragments_rasterized": c.fragments_rasterized,
+                "fragments_stored": c.fragments_stored,
+                "fragments_lost": c.dropped,
+                "rmse": m.rmse,
+                "mean_flip": m.flip,
+                "bad_pixels": {
+                    "count": m.bad.count,
+                    "share": m.bad.share(),
+                    "threshold": m.bad.threshold,
+                },
+                "image": format!("{}.png", spec.file),
+                "flip_heatmap": format!("{}-flip.png", spec.file),
+            })
+        })
+        .collect();
+    json!({
+        "scene": scene.name,
+        "width": scene.width,
+        "height": scene.height,
+        "frame": args.frame,
+        "triangles": scene.triangle_count(),
+        "threads": threads,
+        "runs": args.runs,
+        "warmup": args.warmup,
+        "reference": args.reference,
+        "bad_pixel_threshold": args.threshold,
+        "pixels_per_degree": args.ppd,
+        "methods": methods,
+    })
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn write_pages(
+    dir: &Path,
+    args: &Args,
+    specs: &[Spec],
+    measured: &[Measured],
+    scene: &str,
+    threads: usize,
+) -> Result<()> {
+    let intro = format!(
+        "Scene {scene}, frame {}, {threads} thread(s), medians of {} timed runs after {} warm-up. \
+         Errors against {} (reference.png): RMSE over RGB in [0, 1], mean FLIP at {} pixels per degree, \
+         bad pixels = a channel off by more than {}/255. \"lost\" counts fragments a method dropped or evicted.",
+        args.frame, args.runs, args.warmup, args.reference, args.ppd, args.threshold
+    );
+    let mut md = String::new();
+    writeln!(md, "# strata compare: {scene}\n\n{intro}\n")?;
+    writeln!(md, "| {} |", COLUMNS.join(" | "))?;
+    writeln!(md, "| --- |{}", " ---: |".repeat(COLUMNS.len() - 1))?;
+    for m in measured {
+        writeln!(md, "| {} |", cells(&specs[m.spec_index], m).join(" | "))?;
+    }
+    writeln!(md)?;
+    for m in measured {
+        let s = &specs[m.spec_index];
+        writeln!(
+            md,
+            "## {}\n\n![{0}]({}.png) ![FLIP]({1}-flip.png)\n",
+            s.label, s.file
+        )?;
+    }
+    std::fs::write(dir.join("report.md"), md)
+        .with_context(|| format!("cannot write {}", dir.join("report.md").display()))?;
+
+    let mut h = String::new();
+    writeln!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>strata compare: {}</title><style>",
+        html_escape(scene)
+    )?;
+    writeln!(
+        h,
+        "body{{font-family:system-ui,sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{padding:.3em .6em;border-bottom:1px solid #ddd;text-align:right}}td:first-child,th:first-child{{text-align:left}}.grid{{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:1.2em;margin-top:1.5em}}figure{{margin:0}}img{{width:100%;border:1px solid #ccc}}figcaption{{font-size:.9em}}"
+    )?;
+    writeln!(
+        h,
+        "</style></head><body><h1>strata compare: {}</h1><p>{}</p>",
+        html_escape(scene),
+        html_escape(&intro)
+    )?;
+    writeln!(h, "<table><tr><th>{}</th></tr>", COLUMNS.join("</th><th>"))?;
+    for m in measured {
+        let c = cells(&specs[m.spec_index], m).map(|c| html_escape(&c));
+        writeln!(h, "<tr><td>{}</td></tr>", c.join("</td><td>"))?;
+    }
+    writeln!(
+        h,
+        "</table><div class=\"grid\"><figure><img src=\"reference.png\" alt=\"reference\"><figcaption><b>reference</b>: {}</figcaption></figure>",
+        html_escape(&args.reference)
+    )?;
+    for m in measured {
+        let s = &specs[m.spec_index];
+        writeln!(
+            h,
+            "<figure><img src=\"{f}.png\" alt=\"{l}\"><img src=\"{f}-flip.png\" alt=\"FLIP of {l}\"><figcaption><b>{l}</b>: RMSE {:.5}, mean FLIP {:.5}, {:.3} % bad pixels</figcaption></figure>",
+            m.rmse,
+            m.flip,
+            100.0 * m.bad.share(),
+            f = html_escape(&s.file),
+            l = html_escape(&s.label)
+        )?;
+    }
+    writeln!(h, "</div></body></html>")?;
+    std::fs::write(dir.join("report.html"), h)
+        .with_context(|| format!("cannot write {}", dir.join("report.html").display()))
+}

@@ -1,0 +1,96 @@
+//! `strata compare` end to end: the table, report.json, images and heat maps.
+
+use assert_cmd::Command;
+use tempfile::TempDir;
+
+fn strata() -> Command {
+    Command::cargo_bin("strata").expect("the strata binary")
+}
+
+#[test]
+fn compare_writes_a_report_with_metrics_against_the_reference() {
+    let dir = TempDir::new().unwrap();
+    let out = strata()
+        .args([
+            "compare", "overlap", "--runs", "2", "--warmup", "0", "-j", "2",
+        ])
+        .args(["--methods", "abuffer,abuffer:pool=60000"])
+        .arg("--out-dir")
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("RMSE") && stdout.contains("mean FLIP"),
+        "{stdout}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+            .unwrap();
+    let methods = report["methods"].as_array().unwrap();
+    assert_eq!(methods.len(), 2);
+    // The reference compared with itself: no error at all.
+    let exact = &methods[0];
+    assert_eq!(exact["label"], "abuffer");
+    assert_eq!(exact["rmse"], 0.0);
+    assert_eq!(exact["mean_flip"], 0.0);
+    assert_eq!(exact["bad_pixels"]["count"], 0);
+    assert_eq!(exact["fragments_lost"], 0);
+    assert!(exact["passes_ms"]["capture"].as_f64().unwrap() > 0.0);
+    // A pool of 60,000 nodes cannot hold overlap's 100,913 fragments: errors and losses show.
+    let small = &methods[1];
+    assert_eq!(
+        small["fragments_stored"].as_u64().unwrap() + small["fragments_lost"].as_u64().unwrap(),
+        100_913
+    );
+    assert!(small["rmse"].as_f64().unwrap() > 0.0);
+    assert!(small["mean_flip"].as_f64().unwrap() > 0.0);
+    assert!(small["bad_pixels"]["count"].as_u64().unwrap() > 0);
+    assert_eq!(report["bad_pixel_threshold"], 2);
+    for f in [
+        "reference.png",
+        "abuffer.png",
+        "abuffer-flip.png",
+        "abuffer_pool_60000.png",
+        "abuffer_pool_60000-flip.png",
+        "report.md",
+        "report.html",
+    ] {
+        assert!(dir.path().join(f).is_file(), "{f} missing");
+    }
+    let html = std::fs::read_to_string(dir.path().join("report.html")).unwrap();
+    assert!(html.contains("abuffer:pool=60000") && html.contains("abuffer_pool_60000-flip.png"));
+}
+
+#[test]
+fn compare_rejects_bad_specs_before_rendering() {
+    let dir = TempDir::new().unwrap();
+    for (methods, needle) in [
+        ("abuffer,nosuch", "unknown method 'nosuch'"),
+        ("abuffer:k", "k needs a value"),
+        ("abuffer:colour=red", "unknown option 'colour'"),
+        ("abuffer,abuffer", "listed twice"),
+    ] {
+        let out = strata()
+            .args(["compare", "overlap", "--methods", methods, "--out-dir"])
+            .arg(dir.path())
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "{methods}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("strata: error:") && err.contains(needle),
+            "{methods}: {err}"
+        );
+        assert!(!err.contains("panicked"));
+        assert!(
+            !dir.path().join("report.json").exists(),
+            "{methods}: rendered before failing"
+        );
+    }
+}
