@@ -17,6 +17,9 @@
 //! | name | module | seed |
 //! | --- | --- | --- |
 //! | `abuffer` | [`abuffer::linked_list`] | 000 §2, 001 Alg. 4–6 |
+//! | `abuffer-array` | [`abuffer::fixed_array`] | 001 §3.1.1, Alg. 1–3 |
+//! | `sbuffer` | [`abuffer::sbuffer`] | 001 §3.1.3, Alg. 7–12 |
+//! | `wf` | [`wf`] | 002 §2.5.2, Eq. 2–4 |
 
 pub mod abuffer;
 pub mod count;
@@ -24,6 +27,7 @@ pub mod method;
 pub mod options;
 pub mod regions;
 pub mod registry;
+pub mod wf;
 
 pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
 pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
