@@ -17,13 +17,21 @@
 //! | name | module | seed |
 //! | --- | --- | --- |
 //! | `abuffer` | [`abuffer::linked_list`] | 000 §2, 001 Alg. 4–6 |
+//! | `abuffer-array` | [`abuffer::fixed_array`] | 001 §3.1.1, Alg. 1–3 |
+//! | `sbuffer` | [`abuffer::sbuffer`] | 001 §3.1.3, Alg. 7–12 |
+//! | `wf` | [`wf`] | 002 §2.5.2, Eq. 2–4 |
+//! | `depth-peeling` | [`baselines::depth_peeling`] | Everitt 2001 (001 §1.1) |
+//! | `dual-depth-peeling` | [`baselines::dual_depth_peeling`] | Bavoil & Myers 2008 (000 §1.1) |
+//! | `wboit` | [`baselines::wboit`] | McGuire & Bavoil 2013 |
 
 pub mod abuffer;
+pub mod baselines;
 pub mod count;
 pub mod method;
 pub mod options;
 pub mod regions;
 pub mod registry;
+pub mod wf;
 
 pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
 pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};

@@ -1,0 +1,15 @@
+//! The methods people use instead of storing fragments: multi-pass peeling and single-pass
+//! weighted blending.
+//!
+//! | name | module | source |
+//! | --- | --- | --- |
+//! | `depth-peeling` | [`depth_peeling`] | Everitt 2001 (seed 001 §1.1, seed 000 §1.1) |
+//! | `dual-depth-peeling` | [`dual_depth_peeling`] | Bavoil & Myers 2008, as VTK's `vtkDualDepthPeelingPass` |
+//! | `wboit` | [`wboit`] | McGuire & Bavoil 2013 (JCGT 2(2)) |
+//!
+//! The peeling methods are exact given enough passes (and hand out a DeepFrame); weighted blended
+//! OIT is an approximation and keeps no fragments.
+
+pub mod depth_peeling;
+pub mod dual_depth_peeling;
+pub mod wboit;
