@@ -35,4 +35,4 @@ pub mod wf;
 
 pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
 pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
-pub use registry::{METHODS, UnknownMethod, create};
+pub use registry::{METHODS, MethodInfo, UnknownMethod, create};

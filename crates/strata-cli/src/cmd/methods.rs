@@ -8,8 +8,8 @@ pub(crate) struct Args {}
 
 /// Runs `strata methods`.
 pub(crate) fn run(_args: Args) -> Result<()> {
-    for (name, what) in strata_stores::METHODS {
-        println!("{name:<20} {what}");
+    for m in strata_stores::METHODS {
+        println!("{:<20} {}", m.name, m.summary);
     }
     Ok(())
 }

@@ -61,6 +61,9 @@ use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLa
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
 
+/// The name `--method` selects it by.
+pub const NAME: &str = "abuffer";
+
 /// The end of a list.
 pub const EMPTY: u32 = u32::MAX;
 
