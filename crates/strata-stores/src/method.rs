@@ -48,6 +48,10 @@ pub struct CaptureReport {
     pub fragments_stored: u64,
     /// Fragments lost to a full buffer; never silent — every method reports them here.
     pub dropped: u64,
+    /// Fragments that did not fit but were not lost either: blended order-independently into a
+    /// per-pixel tail behind the stored ones (the k-buffer's `--tail-blend`, as nvpro's OIT
+    /// sample does). Counted apart from `dropped`; 0 for every other method.
+    pub tail_blended: u64,
     /// Times the store had to grow its buffers and capture again.
     pub regrows: u32,
     /// What triangle setup culled, clipped and binned.

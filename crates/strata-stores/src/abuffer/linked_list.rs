@@ -357,6 +357,7 @@ impl Method for LinkedListABuffer {
                     dropped,
                     regrows,
                     setup: prepared.setup_stats(),
+                    ..CaptureReport::default()
                 });
             }
             // Grow to hold every fragment plus each strip's unused block tail, with headroom
