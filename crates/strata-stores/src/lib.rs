@@ -17,9 +17,12 @@
 //! | name | module | seed |
 //! | --- | --- | --- |
 //! | `abuffer` | [`abuffer::linked_list`] | 000 §2, 001 Alg. 4–6 |
+//! | `kbuffer` | [`kbuffer::fixed`] | 001 §3.2.1, Alg. 13–15 |
+//! | `vkbuffer` | [`kbuffer::variable`] | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
 
 pub mod abuffer;
 pub mod count;
+pub mod kbuffer;
 pub mod method;
 pub mod options;
 pub mod regions;
