@@ -14,8 +14,8 @@
 //!    proportion to importance, each pixel capped at its headroom `h(p) = count(p) − 1`: find the
 //!    water level `s` with `Σ min(h(p), s · I(p)) = R` by iterating
 //!    `s ← (R − Σ_capped h) / Σ_uncapped I` (the capped set only grows, and the level is exact
-//!    once a round caps nobody new; each round is one parallel pass), then give capped pixels
-//!    `h(p)` and the others `⌊s · I(p)⌋`.
+//!    once a round caps nobody new; each round is one parallel pass over the pixels with room),
+//!    then give capped pixels `h(p)` and the others `⌊s · I(p)⌋`.
 //! 5. If the pixels that still have headroom all have importance 0, they share what is left
 //!    equally (step 4 with every importance 1).
 //! 6. The units lost to the floors (fewer than the uncapped pixels) go one each to the pixels with
@@ -66,14 +66,21 @@ pub fn allocate_k(counts: &[u32], importance: &[f32], budget: u64, k: &mut Vec<u
     assert_eq!(importance.len(), pixels, "one importance per pixel");
     k.clear();
     k.resize(pixels, 0);
-    let (total, covered) = counts
-        .par_chunks(PIXELS_PER_TASK)
-        .map(|c| {
-            c.iter().fold((0u64, 0u64), |(t, n), &x| {
-                (t + u64::from(x), n + u64::from(x > 0))
-            })
+    // One pass: the base k (1 per covered pixel) and the totals.
+    let parts: Vec<(u64, u64)> = k
+        .par_chunks_mut(PIXELS_PER_TASK)
+        .zip(counts.par_chunks(PIXELS_PER_TASK))
+        .map(|(k, c)| {
+            let (mut total, mut covered) = (0u64, 0u64);
+            for (k, &c) in k.iter_mut().zip(c) {
+                *k = c.min(1);
+                total += u64::from(c);
+                covered += u64::from(c > 0);
+            }
+            (total, covered)
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .collect();
+    let (total, covered) = parts.iter().fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let m = budget.min(total);
     let mut report = Allocation {
         budget,
@@ -87,24 +94,21 @@ pub fn allocate_k(counts: &[u32], importance: &[f32], budget: u64, k: &mut Vec<u
         return report;
     }
     if m < covered {
+        k.par_iter_mut().for_each(|k| *k = 0);
         most_important(counts, importance, m, k);
         return report;
     }
-    k.par_iter_mut()
-        .zip(counts)
-        .for_each(|(k, &c)| *k = c.min(1));
     let mut left = m - covered;
-    let mut frac = vec![0.0f32; pixels];
-    let (placed, rounds) = water_fill(k, counts, &|p| f64::from(importance[p]), left, &mut frac);
-    left -= placed;
-    report.rounds = rounds;
-    if left > 0 && left >= with_headroom(k, counts) {
-        // Every pixel with room left has importance 0: share the rest equally.
-        let (placed, rounds) = water_fill(k, counts, &|_| 1.0, left, &mut frac);
-        left -= placed;
-        report.rounds += rounds;
+    let mut fill = water_fill(k, counts, Some(importance), left);
+    left -= fill.placed;
+    report.rounds = fill.rounds;
+    if left > 0 && left >= fill.remainders.len() as u64 {
+        // The pixels of positive importance are full: the others share the rest equally.
+        fill = water_fill(k, counts, None, left);
+        left -= fill.placed;
+        report.rounds += fill.rounds;
     }
-    largest_remainders(k, counts, &frac, left);
+    largest_remainders(k, counts, fill.remainders, left);
     debug_assert_eq!(k.par_iter().map(|&x| u64::from(x)).sum::<u64>(), m);
     report
 }
@@ -130,11 +134,6 @@ fn most_important(counts: &[u32], importance: &[f32], m: u64, k: &mut [u32]) {
     }
 }
 
-/// Pixels that can still take a fragment (`k < count`).
-fn with_headroom(k: &[u32], counts: &[u32]) -> u64 {
-    k.par_iter().zip(counts).filter(|(k, c)| k < c).count() as u64
-}
-
 /// A pixel that can take more slots: its index, headroom and weight.
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
@@ -143,33 +142,45 @@ struct Candidate {
     w: f64,
 }
 
-/// Step 4: adds to `k` up to `amount` more slots in proportion to `weight`, each pixel capped at
-/// its headroom `count − k`; writes each uncapped pixel's fractional remainder to `frac` (0
-/// elsewhere). Returns the slots placed (≤ `amount`) and the rounds it took.
+/// What one [`water_fill`] did.
+#[derive(Debug, Default)]
+struct Fill {
+    /// Slots placed.
+    placed: u64,
+    /// Water-level rounds.
+    rounds: u32,
+    /// Largest-remainder keys of the pixels left below their cap (which can take one more):
+    /// the remainder's bits inverted (largest first) above the pixel index (lower first).
+    remainders: Vec<u64>,
+}
+
+/// Step 4: adds to `k` up to `amount` more slots in proportion to `weight` (the importance, or
+/// 1 for every pixel if `None`), each pixel capped at its headroom `count − k`.
 ///
-/// The pixels with headroom and positive weight are gathered once, in pixel order, into a compact
-/// list; the rounds run over that list.
-fn water_fill(
-    k: &mut [u32],
-    counts: &[u32],
-    weight: &(dyn Fn(usize) -> f64 + Sync),
-    amount: u64,
-    frac: &mut [f32],
-) -> (u64, u32) {
-    frac.par_iter_mut().for_each(|f| *f = 0.0);
-    let cands: Vec<Candidate> = k
-        .par_iter()
-        .zip(counts)
+/// The pixels with headroom and positive weight are gathered once into compact lists, one per
+/// chunk of pixels; the rounds and the final share run over those lists, chunk by chunk.
+fn water_fill(k: &mut [u32], counts: &[u32], weight: Option<&[f32]>, amount: u64) -> Fill {
+    let cands: Vec<Vec<Candidate>> = k
+        .par_chunks(PIXELS_PER_TASK)
+        .zip(counts.par_chunks(PIXELS_PER_TASK))
         .enumerate()
-        .filter_map(|(p, (&k, &c))| {
-            let (h, w) = (c - k, weight(p));
-            (h > 0 && w > 0.0).then_some(Candidate { p: p as u32, h, w })
+        .map(|(t, (k, c))| {
+            let base = t * PIXELS_PER_TASK;
+            let mut out = Vec::new();
+            for (i, (&k, &c)) in k.iter().zip(c).enumerate() {
+                let p = base + i;
+                let (h, w) = (c - k, weight.map_or(1.0, |w| f64::from(w[p])));
+                if h > 0 && w > 0.0 {
+                    out.push(Candidate { p: p as u32, h, w });
+                }
+            }
+            out
         })
         .collect();
     // Per-chunk sums, added in chunk order: the same result for any thread count.
     let sums = |s: f64| -> (u64, f64, u64) {
         let parts: Vec<(u64, f64, u64)> = cands
-            .par_chunks(PIXELS_PER_TASK)
+            .par_iter()
             .map(|chunk| {
                 let (mut capped_h, mut free_w, mut n_capped) = (0u64, 0.0f64, 0u64);
                 for c in chunk {
@@ -190,7 +201,7 @@ fn water_fill(
     // Level 0 caps nobody: its free weight is the total weight of the candidates.
     let (_, total_w, _) = sums(0.0);
     if total_w <= 0.0 || amount == 0 {
-        return (0, 0);
+        return Fill::default();
     }
     let mut s = amount as f64 / total_w;
     let mut state = sums(s);
@@ -212,48 +223,59 @@ fn water_fill(
     // The share of each candidate at level `s`: capped ones take their headroom, the others the
     // floor of `s · w`, keeping the remainder. In the rare case that f64 rounding pushes the floors
     // above `amount`, lower the level a hair and try again (floors only fall as the level falls).
-    let share = |s: f64, c: &Candidate| -> (u32, f32) {
+    let share = |s: f64, c: &Candidate| -> (u32, Option<f32>) {
         let x = s * c.w;
         if x >= f64::from(c.h) {
-            (c.h, 0.0)
+            (c.h, None)
         } else {
             let f = x.floor();
-            (f as u32, (x - f) as f32)
+            (f as u32, Some((x - f) as f32))
         }
     };
-    loop {
-        let shares: Vec<(u32, f32)> = cands.par_iter().map(|c| share(s, c)).collect();
-        let placed: u64 = shares.par_iter().map(|&(x, _)| u64::from(x)).sum();
+    let placed = loop {
+        let placed: u64 = cands
+            .par_iter()
+            .map(|chunk| chunk.iter().map(|c| u64::from(share(s, c).0)).sum::<u64>())
+            .sum();
         if placed <= amount {
-            for (c, &(x, r)) in cands.iter().zip(&shares) {
-                k[c.p as usize] += x;
-                frac[c.p as usize] = r;
-            }
-            return (placed, rounds);
+            break placed;
         }
         s = if s.is_finite() {
             s * (1.0 - 1e-12)
         } else {
             amount as f64 / total_w
         };
+    };
+    let remainders: Vec<Vec<u64>> = k
+        .par_chunks_mut(PIXELS_PER_TASK)
+        .zip(cands.par_iter())
+        .enumerate()
+        .map(|(t, (k, chunk))| {
+            let base = t * PIXELS_PER_TASK;
+            let mut keys = Vec::new();
+            for c in chunk {
+                let (x, r) = share(s, c);
+                k[c.p as usize - base] += x;
+                if let Some(r) = r {
+                    keys.push((u64::from(!r.max(0.0).to_bits()) << 32) | u64::from(c.p));
+                }
+            }
+            keys
+        })
+        .collect();
+    Fill {
+        placed,
+        rounds,
+        remainders: remainders.concat(),
     }
 }
 
-/// Step 6: one more slot each to the `left` pixels with room and the largest remainders.
-fn largest_remainders(k: &mut [u32], counts: &[u32], frac: &[f32], mut left: u64) {
-    while left > 0 {
-        let mut keys: Vec<u64> = k
-            .par_iter()
-            .zip(counts)
-            .zip(frac)
-            .enumerate()
-            .filter(|(_, ((k, c), _))| k < c)
-            .map(|(p, (_, f))| (u64::from(!f.max(0.0).to_bits()) << 32) | p as u64)
-            .collect();
-        if keys.is_empty() {
-            return;
-        }
-        let take = (left as usize).min(keys.len());
+/// Step 6: one more slot each to the `left` pixels below their cap with the largest remainders.
+/// (The floors lose fewer units than there are such pixels; should rounding ever leave more, the
+/// rest goes one slot a round to the pixels with room, in pixel order.)
+fn largest_remainders(k: &mut [u32], counts: &[u32], mut keys: Vec<u64>, mut left: u64) {
+    let take = (left as usize).min(keys.len());
+    if take > 0 {
         if take < keys.len() {
             keys.select_nth_unstable(take - 1);
         }
@@ -261,6 +283,18 @@ fn largest_remainders(k: &mut [u32], counts: &[u32], frac: &[f32], mut left: u64
             k[(key & u64::from(u32::MAX)) as usize] += 1;
         }
         left -= take as u64;
+    }
+    while left > 0 {
+        let before = left;
+        for (k, &c) in k.iter_mut().zip(counts) {
+            if left > 0 && *k < c {
+                *k += 1;
+                left -= 1;
+            }
+        }
+        if left == before {
+            return;
+        }
     }
 }
 

@@ -131,6 +131,10 @@ pub fn importance_map(
         .map(|(t, (out, counts))| {
             let mut sum = 0.0f64;
             for (i, (o, &n)) in out.iter_mut().zip(counts).enumerate() {
+                if n == 0 {
+                    *o = 0.0;
+                    continue;
+                }
                 let p = t * PIXELS_PER_TASK + i;
                 let (x, y) = ((p % width as usize) as u32, (p / width as usize) as u32);
                 *o = pixel_importance(x, y, width, height, n, n_limit, params) as f32;
