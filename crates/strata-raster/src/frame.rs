@@ -33,6 +33,9 @@ pub struct FrameInput<'a> {
     pub view: Mat4,
     /// Eye → clip (OpenGL convention).
     pub projection: Mat4,
+    /// The opaque background the frame is resolved onto, RGB in `[0, 1]`. The rasterizer does not
+    /// read it; stores whose capture depends on the final colours (the Optimal-K oracle) do.
+    pub background: [f32; 3],
     /// The objects, in draw order.
     pub objects: Vec<DrawObject<'a>>,
 }
@@ -57,6 +60,7 @@ impl<'a> FrameInput<'a> {
             height: scene.height,
             view: scene.camera.view(),
             projection: scene.camera.projection(scene.width, scene.height),
+            background: scene.background,
             objects,
         }
     }

@@ -78,6 +78,7 @@ fn render(cam: &Cam, objects: &[(&Mesh, Mat4, Shading)]) -> Vec<Vec<Fragment>> {
         height: cam.height,
         view: cam.view(),
         projection: cam.projection(),
+        background: [1.0; 3],
         objects: objects
             .iter()
             .enumerate()
@@ -494,6 +495,7 @@ fn rasterizer_buffers_are_reused_across_frames_of_different_sizes() {
             height: h,
             view: cam.view(),
             projection: cam.projection(),
+            background: [1.0; 3],
             objects: vec![DrawObject {
                 positions: grid.positions(),
                 normals: grid.normals(),

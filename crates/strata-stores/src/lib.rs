@@ -23,10 +23,13 @@
 //! | `depth-peeling` | [`baselines::depth_peeling`] | Everitt 2001 (001 §1.1) |
 //! | `dual-depth-peeling` | [`baselines::dual_depth_peeling`] | Bavoil & Myers 2008 (000 §1.1) |
 //! | `wboit` | [`baselines::wboit`] | McGuire & Bavoil 2013 |
+//! | `kbuffer` | [`kbuffer::fixed`] | 001 §3.2.1, Alg. 13–15 |
+//! | `vkbuffer` | [`kbuffer::variable`] | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
 
 pub mod abuffer;
 pub mod baselines;
 pub mod count;
+pub mod kbuffer;
 pub mod method;
 pub mod options;
 pub mod regions;

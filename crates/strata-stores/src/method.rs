@@ -48,8 +48,15 @@ pub struct CaptureReport {
     pub fragments_stored: u64,
     /// Fragments lost to a full buffer; never silent — every method reports them here.
     pub dropped: u64,
+    /// Fragments that did not fit but were not lost either: blended order-independently into a
+    /// per-pixel tail behind the stored ones (the k-buffer's `--tail-blend`, as nvpro's OIT
+    /// sample does). Counted apart from `dropped`; 0 for every other method.
+    pub tail_blended: u64,
     /// Times the store had to grow its buffers and capture again.
     pub regrows: u32,
+    /// Passes over the geometry: 1 for single-pass stores, 2 with a counting pass, one per layer
+    /// for depth peeling (regrows included).
+    pub raster_passes: u32,
     /// What triangle setup culled, clipped and binned.
     pub setup: SetupStats,
 }

@@ -20,7 +20,10 @@
 //!
 //! Under [`Policy::KeepNearest`] a region is kept sorted front to back by insertion (seed 001
 //! Alg. 14); the fragment that falls off the end — the new one or the farthest kept — is *evicted*
-//! and reported to an optional [`Evicted`] callback (the k-buffer's tail blend).
+//! and reported to an optional [`Evicted`] callback, or returned to a store that wraps the sink
+//! with per-strip state of its own ([`RegionSink::insert_nearest`]: the k-buffer's tail blend).
+//! [`Regions::sort_runs`] and [`Regions::truncate`] turn exact Append regions into the k(p)
+//! nearest of each pixel (the Optimal-K oracle's S-buffer).
 //!
 //! Regions are row-major and contiguous, so a strip of rows owns one contiguous range of `fill`
 //! and of `slots`: [`Regions::strips`] hands each rasterizer strip its own `&mut` slices, and
@@ -285,6 +288,64 @@ impl Regions {
         (image, stats)
     }
 
+    /// Fragments stored per pixel, row-major.
+    pub fn fill(&self) -> &[u32] {
+        &self.fill
+    }
+
+    /// Sorts every region front to back in parallel (what Append regions need before a
+    /// truncation or an ordered read).
+    pub fn sort_runs(&mut self) {
+        self.for_each_run(|_, run| sort_front_to_back(run));
+    }
+
+    /// Keeps at most `keep[p]` fragments of each pixel `p` — the first ones, so the nearest after
+    /// [`Regions::sort_runs`] — and counts the others as lost. Returns how many were removed.
+    pub fn truncate(&mut self, keep: &[u32]) -> u64 {
+        assert_eq!(keep.len(), self.fill.len(), "one count per pixel");
+        let removed: u64 = self
+            .fill
+            .par_chunks_mut(PIXELS_PER_TASK)
+            .zip(keep.par_chunks(PIXELS_PER_TASK))
+            .map(|(fill, keep)| {
+                let mut removed = 0u64;
+                for (f, &k) in fill.iter_mut().zip(keep) {
+                    removed += u64::from(f.saturating_sub(k));
+                    *f = (*f).min(k);
+                }
+                removed
+            })
+            .sum();
+        self.lost.fetch_add(removed, Relaxed);
+        removed
+    }
+
+    /// Runs `f(pixel, stored fragments)` on every region, in parallel over row-major pixel ranges.
+    fn for_each_run(&mut self, f: impl Fn(usize, &mut [Fragment]) + Sync) {
+        let (offsets, fill) = (&self.offsets, &self.fill);
+        let pixels = fill.len();
+        let mut tasks = Vec::with_capacity(pixels.div_ceil(PIXELS_PER_TASK));
+        let mut slots = &mut self.slots[..];
+        let mut consumed = 0usize;
+        for first in (0..pixels).step_by(PIXELS_PER_TASK) {
+            let last = (first + PIXELS_PER_TASK).min(pixels);
+            let end = offsets[last] as usize;
+            let (sl, rest) = std::mem::take(&mut slots).split_at_mut(end - consumed);
+            slots = rest;
+            tasks.push((first, last, consumed, sl));
+            consumed = end;
+        }
+        tasks
+            .into_par_iter()
+            .with_max_len(1)
+            .for_each(|(first, last, base, slots)| {
+                for p in first..last {
+                    let start = offsets[p] as usize - base;
+                    f(p, &mut slots[start..start + fill[p] as usize]);
+                }
+            });
+    }
+
     /// The stored fragments as a DeepFrame.
     pub fn deep_frame(&self) -> Result<DeepFrame, DeepFrameError> {
         let counts: Vec<u32> = self.fill.clone();
@@ -339,49 +400,64 @@ impl std::fmt::Debug for RegionSink<'_> {
     }
 }
 
-impl FragmentSink for RegionSink<'_> {
+impl RegionSink<'_> {
+    /// [`Policy::KeepNearest`] insertion of one fragment (seed 001 Alg. 14), whatever this sink's
+    /// policy: keeps the region sorted front to back and returns the fragment that fell off the
+    /// end — the new one or the farthest kept — counting it as lost.
+    ///
+    /// For stores that handle evictions themselves, per strip and without the shared [`Evicted`]
+    /// callback (the k-buffer's tail blend).
     #[inline(always)]
-    fn push(&mut self, pixel: u32, fragment: Fragment) {
+    pub fn insert_nearest(&mut self, pixel: u32, fragment: Fragment) -> Option<Fragment> {
         let p = pixel as usize;
         let local = p - self.first_pixel;
         let start = self.offsets[p] as usize - self.base;
         let capacity = (self.offsets[p + 1] - self.offsets[p]) as usize;
         let n = self.fill[local] as usize;
         let region = &mut self.slots[start..start + capacity];
+        let key = fragment.order_key();
+        let mut out = None;
+        if n == capacity {
+            // Full: the new fragment enters only if nearer than the farthest kept one.
+            self.lost += 1;
+            if capacity == 0 || region[n - 1].order_key() <= key {
+                return Some(fragment);
+            }
+            out = Some(region[n - 1]);
+        } else {
+            self.fill[local] += 1;
+        }
+        // Insertion: shift farther fragments back by one.
+        let mut j = n.min(capacity - 1);
+        while j > 0 && region[j - 1].order_key() > key {
+            region[j] = region[j - 1];
+            j -= 1;
+        }
+        region[j] = fragment;
+        out
+    }
+}
+
+impl FragmentSink for RegionSink<'_> {
+    #[inline(always)]
+    fn push(&mut self, pixel: u32, fragment: Fragment) {
+        let p = pixel as usize;
         match self.policy {
             Policy::Append => {
+                let local = p - self.first_pixel;
+                let capacity = (self.offsets[p + 1] - self.offsets[p]) as usize;
+                let n = self.fill[local] as usize;
                 if n < capacity {
-                    region[n] = fragment;
+                    self.slots[self.offsets[p] as usize - self.base + n] = fragment;
                     self.fill[local] += 1;
                 } else {
                     self.lost += 1;
                 }
             }
             Policy::KeepNearest => {
-                let key = fragment.order_key();
-                if n == capacity {
-                    // Full: the new fragment enters only if nearer than the farthest kept one.
-                    if capacity == 0 || region[n - 1].order_key() <= key {
-                        self.lost += 1;
-                        if let Some(e) = self.evicted {
-                            e.evicted(p, fragment);
-                        }
-                        return;
-                    }
-                    self.lost += 1;
-                    if let Some(e) = self.evicted {
-                        e.evicted(p, region[n - 1]);
-                    }
-                } else {
-                    self.fill[local] += 1;
+                if let (Some(out), Some(e)) = (self.insert_nearest(pixel, fragment), self.evicted) {
+                    e.evicted(p, out);
                 }
-                // Insertion: shift farther fragments back by one.
-                let mut j = n.min(capacity - 1);
-                while j > 0 && region[j - 1].order_key() > key {
-                    region[j] = region[j - 1];
-                    j -= 1;
-                }
-                region[j] = fragment;
             }
         }
     }
@@ -553,5 +629,57 @@ mod tests {
         assert_eq!(stats.fragments(), 2);
         assert_eq!(r.deep_frame().unwrap().fragment_count(), 2);
         assert_eq!(r.memory_bytes(), 4 * 4 + 3 * 4 + 3 * 12);
+    }
+
+    #[test]
+    fn sort_then_truncate_keeps_the_nearest_and_counts_the_rest() {
+        let layout = StripLayout {
+            width: 3,
+            height: 1,
+            strip_height: 1,
+        };
+        let mut r = Regions::new();
+        r.with_capacities(3, 1, &[3, 0, 2]).unwrap();
+        push_all(
+            &mut r,
+            &layout,
+            Policy::Append,
+            &[
+                (0, frag(0.9, 1)),
+                (0, frag(0.1, 2)),
+                (0, frag(0.5, 3)),
+                (2, frag(0.7, 4)),
+                (2, frag(0.3, 5)),
+            ],
+            None,
+        );
+        r.sort_runs();
+        assert_eq!(r.stored(0), &[frag(0.1, 2), frag(0.5, 3), frag(0.9, 1)]);
+        assert_eq!(r.truncate(&[2, 0, 5]), 1);
+        assert_eq!(r.stored(0), &[frag(0.1, 2), frag(0.5, 3)]);
+        assert_eq!(r.stored(2), &[frag(0.3, 5), frag(0.7, 4)]);
+        assert_eq!(r.fill(), &[2, 0, 2]);
+        assert_eq!((r.lost(), r.stored_count()), (1, 4));
+    }
+
+    #[test]
+    fn insert_nearest_returns_what_falls_off() {
+        let layout = StripLayout {
+            width: 1,
+            height: 1,
+            strip_height: 1,
+        };
+        let mut r = Regions::new();
+        r.uniform(1, 1, 2).unwrap();
+        let mut sinks = r.strips(&layout, Policy::Append, None);
+        let s = &mut sinks[0];
+        assert_eq!(s.insert_nearest(0, frag(0.5, 1)), None);
+        assert_eq!(s.insert_nearest(0, frag(0.7, 2)), None);
+        assert_eq!(s.insert_nearest(0, frag(0.9, 3)), Some(frag(0.9, 3)));
+        assert_eq!(s.insert_nearest(0, frag(0.1, 4)), Some(frag(0.7, 2)));
+        s.finish();
+        drop(sinks);
+        assert_eq!(r.stored(0), &[frag(0.1, 4), frag(0.5, 1)]);
+        assert_eq!(r.lost(), 2);
     }
 }

@@ -2,6 +2,7 @@
 
 use crate::abuffer::{fixed_array, linked_list, sbuffer};
 use crate::baselines::{depth_peeling, dual_depth_peeling, wboit};
+use crate::kbuffer::{fixed, variable};
 use crate::method::Method;
 use crate::options::MethodOptions;
 use crate::wf;
@@ -44,6 +45,16 @@ pub const METHODS: &[MethodInfo] = &[
         name: wf::NAME,
         summary: "weight-factor resolve over S-buffer regions, no sort (seed 002 §2.5.2, Eq. 2-4)",
         build: |o| Box::new(wf::WeightFactor::new(o)),
+    },
+    MethodInfo {
+        name: fixed::NAME,
+        summary: "k-buffer: the --k nearest fragments per pixel by insertion, --tail-blend for the rest (seed 001 Alg. 13-15)",
+        build: |o| Box::new(fixed::KBuffer::new(o)),
+    },
+    MethodInfo {
+        name: variable::NAME,
+        summary: "variable k-buffer: k(p) under a --budget from importance maps or --k-from optimal (seed 001 Alg. 16-21, 23)",
+        build: |o| Box::new(variable::VariableKBuffer::new(o)),
     },
     MethodInfo {
         name: depth_peeling::NAME,

@@ -117,7 +117,9 @@ impl Method for FixedArrayABuffer {
             fragments_stored: stats.fragments - dropped,
             dropped,
             regrows: 0,
+            raster_passes: 1,
             setup: prepared.setup_stats(),
+            ..CaptureReport::default()
         })
     }
 

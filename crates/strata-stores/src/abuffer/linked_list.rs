@@ -359,7 +359,9 @@ impl Method for LinkedListABuffer {
                     fragments_stored: self.stored.load(Relaxed),
                     dropped,
                     regrows,
+                    raster_passes: 1 + regrows,
                     setup: prepared.setup_stats(),
+                    ..CaptureReport::default()
                 });
             }
             // Grow to hold every fragment plus each strip's unused block tail, with headroom

@@ -106,7 +106,9 @@ impl SBuffer {
             fragments_stored: captured.fragments - dropped,
             dropped,
             regrows: 0,
+            raster_passes: 2,
             setup: prepared.setup_stats(),
+            ..CaptureReport::default()
         })
     }
 

@@ -318,7 +318,9 @@ impl Method for DepthPeeling {
             fragments_stored: stored,
             dropped: total - stored,
             regrows: 0,
+            raster_passes: self.passes,
             setup: prepared.setup_stats(),
+            ..CaptureReport::default()
         })
     }
 

@@ -335,7 +335,9 @@ impl Method for DualDepthPeeling {
             fragments_stored: stored,
             dropped: per_pass - stored,
             regrows: 0,
+            raster_passes: self.passes,
             setup: prepared.setup_stats(),
+            ..CaptureReport::default()
         })
     }
 

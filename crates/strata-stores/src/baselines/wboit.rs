@@ -345,7 +345,9 @@ impl Method for Wboit {
             fragments_stored: 0,
             dropped: 0,
             regrows: 0,
+            raster_passes: 1,
             setup: prepared.setup_stats(),
+            ..CaptureReport::default()
         })
     }
 

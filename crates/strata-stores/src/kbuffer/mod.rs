@@ -1,0 +1,22 @@
+//! k-buffers: stores that keep the k nearest fragments of each pixel (seed 001 §3.2).
+//!
+//! | module | what | seed |
+//! | --- | --- | --- |
+//! | [`fixed`] | `kbuffer`: one k for every pixel, optional tail blend | 001 §3.2.1, Alg. 13–15 |
+//! | [`variable`] | `vkbuffer`: k(p) under a budget, from importance maps or Optimal-K | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
+//! | [`importance`] | the periphery and depth-complexity heuristics with noise | 001 §3.2.2 |
+//! | [`allocate`] | k(p) from the importance map under the budget | 001 Alg. 17 |
+//! | [`optimal_k`] | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
+//! | [`maps`] | k and importance maps as heat-map images | 001 Fig. 3.9 |
+
+pub mod allocate;
+pub mod fixed;
+pub mod importance;
+pub mod maps;
+pub mod optimal_k;
+pub mod variable;
+
+pub use allocate::{Allocation, allocate_k};
+pub use fixed::KBuffer;
+pub use optimal_k::{SortedRuns, optimal_k};
+pub use variable::VariableKBuffer;
