@@ -347,6 +347,8 @@ fn report_json(
                 "fragments_rasterized": c.fragments_rasterized,
                 "fragments_stored": c.fragments_stored,
                 "fragments_lost": c.dropped,
+                "fragments_tail_blended": c.tail_blended,
+                "raster_passes": c.raster_passes,
                 "rmse": m.rmse,
                 "mean_flip": m.flip,
                 "bad_pixels": {
