@@ -17,13 +17,16 @@
 //! | name | module | seed |
 //! | --- | --- | --- |
 //! | `abuffer` | [`abuffer::linked_list`] | 000 §2, 001 Alg. 4–6 |
+//! | `tfss` | [`tfss`] (and its memory/access model, [`tfss::model`]) | 002 ch. 3–4 |
 
 pub mod abuffer;
+mod alloc;
 pub mod count;
 pub mod method;
 pub mod options;
 pub mod regions;
 pub mod registry;
+pub mod tfss;
 
 pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
 pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
