@@ -36,6 +36,10 @@ enum Command {
     Scenes(cmd::scenes::Args),
     /// List the fragment stores (`--method`).
     Methods(cmd::methods::Args),
+    /// Seed 002's TFSS evaluation on a scene: fragment distribution, memory of R-buffer, WF,
+    /// TFSS and strata's layouts, access/time model.
+    #[command(long_about = cmd::tfss_sim::LONG_ABOUT)]
+    TfssSim(cmd::tfss_sim::Args),
 }
 
 fn main() -> ExitCode {
@@ -63,6 +67,7 @@ fn main() -> ExitCode {
         Command::Compare(a) => cmd::compare::run(a),
         Command::Scenes(a) => cmd::scenes::run(a),
         Command::Methods(a) => cmd::methods::run(a),
+        Command::TfssSim(a) => cmd::tfss_sim::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

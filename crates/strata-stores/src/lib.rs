@@ -20,13 +20,15 @@
 //! | `abuffer-array` | [`abuffer::fixed_array`] | 001 §3.1.1, Alg. 1–3 |
 //! | `sbuffer` | [`abuffer::sbuffer`] | 001 §3.1.3, Alg. 7–12 |
 //! | `wf` | [`wf`] | 002 §2.5.2, Eq. 2–4 |
+//! | `kbuffer` | [`kbuffer::fixed`] | 001 §3.2.1, Alg. 13–15 |
+//! | `vkbuffer` | [`kbuffer::variable`] | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
+//! | `tfss` | [`tfss`] (and its memory/access model, [`tfss::model`]) | 002 ch. 3–4 |
 //! | `depth-peeling` | [`baselines::depth_peeling`] | Everitt 2001 (001 §1.1) |
 //! | `dual-depth-peeling` | [`baselines::dual_depth_peeling`] | Bavoil & Myers 2008 (000 §1.1) |
 //! | `wboit` | [`baselines::wboit`] | McGuire & Bavoil 2013 |
-//! | `kbuffer` | [`kbuffer::fixed`] | 001 §3.2.1, Alg. 13–15 |
-//! | `vkbuffer` | [`kbuffer::variable`] | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
 
 pub mod abuffer;
+mod alloc;
 pub mod baselines;
 pub mod count;
 pub mod kbuffer;
@@ -34,6 +36,7 @@ pub mod method;
 pub mod options;
 pub mod regions;
 pub mod registry;
+pub mod tfss;
 pub mod wf;
 
 pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};

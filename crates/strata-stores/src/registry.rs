@@ -5,7 +5,7 @@ use crate::baselines::{depth_peeling, dual_depth_peeling, wboit};
 use crate::kbuffer::{fixed, variable};
 use crate::method::Method;
 use crate::options::MethodOptions;
-use crate::wf;
+use crate::{tfss, wf};
 
 /// A method as `--method` selects it.
 #[derive(Clone, Copy, Debug)]
@@ -55,6 +55,11 @@ pub const METHODS: &[MethodInfo] = &[
         name: variable::NAME,
         summary: "variable k-buffer: k(p) under a --budget from importance maps or --k-from optimal (seed 001 Alg. 16-21, 23)",
         build: |o| Box::new(variable::VariableKBuffer::new(o)),
+    },
+    MethodInfo {
+        name: tfss::NAME,
+        summary: "TFSS: SSA table, T-buffer sections of --l-num fragments, NSA chains, --leading-zeros (seed 002 ch. 3)",
+        build: |o| Box::new(tfss::Tfss::new(o)),
     },
     MethodInfo {
         name: depth_peeling::NAME,

@@ -6,3 +6,4 @@ pub(crate) mod demo;
 pub(crate) mod methods;
 pub(crate) mod render;
 pub(crate) mod scenes;
+pub(crate) mod tfss_sim;

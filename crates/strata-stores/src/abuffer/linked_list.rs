@@ -19,8 +19,9 @@
 //!   of the pixel's list (`next = head; head = node`), so lists are built in reverse.
 //!   On the GPU both steps are atomics. Here the rasterizer hands each strip of rows to one thread,
 //!   so the head update is a plain store into that strip's `chunks_mut` slice of `heads`; and nodes
-//!   are reserved from the shared counter in blocks of [`BLOCK`], so the counter is touched once per
-//!   64 fragments rather than once per fragment. A block is written only by the thread that
+//!   are reserved from the shared counter in blocks of [`BLOCK`] (`crate::alloc`, shared with
+//!   TFSS), so the counter is touched once per 64 fragments rather than once per fragment.
+//!   A block is written only by the thread that
 //!   reserved it; nodes are pairs of `AtomicU64` written with `Relaxed` stores (plain moves on
 //!   x86-64 and AArch64), which keeps the pool shareable without `unsafe`. The end of the parallel
 //!   pass is the synchronisation point before anything reads the pool.
@@ -58,6 +59,7 @@ use strata_core::{
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
+use crate::alloc::BlockCursor;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
 
@@ -228,41 +230,21 @@ pub struct LinkedListSink<'a> {
     next_free: &'a AtomicU32,
     stored: &'a AtomicU64,
     dropped: &'a AtomicU64,
-    cur: u32,
-    end: u32,
-    exhausted: bool,
+    block: BlockCursor,
     n_stored: u64,
     n_dropped: u64,
-}
-
-impl LinkedListSink<'_> {
-    /// Reserves the next block of nodes; false once the pool is exhausted.
-    #[cold]
-    fn refill(&mut self) -> bool {
-        if self.exhausted {
-            return false;
-        }
-        let capacity = self.nodes.len() as u32;
-        let start = self.next_free.fetch_add(BLOCK, Relaxed);
-        if start >= capacity {
-            self.exhausted = true;
-            return false;
-        }
-        self.cur = start;
-        self.end = start.saturating_add(BLOCK).min(capacity);
-        true
-    }
 }
 
 impl FragmentSink for LinkedListSink<'_> {
     #[inline(always)]
     fn push(&mut self, pixel: u32, fragment: Fragment) {
-        if self.cur == self.end && !self.refill() {
+        let Some(index) = self
+            .block
+            .next(self.next_free, self.nodes.len() as u32, BLOCK)
+        else {
             self.n_dropped += 1;
             return;
-        }
-        let index = self.cur;
-        self.cur += 1;
+        };
         let head = &mut self.heads[(pixel - self.first_pixel) as usize];
         self.nodes[index as usize].store(fragment, *head);
         *head = index;
@@ -300,9 +282,7 @@ impl CaptureTarget for LinkedListABuffer {
                 next_free,
                 stored,
                 dropped,
-                cur: 0,
-                end: 0,
-                exhausted: false,
+                block: BlockCursor::default(),
                 n_stored: 0,
                 n_dropped: 0,
             })
