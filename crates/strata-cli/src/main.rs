@@ -1,5 +1,7 @@
 //! `strata`: render scenes with any fragment store, benchmark them, run the demo.
 
+#[macro_use]
+mod out;
 mod cmd;
 mod options;
 mod report;
@@ -71,6 +73,7 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if out::is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             let mut shown = e.to_string();
             eprintln!("strata: error: {shown}");

@@ -1238,3 +1238,27 @@ fn pool_too_large_for_memory_fails_cleanly() {
     let err = run_err(Command::new("sh").args(["-c", &script]));
     assert_mentions(&err, &["pool"]);
 }
+
+/// `strata methods | head -0`: the reader closes the pipe before strata writes. `println!`
+/// panicked there (exit 101); strata must end quietly and successfully, as `head` users expect.
+#[cfg(unix)]
+#[test]
+fn closed_stdout_is_not_a_crash() {
+    for args in [
+        &["methods"][..],
+        &["scenes"],
+        &["scenes", "--print", "spheres"],
+    ] {
+        let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("strata"))
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take()); // close the read end at once
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?}: {:?} {err}", out.status);
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}

@@ -123,7 +123,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let options = args.params.method_options();
     strata_stores::create(&args.method, &options)?; // fail early on a bad name
 
-    println!(
+    outln!(
         "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up",
         scene.name,
         scene.triangle_count(),
@@ -133,7 +133,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         args.frame,
         args.runs,
         args.warmup
-    );
+    )?;
     let mut per_threads = Vec::new();
     let mut medians = Vec::new();
     for &n in &threads {
@@ -154,8 +154,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let depth = last.depth.clone().unwrap_or_default();
         let fragments = last.capture.fragments_stored;
         let (total_med, total_min, total_max) = stats(&samples.totals);
-        println!();
-        println!(
+        outln!()?;
+        outln!(
             "threads {n}: {fragments} fragments, {} covered pixels, depth max {} mean {:.2}, memory {:.1} MiB used of {:.1} MiB allocated = {:.1} B/fragment{}",
             depth.covered_pixels(),
             depth.max_depth_complexity(),
@@ -168,11 +168,14 @@ pub(crate) fn run(args: Args) -> Result<()> {
             } else {
                 String::new()
             },
-        );
-        println!(
+        )?;
+        outln!(
             "  {:<18} {:>9} {:>9} {:>9}",
-            "pass (ms)", "median", "min", "max"
-        );
+            "pass (ms)",
+            "median",
+            "min",
+            "max"
+        )?;
         let mut passes = serde_json::Map::new();
         for name in &samples.order {
             let (med, min, max) = stats(&samples.by_name[name]);
@@ -180,21 +183,21 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 Some((_, stage)) => format!("  {stage}"),
                 None => (*name).to_owned(),
             };
-            println!("  {label:<18} {med:>9.2} {min:>9.2} {max:>9.2}");
+            outln!("  {label:<18} {med:>9.2} {min:>9.2} {max:>9.2}")?;
             passes.insert(
                 (*name).to_owned(),
                 json!({"median": med, "min": min, "max": max}),
             );
         }
-        println!(
+        outln!(
             "  {:<18} {total_med:>9.2} {total_min:>9.2} {total_max:>9.2}",
             "total"
-        );
+        )?;
         let fps = fragments as f64 / (total_med / 1e3);
-        println!(
+        outln!(
             "  {:.1} M fragments/s (fragments / median total)",
             fps / 1e6
-        );
+        )?;
         medians.push((n, total_med));
         per_threads.push(json!({
             "threads": n,
@@ -216,17 +219,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
             .iter()
             .map(|&(n, t)| format!("{n} thread(s) {t:.2} ms ({:.2}x)", t0 / t))
             .collect();
-        println!(
+        outln!(
             "\nscaling (median total, relative to {n0} thread(s)): {}",
             parts.join(", ")
-        );
+        )?;
     }
     let anchor = anchor(&scene.name, &args.method);
     if let (Some((text, anchor_ms)), Some(&(n, best))) = (anchor, medians.last()) {
-        println!(
+        outln!(
             "\nanchor (DESIGN §4): {text} = {anchor_ms:.0} ms; strata with {n} thread(s): {best:.2} ms = {:.1}x faster",
             anchor_ms / best
-        );
+        )?;
     }
     if let Some(path) = &args.json {
         let doc = json!({

@@ -226,7 +226,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         });
     }
 
-    print_table(&args, &specs, &measured, &scene.name, threads);
+    print_table(&args, &specs, &measured, &scene.name, threads)?;
     let report = report_json(&args, &specs, &measured, &scene, threads);
     std::fs::write(
         dir.join("report.json"),
@@ -281,12 +281,22 @@ fn cells(spec: &Spec, m: &Measured) -> [String; 11] {
     ]
 }
 
-fn print_table(args: &Args, specs: &[Spec], measured: &[Measured], scene: &str, threads: usize) {
-    println!(
+fn print_table(
+    args: &Args,
+    specs: &[Spec],
+    measured: &[Measured],
+    scene: &str,
+    threads: usize,
+) -> Result<()> {
+    outln!(
         "strata compare: {scene}, frame {}, {threads} thread(s), medians of {} runs; reference {}; \
          bad pixels: a channel off by more than {}/255; FLIP at {} pixels per degree",
-        args.frame, args.runs, args.reference, args.threshold, args.ppd
-    );
+        args.frame,
+        args.runs,
+        args.reference,
+        args.threshold,
+        args.ppd
+    )?;
     let rows: Vec<[String; 11]> = measured
         .iter()
         .map(|m| cells(&specs[m.spec_index], m))
@@ -314,10 +324,11 @@ fn print_table(args: &Args, specs: &[Spec], measured: &[Measured], scene: &str, 
             .collect::<Vec<_>>()
             .join("  ")
     };
-    println!("{}", line(&COLUMNS.map(str::to_owned)));
+    outln!("{}", line(&COLUMNS.map(str::to_owned)))?;
     for r in &rows {
-        println!("{}", line(r));
+        outln!("{}", line(r))?;
     }
+    Ok(())
 }
 
 fn report_json(

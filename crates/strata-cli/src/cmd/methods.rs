@@ -9,7 +9,7 @@ pub(crate) struct Args {}
 /// Runs `strata methods`.
 pub(crate) fn run(_args: Args) -> Result<()> {
     for m in strata_stores::METHODS {
-        println!("{:<20} {}", m.name, m.summary);
+        outln!("{:<20} {}", m.name, m.summary)?;
     }
     Ok(())
 }

@@ -17,7 +17,7 @@ pub(crate) struct Args {
 pub(crate) fn run(args: Args) -> Result<()> {
     if let Some(name) = args.print {
         match builtin::find(&name) {
-            Some(s) => print!("{}", s.source),
+            Some(s) => out!("{}", s.source)?,
             None => bail!(
                 "no built-in scene named '{name}' (known: {})",
                 builtin::names().join(", ")
@@ -32,7 +32,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         } else {
             " [mesh not found: set STRATA_MODEL_PATH or run scripts/fetch-models]"
         };
-        println!("{:<12} {}{}", s.name, s.description, status);
+        outln!("{:<12} {}{}", s.name, s.description, status)?;
     }
     Ok(())
 }

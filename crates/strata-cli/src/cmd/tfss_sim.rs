@@ -238,7 +238,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     } else {
         Transparency::All
     };
-    println!(
+    outln!(
         "strata tfss-sim: {} ({}x{}, {} triangles), frame(s) {:?}, L_num 1..={}, S_A {} B, {} (seed 002 ch. 4)",
         scene.name,
         scene.width,
@@ -252,7 +252,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         } else {
             "every fragment transparent"
         },
-    );
+    )?;
     let mut raster = Rasterizer::default();
     let mut abuffer = strata_stores::create("abuffer", &MethodOptions::default())?;
     let mut figures = Vec::new();
@@ -287,7 +287,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 }
             }
         }
-        print_frame(frame, &eval, &trace, &store);
+        print_frame(frame, &eval, &trace, &store)?;
         figures.push(FrameFigures {
             frame,
             eval,
@@ -297,7 +297,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     }
     let averages = averages(&figures);
     if figures.len() > 1 {
-        print_averages(&figures, &averages);
+        print_averages(&figures, &averages)?;
     }
     if let Some(path) = &args.json {
         let doc = json!({
@@ -325,10 +325,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRun]) {
+fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRun]) -> Result<()> {
     let d = &e.distribution;
-    println!("\n== frame {frame} ==");
-    println!("distribution (Table 4-1)");
+    outln!("\n== frame {frame} ==")?;
+    outln!("distribution (Table 4-1)")?;
     let max = d.max_fragments() as usize;
     let mut head = format!(
         "  {:>10} {:>11} {:>9} {:>8}",
@@ -345,7 +345,7 @@ fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRu
         head.push_str(&format!(" {:>8}", format!("N={i}")));
         line.push_str(&format!(" {:>8}", d.histogram[i]));
     }
-    println!("{head}\n{line}");
+    outln!("{head}\n{line}")?;
     for (label, lossy) in [("lossless", false), ("alpha shift (lossy)", true)] {
         let h = trace.length_histogram(lossy);
         let n: u64 = h.iter().sum::<u64>().max(1);
@@ -356,20 +356,24 @@ fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRu
             .sum::<f64>()
             / n as f64;
         let cells: Vec<String> = h.iter().map(|c| c.to_string()).collect();
-        println!(
+        outln!(
             "  colour bits 0..8, {label}: [{}], mean {mean:.2}",
             cells.join(", ")
-        );
+        )?;
     }
 
-    println!(
+    outln!(
         "memory (Table 4-2; reduction = 1 - bytes/theirs, Figures 4-4/4-6), D_avg {}",
         d.d_avg()
-    );
-    println!(
+    )?;
+    outln!(
         "  {:<28} {:>12} {:>9} {:>11} {:>9}",
-        "technique", "bytes", "MiB", "vs R-buffer", "vs WF"
-    );
+        "technique",
+        "bytes",
+        "MiB",
+        "vs R-buffer",
+        "vs WF"
+    )?;
     let (rb, wf) = (e.rbuffer.total(), e.wf.total());
     let mut group = "";
     for r in memory_rows(e) {
@@ -378,26 +382,26 @@ fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRu
         }
         if r.group != group {
             group = r.group;
-            println!("  {group}");
+            outln!("  {group}")?;
         }
         let bytes = r.memory.total();
         let name = r
             .memory
             .name
             .replace(" LZ+alpha shift (lossy)", " LZ+shift");
-        println!(
+        outln!(
             "    {:<26} {:>12} {:>9.2} {:>11} {:>9}",
             name,
             bytes,
             mib(bytes),
             pct(model::reduction(bytes, rb)),
             pct(model::reduction(bytes, wf))
-        );
+        )?;
     }
     if !store.is_empty() {
-        println!(
+        outln!(
             "  strata's TFSS store, rendered (used bytes; DeepFrame checked against the A-buffer)"
-        );
+        )?;
     }
     for s in store {
         let name = format!(
@@ -408,7 +412,7 @@ fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRu
                 None => String::new(),
             }
         );
-        println!(
+        outln!(
             "    {:<26} {:>12} {:>9.2} {:>11} {:>9}   {} sections, {} B allocated",
             name,
             s.used,
@@ -417,31 +421,37 @@ fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRu
             pct(model::reduction(s.used, wf)),
             s.sections,
             s.allocated,
-        );
+        )?;
     }
 
-    println!("time (§4.3.2, Figure 4-7; one cycle per access)");
-    println!(
+    outln!("time (§4.3.2, Figure 4-7; one cycle per access)")?;
+    outln!(
         "  {:<10} {:>12} {:>12} {:>12} {:>11} {:>9}",
-        "technique", "accesses", "computation", "cycles", "vs R-buffer", "vs WF"
-    );
+        "technique",
+        "accesses",
+        "computation",
+        "cycles",
+        "vs R-buffer",
+        "vs WF"
+    )?;
     let [r, w, _] = &e.time;
     for t in &e.time {
-        print_time(t, r, w);
+        print_time(t, r, w)?;
     }
     let accesses: Vec<String> = e
         .tfss
         .iter()
         .map(|t| format!("L{} {}", t.l_num, t.store_accesses))
         .collect();
-    println!(
+    outln!(
         "  TFSS store-flow accesses (beyond the seed): {}",
         accesses.join(", ")
-    );
+    )?;
+    Ok(())
 }
 
-fn print_time(t: &Time, r: &Time, w: &Time) {
-    println!(
+fn print_time(t: &Time, r: &Time, w: &Time) -> Result<()> {
+    outln!(
         "  {:<10} {:>12} {:>12} {:>12} {:>11} {:>9}",
         t.name,
         t.access_total(),
@@ -449,7 +459,8 @@ fn print_time(t: &Time, r: &Time, w: &Time) {
         t.cycles(),
         pct(model::reduction(t.cycles(), r.cycles())),
         pct(model::reduction(t.cycles(), w.cycles()))
-    );
+    )?;
+    Ok(())
 }
 
 /// Mean reduction rates over the frames: per memory row key `(vs R-buffer, vs WF)`, and TFSS
@@ -508,20 +519,21 @@ fn averages(figures: &[FrameFigures]) -> Averages {
     }
 }
 
-fn print_averages(figures: &[FrameFigures], a: &Averages) {
-    println!(
+fn print_averages(figures: &[FrameFigures], a: &Averages) -> Result<()> {
+    outln!(
         "\n== averages over {} frames (Figures 4-4, 4-6: memory reduction rates; 4-7: time) ==",
         figures.len()
-    );
-    println!("  {:<30} {:>11} {:>9}", "technique", "vs R-buffer", "vs WF");
+    )?;
+    outln!("  {:<30} {:>11} {:>9}", "technique", "vs R-buffer", "vs WF")?;
     for (k, r, w) in &a.memory {
-        println!("  {:<30} {:>11} {:>9}", k, pct(*r), pct(*w));
+        outln!("  {:<30} {:>11} {:>9}", k, pct(*r), pct(*w))?;
     }
-    println!(
+    outln!(
         "  TFSS time: {} vs R-buffer, {} vs WF",
         pct(a.time.0),
         pct(a.time.1)
-    );
+    )?;
+    Ok(())
 }
 
 fn memory_json(m: &Memory, rb: u64, wf: u64) -> Value {
