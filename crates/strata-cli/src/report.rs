@@ -101,7 +101,7 @@ pub(crate) fn summary_line(scene: &Scene, r: &FrameResult) -> String {
     ));
     if r.capture.dropped > 0 {
         line.push_str(&format!(
-            "; DROPPED {} fragments (pool full; use --pool auto or a larger pool)",
+            "; DROPPED {} fragments: the store was full or over its budget (sizes: --pool, --array-size, -k, --budget)",
             r.capture.dropped
         ));
     }

@@ -1262,3 +1262,43 @@ fn closed_stdout_is_not_a_crash() {
         assert!(!err.contains("panicked"), "{args:?}: {err}");
     }
 }
+
+#[test]
+fn render_exports_the_variable_k_buffers_maps() {
+    let dir = TempDir::new().unwrap();
+    let maps = dir.path().join("maps");
+    run_ok(
+        strata()
+            .args([
+                "render", "overlap", "--method", "vkbuffer", "--budget", "60000", "--maps",
+            ])
+            .arg(&maps)
+            .arg("--out")
+            .arg(dir.path().join("vk.png")),
+    );
+    for name in ["k", "importance"] {
+        let png = strata_core::Rgb8Image::read_png(maps.join(format!("{name}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (640, 480));
+        let npy = std::fs::read(maps.join(format!("{name}.npy"))).unwrap();
+        assert!(npy.starts_with(b"\x93NUMPY\x01\x00"), "{name}.npy");
+        let header_len = u16::from_le_bytes([npy[8], npy[9]]) as usize;
+        assert!(String::from_utf8_lossy(&npy[10..10 + header_len]).contains("'shape': (480, 640)"));
+        assert_eq!(npy.len() - 10 - header_len, 640 * 480 * 4);
+        if name == "k" {
+            // The budget of 60,000 fragments is spent exactly.
+            let sum: f32 = npy[10 + header_len..]
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+                .sum();
+            assert_eq!(sum, 60_000.0);
+        }
+    }
+    let err = run_err(
+        strata()
+            .args(["render", "overlap", "--maps"])
+            .arg(dir.path().join("none"))
+            .arg("--out")
+            .arg(dir.path().join("a.png")),
+    );
+    assert!(err.contains("computes no per-pixel maps"), "{err}");
+}

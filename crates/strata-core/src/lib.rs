@@ -33,6 +33,7 @@ pub mod fragment;
 pub mod image;
 pub mod material;
 pub mod metrics;
+pub mod npy;
 pub mod stats;
 pub mod timings;
 

@@ -39,6 +39,6 @@ pub mod registry;
 pub mod tfss;
 pub mod wf;
 
-pub use method::{CaptureReport, FrameResult, Method, StoreError, render_frame};
+pub use method::{CaptureReport, FrameResult, Method, PixelMap, StoreError, render_frame};
 pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
 pub use registry::{METHODS, MethodInfo, UnknownMethod, create};

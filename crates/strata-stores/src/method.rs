@@ -61,6 +61,20 @@ pub struct CaptureReport {
     pub setup: SetupStats,
 }
 
+/// A per-pixel value a method computed for the frame (the variable k-buffer's k and importance),
+/// row-major, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PixelMap {
+    /// What it is (`k`, `importance`): the file stem it is exported under.
+    pub name: &'static str,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// One value per pixel.
+    pub values: Vec<f32>,
+}
+
 /// A multi-fragment rendering method; see the crate docs.
 pub trait Method: Send {
     /// The name it is selected by (`--method`).
@@ -92,6 +106,11 @@ pub trait Method: Send {
     /// Bytes of those buffers that hold this frame's data (a node pool's used nodes, say).
     fn used_memory_bytes(&self) -> u64 {
         self.memory_bytes()
+    }
+
+    /// Per-pixel maps the method computed for the last frame (none by default).
+    fn pixel_maps(&self) -> Vec<PixelMap> {
+        Vec::new()
     }
 
     /// The captured fragments as a DeepFrame; `None` for methods that do not keep fragments.

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use strata_raster::{FrameInput, Rasterizer};
+use strata_stores::kbuffer::maps::heat_map;
 use strata_stores::render_frame;
 
 use crate::options::{RenderOptions, check_output, open_scene, thread_pool};
@@ -25,6 +26,11 @@ pub(crate) struct Args {
     /// milliseconds) as JSON to this file.
     #[arg(long)]
     pub(crate) stats: Option<PathBuf>,
+
+    /// Also write the per-pixel maps the method computes (vkbuffer: `k` and `importance`) into
+    /// this folder, each as a heat map PNG and a NumPy `.npy` (float32, height × width).
+    #[arg(long, value_name = "DIR")]
+    pub(crate) maps: Option<PathBuf>,
 
     /// Animation frame to pose the scene at (0-based).
     #[arg(long, default_value_t = 0)]
@@ -51,6 +57,9 @@ pub(crate) fn run(args: Args) -> Result<()> {
     if let Some(stats) = &args.stats {
         check_output(stats)?;
     }
+    if let Some(dir) = &args.maps {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     let scene = open_scene(&args.scene, &args.render.search_path())?;
     scene.check_frame(args.frame)?;
     let mut method = strata_stores::create(&args.render.method, &args.render.method_options())?;
@@ -71,6 +80,26 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let text = serde_json::to_string_pretty(&json)?;
         std::fs::write(path, text + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if let Some(dir) = &args.maps {
+        let maps = method.pixel_maps();
+        if maps.is_empty() {
+            anyhow::bail!(
+                "method {} computes no per-pixel maps (vkbuffer does)",
+                method.name()
+            );
+        }
+        for m in maps {
+            strata_core::npy::write_f32(
+                dir.join(format!("{}.npy", m.name)),
+                m.width,
+                m.height,
+                &m.values,
+            )?;
+            heat_map(&m.values, m.width, m.height, None)
+                .write_png(dir.join(format!("{}.png", m.name)))?;
+        }
+        eprintln!("wrote the per-pixel maps into {}", dir.display());
     }
     eprintln!("{}", summary_line(&scene, &result));
     eprintln!("wrote {}", out.display());

@@ -59,7 +59,7 @@ use strata_core::{DeepFrame, DeepFrameError, DepthStats, PassTimings, Rgb8Image}
 use strata_raster::{FrameInput, Rasterizer};
 
 use crate::count::FragmentCounts;
-use crate::method::{CaptureReport, Method, StoreError};
+use crate::method::{CaptureReport, Method, PixelMap, StoreError};
 use crate::options::{Budget, ImportanceParams, KFrom, MethodOptions};
 use crate::regions::{Policy, RegionCapture, Regions};
 
@@ -254,6 +254,19 @@ impl Method for VariableKBuffer {
 
     fn used_memory_bytes(&self) -> u64 {
         self.map_bytes() + self.regions.used_memory_bytes()
+    }
+
+    fn pixel_maps(&self) -> Vec<PixelMap> {
+        let map = |name, values| PixelMap {
+            name,
+            width: self.width,
+            height: self.height,
+            values,
+        };
+        vec![
+            map("k", self.k.iter().map(|&k| k as f32).collect()),
+            map("importance", self.importance.clone()),
+        ]
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
