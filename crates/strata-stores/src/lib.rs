@@ -36,6 +36,7 @@ pub mod method;
 pub mod options;
 pub mod regions;
 pub mod registry;
+mod resolve;
 pub mod tfss;
 pub mod wf;
 

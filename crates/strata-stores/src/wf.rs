@@ -42,7 +42,6 @@
 //! fragment has the same alpha. The DeepFrame is the S-buffer's and is identical to the
 //! A-buffer's.
 
-use rayon::prelude::*;
 use strata_core::fragment::unorm8;
 use strata_core::{
     DeepFrame, DeepFrameError, DepthStats, Fragment, PassTimings, Rgb8Image, composite,
@@ -52,12 +51,10 @@ use strata_raster::{FrameInput, Rasterizer};
 use crate::abuffer::sbuffer::SBuffer;
 use crate::method::{CaptureReport, Method, StoreError};
 use crate::options::MethodOptions;
+use crate::resolve::resolve_pixels;
 
 /// The name the method is selected by.
 pub const NAME: &str = "wf";
-
-/// Pixels resolved per parallel task.
-const PIXELS_PER_TASK: usize = 4096;
 
 /// The weight-factor resolve over an S-buffer; see the module docs.
 #[derive(Debug, Default)]
@@ -138,32 +135,15 @@ impl Method for WeightFactor {
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
         let regions = self.store.regions();
-        let mut image = Rgb8Image::filled(regions.width(), regions.height(), [0; 3]);
         let bg = composite::background_pixel(background);
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map(|(task, out)| {
-                let mut stats = DepthStats::default();
-                for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                    let run = regions.stored(task * PIXELS_PER_TASK + i);
-                    stats.record(run.len() as u32);
-                    let rgb = if run.is_empty() {
-                        bg
-                    } else {
-                        let c = weight_factor_pixel(run, background);
-                        [unorm8(c[0]), unorm8(c[1]), unorm8(c[2])]
-                    };
-                    px.copy_from_slice(&rgb);
-                }
-                stats
-            })
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+        let (image, depth) = resolve_pixels(regions.width(), regions.height(), |p| {
+            let run = regions.stored(p);
+            if run.is_empty() {
+                return (bg, 0);
+            }
+            let c = weight_factor_pixel(run, background);
+            ([unorm8(c[0]), unorm8(c[1]), unorm8(c[2])], run.len() as u32)
+        });
         self.depth = Some(depth);
         image
     }

@@ -62,6 +62,7 @@ use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLa
 use crate::alloc::BlockCursor;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
+use crate::resolve::resolve_chunks;
 
 /// The name `--method` selects it by.
 pub const NAME: &str = "abuffer";
@@ -78,9 +79,6 @@ pub const MAX_CAPACITY: u64 = 1 << 31;
 
 /// Initial pool size for [`PoolCapacity::Auto`], as a multiple of the pixel count.
 const AUTO_INITIAL_PER_PIXEL: u64 = 2;
-
-/// Pixels resolved per parallel task.
-const RESOLVE_PIXELS_PER_TASK: usize = 4096;
 
 /// Pixels whose lists are walked together, one node of each per round.
 pub const GATHER_BATCH: usize = 16;
@@ -356,52 +354,37 @@ impl Method for LinkedListABuffer {
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
-        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let bg = composite::background_pixel(background);
         let this = &*self;
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(RESOLVE_PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map_init(
-                || {
-                    std::array::from_fn::<Vec<Fragment>, GATHER_BATCH, _>(|_| {
-                        Vec::with_capacity(16)
-                    })
-                },
-                |lists, (task, out)| {
-                    let mut stats = DepthStats::default();
-                    let first = task * RESOLVE_PIXELS_PER_TASK;
-                    for (b, batch) in out.chunks_mut(GATHER_BATCH * 3).enumerate() {
-                        let p0 = first + b * GATHER_BATCH;
-                        let n = batch.len() / 3;
-                        if this.heads[p0..p0 + n].iter().all(|&h| h == EMPTY) {
-                            for px in batch.chunks_exact_mut(3) {
-                                px.copy_from_slice(&bg);
-                            }
-                            stats.record_many(0, n as u64);
-                            continue;
+        let (image, depth) = resolve_chunks(
+            self.width,
+            self.height,
+            || std::array::from_fn::<Vec<Fragment>, GATHER_BATCH, _>(|_| Vec::with_capacity(16)),
+            |lists, first, out, stats| {
+                for (b, batch) in out.chunks_mut(GATHER_BATCH * 3).enumerate() {
+                    let p0 = first + b * GATHER_BATCH;
+                    let n = batch.len() / 3;
+                    if this.heads[p0..p0 + n].iter().all(|&h| h == EMPTY) {
+                        for px in batch.chunks_exact_mut(3) {
+                            px.copy_from_slice(&bg);
                         }
-                        this.gather(p0, &mut lists[..n]);
-                        for (list, px) in lists.iter_mut().zip(batch.chunks_exact_mut(3)) {
-                            stats.record(list.len() as u32);
-                            let rgb = if list.is_empty() {
-                                bg
-                            } else {
-                                sort_front_to_back(list);
-                                composite::resolve_pixel(list.iter().map(|f| f.color), background)
-                            };
-                            px.copy_from_slice(&rgb);
-                        }
+                        stats.record_many(0, n as u64);
+                        continue;
                     }
-                    stats
-                },
-            )
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+                    this.gather(p0, &mut lists[..n]);
+                    for (list, px) in lists.iter_mut().zip(batch.chunks_exact_mut(3)) {
+                        stats.record(list.len() as u32);
+                        let rgb = if list.is_empty() {
+                            bg
+                        } else {
+                            sort_front_to_back(list);
+                            composite::resolve_pixel(list.iter().map(|f| f.color), background)
+                        };
+                        px.copy_from_slice(&rgb);
+                    }
+                }
+            },
+        );
         self.depth = Some(depth);
         image
     }

@@ -60,6 +60,7 @@ use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLa
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
 use crate::regions::exclusive_prefix_sum;
+use crate::resolve::resolve_pixels;
 
 /// The name the method is selected by.
 pub const NAME: &str = "depth-peeling";
@@ -325,43 +326,25 @@ impl Method for DepthPeeling {
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
-        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let bg = composite::background_pixel(background);
         let (state, accum) = (&self.state, &self.accum);
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map(|(task, out)| {
-                let mut stats = DepthStats::default();
-                let first = task * PIXELS_PER_TASK;
-                for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                    let p = first + i;
-                    stats.record(state[p].count);
-                    let rgb = if state[p].count == 0 {
-                        bg
-                    } else {
-                        let [r, g, b, t] = accum[p];
-                        let c = if t <= 0.0 {
-                            [r, g, b]
-                        } else {
-                            [
-                                r + t * background[0],
-                                g + t * background[1],
-                                b + t * background[2],
-                            ]
-                        };
-                        [unorm8(c[0]), unorm8(c[1]), unorm8(c[2])]
-                    };
-                    px.copy_from_slice(&rgb);
-                }
-                stats
-            })
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+        let (image, depth) = resolve_pixels(self.width, self.height, |p| {
+            let n = state[p].count;
+            if n == 0 {
+                return (bg, 0);
+            }
+            let [r, g, b, t] = accum[p];
+            let c = if t <= 0.0 {
+                [r, g, b]
+            } else {
+                [
+                    r + t * background[0],
+                    g + t * background[1],
+                    b + t * background[2],
+                ]
+            };
+            ([unorm8(c[0]), unorm8(c[1]), unorm8(c[2])], n)
+        });
         self.depth = Some(depth);
         image
     }

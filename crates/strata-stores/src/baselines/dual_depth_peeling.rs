@@ -78,12 +78,10 @@ use super::depth_peeling::blend_front;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
 use crate::regions::exclusive_prefix_sum;
+use crate::resolve::resolve_pixels;
 
 /// The name the method is selected by.
 pub const NAME: &str = "dual-depth-peeling";
-
-/// Pixels per parallel task in the screen-space passes.
-const PIXELS_PER_TASK: usize = 8 * 1024;
 
 /// A fragment's order key as three words, compared lexicographically.
 type Key = [u32; 3];
@@ -342,45 +340,27 @@ impl Method for DualDepthPeeling {
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
-        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let bg = composite::background_pixel(background);
         let state = &self.state;
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map(|(task, out)| {
-                let mut stats = DepthStats::default();
-                let first = task * PIXELS_PER_TASK;
-                for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                    let s = &state[first + i];
-                    let n = s.front_count + s.back_count;
-                    stats.record(n);
-                    let rgb = if n == 0 {
-                        bg
-                    } else {
-                        let [fr, fg, fb, tf] = s.front;
-                        let [br, bgc, bb, tb] = s.back;
-                        let c = if tf <= 0.0 {
-                            [fr, fg, fb]
-                        } else {
-                            [
-                                fr + tf * (br + tb * background[0]),
-                                fg + tf * (bgc + tb * background[1]),
-                                fb + tf * (bb + tb * background[2]),
-                            ]
-                        };
-                        [unorm8(c[0]), unorm8(c[1]), unorm8(c[2])]
-                    };
-                    px.copy_from_slice(&rgb);
-                }
-                stats
-            })
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+        let (image, depth) = resolve_pixels(self.width, self.height, |p| {
+            let s = &state[p];
+            let n = s.front_count + s.back_count;
+            if n == 0 {
+                return (bg, 0);
+            }
+            let [fr, fg, fb, tf] = s.front;
+            let [br, bgc, bb, tb] = s.back;
+            let c = if tf <= 0.0 {
+                [fr, fg, fb]
+            } else {
+                [
+                    fr + tf * (br + tb * background[0]),
+                    fg + tf * (bgc + tb * background[1]),
+                    fb + tf * (bb + tb * background[2]),
+                ]
+            };
+            ([unorm8(c[0]), unorm8(c[1]), unorm8(c[2])], n)
+        });
         self.depth = Some(depth);
         image
     }

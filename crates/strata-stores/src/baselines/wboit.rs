@@ -62,12 +62,10 @@ use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLa
 
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
+use crate::resolve::resolve_pixels;
 
 /// The name the method is selected by.
 pub const NAME: &str = "wboit";
-
-/// Pixels resolved per parallel task.
-const PIXELS_PER_TASK: usize = 8 * 1024;
 
 /// `2^32`: the fixed-point scale of the accumulators.
 const ONE: f64 = 4_294_967_296.0;
@@ -352,28 +350,14 @@ impl Method for Wboit {
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
-        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let accum = &self.accum;
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map(|(task, out)| {
-                let mut stats = DepthStats::default();
-                let first = task * PIXELS_PER_TASK;
-                for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                    let acc = &accum[first + i];
-                    stats.record(acc.fragments);
-                    let c = acc.composite(background);
-                    px.copy_from_slice(&c.map(|v| unorm8(v as f32)));
-                }
-                stats
-            })
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+        let (image, depth) = resolve_pixels(self.width, self.height, |p| {
+            let acc = &accum[p];
+            (
+                acc.composite(background).map(|v| unorm8(v as f32)),
+                acc.fragments,
+            )
+        });
         self.depth = Some(depth);
         image
     }

@@ -60,12 +60,10 @@ use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLa
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
 use crate::regions::{Policy, RegionCapture, RegionSink, Regions};
+use crate::resolve::resolve_pixels;
 
 /// The name it is selected by.
 pub const NAME: &str = "kbuffer";
-
-/// Pixels resolved per parallel task.
-const PIXELS_PER_TASK: usize = 8 * 1024;
 
 /// Fixed-point scale of the tail's `−ln T`.
 const NEG_LN_SCALE: f64 = (1u64 << 20) as f64;
@@ -247,38 +245,22 @@ impl Method for KBuffer {
             return image;
         }
         let (width, height) = (self.regions.width(), self.regions.height());
-        let mut image = Rgb8Image::filled(width, height, [0; 3]);
         let bg = composite::background_pixel(background);
         let (regions, tail) = (&self.regions, &self.tail);
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map(|(task, out)| {
-                let mut stats = DepthStats::default();
-                for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                    let p = task * PIXELS_PER_TASK + i;
-                    let run = regions.stored(p);
-                    stats.record(run.len() as u32);
-                    let t = &tail[p];
-                    let rgb = if t.alpha == 0 {
-                        if run.is_empty() {
-                            bg
-                        } else {
-                            composite::resolve_pixel(run.iter().map(|f| f.color), background)
-                        }
-                    } else {
-                        composite::resolve_pixel(run.iter().map(|f| f.color), t.over(background))
-                    };
-                    px.copy_from_slice(&rgb);
+        let (image, depth) = resolve_pixels(width, height, |p| {
+            let run = regions.stored(p);
+            let t = &tail[p];
+            let rgb = if t.alpha == 0 {
+                if run.is_empty() {
+                    bg
+                } else {
+                    composite::resolve_pixel(run.iter().map(|f| f.color), background)
                 }
-                stats
-            })
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+            } else {
+                composite::resolve_pixel(run.iter().map(|f| f.color), t.over(background))
+            };
+            (rgb, run.len() as u32)
+        });
         self.depth = Some(depth);
         image
     }

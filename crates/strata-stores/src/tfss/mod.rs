@@ -106,6 +106,7 @@ use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLa
 use crate::alloc::BlockCursor;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::{MethodOptions, PoolCapacity};
+use crate::resolve::resolve_chunks;
 use bits::BitArray;
 use lz::{LENGTH_BITS, LengthCode};
 
@@ -131,9 +132,6 @@ pub const MAX_L_NUM: u32 = 64;
 
 /// Initial pool of [`PoolCapacity::Auto`], in fragments per pixel.
 const AUTO_INITIAL_PER_PIXEL: u64 = 2;
-
-/// Pixels resolved per parallel task.
-const RESOLVE_PIXELS_PER_TASK: usize = 4096;
 
 /// Colour bits per component a packed section is sized for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -888,42 +886,31 @@ impl Method for Tfss {
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
-        let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let bg = composite::background_pixel(background);
         let (reader, ssa) = (self.reader(), &self.ssa[..]);
-        let depth = image
-            .as_bytes_mut()
-            .par_chunks_mut(RESOLVE_PIXELS_PER_TASK * 3)
-            .with_max_len(1)
-            .enumerate()
-            .map_init(
-                || Vec::with_capacity(32),
-                |list, (task, out)| {
-                    let mut stats = DepthStats::default();
-                    let first = task * RESOLVE_PIXELS_PER_TASK;
-                    for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                        let start = ssa[first + i];
-                        if start == NULL {
-                            px.copy_from_slice(&bg);
-                            stats.record(0);
-                            continue;
-                        }
-                        list.clear();
-                        reader.gather(start, list);
-                        stats.record(list.len() as u32);
-                        sort_front_to_back(list);
-                        px.copy_from_slice(&composite::resolve_pixel(
-                            list.iter().map(|f| f.color),
-                            background,
-                        ));
+        let (image, depth) = resolve_chunks(
+            self.width,
+            self.height,
+            || Vec::with_capacity(32),
+            |list, first, out, stats| {
+                for (i, px) in out.chunks_exact_mut(3).enumerate() {
+                    let start = ssa[first + i];
+                    if start == NULL {
+                        px.copy_from_slice(&bg);
+                        stats.record(0);
+                        continue;
                     }
-                    stats
-                },
-            )
-            .reduce(DepthStats::default, |mut a, b| {
-                a.merge(&b);
-                a
-            });
+                    list.clear();
+                    reader.gather(start, list);
+                    stats.record(list.len() as u32);
+                    sort_front_to_back(list);
+                    px.copy_from_slice(&composite::resolve_pixel(
+                        list.iter().map(|f| f.color),
+                        background,
+                    ));
+                }
+            },
+        );
         self.depth = Some(depth);
         image
     }
