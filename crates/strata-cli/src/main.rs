@@ -42,6 +42,9 @@ enum Command {
     /// TFSS and strata's layouts, access/time model.
     #[command(long_about = cmd::tfss_sim::LONG_ABOUT)]
     TfssSim(cmd::tfss_sim::Args),
+    /// Encode a scene's DeepFrames with every wire codec: bytes, ratios against raw and the
+    /// seed's LZ4, encode and decode times, bit-exact round trips.
+    Codecs(cmd::codecs::Args),
 }
 
 fn main() -> ExitCode {
@@ -70,6 +73,7 @@ fn main() -> ExitCode {
         Command::Scenes(a) => cmd::scenes::run(a),
         Command::Methods(a) => cmd::methods::run(a),
         Command::TfssSim(a) => cmd::tfss_sim::run(a),
+        Command::Codecs(a) => cmd::codecs::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

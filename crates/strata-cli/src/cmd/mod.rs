@@ -1,6 +1,7 @@
 //! One module per subcommand.
 
 pub(crate) mod bench;
+pub(crate) mod codecs;
 pub(crate) mod compare;
 pub(crate) mod demo;
 pub(crate) mod methods;

@@ -1,0 +1,230 @@
+//! The general-purpose compressors under the codecs — none, LZ4, zstd — with decompression that
+//! never produces, or allocates for, more than the section table announced.
+//!
+//! # Formats
+//!
+//! - **none**: the section's payload is its decoded bytes.
+//! - **lz4**: one LZ4 *block* (lz4_flex `block` module, safe Rust): no frame header, no
+//!   checksum, no size prefix — the section table already carries the decoded length, which the
+//!   decoder needs to size its output. The block format is also the faster of lz4_flex's two.
+//! - **zstd**: one standard zstd frame (`zstd::bulk::compress`, content size recorded).
+//!
+//! # Expansion bounds
+//!
+//! Before decompressing, the decoder checks that the announced decoded length is one the
+//! compressor could have produced from the announced payload:
+//!
+//! - LZ4 cannot expand more than 255:1 — a match costs 3 bytes (token, offset) for up to 19 bytes
+//!   and one more byte per further 255 — so `decoded <= 255 * encoded + 255`;
+//! - zstd cannot expand more than 32768:1 — a block yields at most 128 KiB and costs at least
+//!   4 bytes (3-byte block header plus one RLE byte) — so `decoded <= 32768 * encoded`.
+//!
+//! LZ4 then decompresses into an exact-size buffer (at most 256× the payload). zstd, whose bound
+//! is loose, decompresses into a buffer sized from the payload (at most 64×) and, past that, grows
+//! the buffer only as real output arrives, up to the announced length: an announced length that the
+//! payload does not actually produce costs no memory.
+
+use std::io::Read;
+
+use crate::error::WireError;
+
+/// How a section's payload is compressed (the section table's `compression` byte).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum Compression {
+    /// Stored as is.
+    None = 0,
+    /// One LZ4 block.
+    Lz4 = 1,
+    /// One zstd frame.
+    Zstd = 2,
+}
+
+impl Compression {
+    /// The wire byte's meaning, if any.
+    pub fn from_byte(b: u8) -> Option<Self> {
+        match b {
+            0 => Some(Compression::None),
+            1 => Some(Compression::Lz4),
+            2 => Some(Compression::Zstd),
+            _ => None,
+        }
+    }
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Compression::None => "none",
+            Compression::Lz4 => "lz4",
+            Compression::Zstd => "zstd",
+        }
+    }
+
+    /// The largest decoded length `encoded` payload bytes can produce; see the module docs.
+    pub fn max_decoded(self, encoded: u64) -> u64 {
+        match self {
+            Compression::None => encoded,
+            Compression::Lz4 => encoded.saturating_mul(255).saturating_add(255),
+            Compression::Zstd => encoded.saturating_mul(32_768),
+        }
+    }
+}
+
+/// Compresses `data` with `method` (`level` is zstd's), or stores it when compression would not
+/// make it smaller. Returns the method actually used and the payload.
+pub(crate) fn compress(
+    data: &[u8],
+    method: Compression,
+    level: i32,
+) -> Result<(Compression, Vec<u8>), WireError> {
+    let packed = match method {
+        Compression::None => None,
+        Compression::Lz4 => Some(lz4_flex::block::compress(data)),
+        Compression::Zstd => Some(
+            zstd::bulk::compress(data, level)
+                .map_err(|e| WireError::Encode(format!("zstd level {level}: {e}")))?,
+        ),
+    };
+    Ok(match packed {
+        Some(p) if p.len() < data.len() => (method, p),
+        _ => (Compression::None, data.to_vec()),
+    })
+}
+
+/// Initial output buffer of a zstd section, as a multiple of its payload.
+const ZSTD_PREALLOC_RATIO: usize = 64;
+
+/// Decompresses one section payload into exactly `decoded_len` bytes.
+///
+/// The caller has checked `decoded_len <= method.max_decoded(payload.len())` and the decoder
+/// limits; this checks that the payload really produces `decoded_len` bytes, no more, no fewer.
+pub(crate) fn decompress(
+    payload: &[u8],
+    method: Compression,
+    decoded_len: usize,
+    section: &'static str,
+    offset: u64,
+) -> Result<Vec<u8>, WireError> {
+    let wrong_length = |got: &dyn std::fmt::Display| {
+        WireError::section(
+            section,
+            offset,
+            format!("decompresses to {got} bytes, the section table says {decoded_len}"),
+        )
+    };
+    match method {
+        Compression::None => {
+            if payload.len() != decoded_len {
+                return Err(wrong_length(&payload.len()));
+            }
+            Ok(payload.to_vec())
+        }
+        Compression::Lz4 => {
+            let mut out = vec![0u8; decoded_len];
+            let n = lz4_flex::block::decompress_into(payload, &mut out)
+                .map_err(|e| WireError::section(section, offset, format!("lz4: {e}")))?;
+            if n != decoded_len {
+                return Err(wrong_length(&n));
+            }
+            Ok(out)
+        }
+        Compression::Zstd => {
+            let initial = decoded_len.min(payload.len().saturating_mul(ZSTD_PREALLOC_RATIO));
+            let mut out = Vec::with_capacity(initial);
+            if initial == decoded_len {
+                // Small enough to trust: one call into an exact-size buffer.
+                // `Vec` as a `WriteBuf`: its capacity bounds the output.
+                let n = zstd::bulk::Decompressor::new()
+                    .and_then(|mut d| d.decompress_to_buffer(payload, &mut out))
+                    .map_err(|e| {
+                        WireError::section(
+                            section,
+                            offset,
+                            format!("zstd: {e} (or more than {decoded_len} bytes)"),
+                        )
+                    })?;
+                if n != decoded_len {
+                    return Err(wrong_length(&n));
+                }
+                return Ok(out);
+            }
+            // A large announced expansion: let the buffer grow only with real output.
+            let decoder = zstd::stream::read::Decoder::with_buffer(payload)
+                .map_err(|e| WireError::section(section, offset, format!("zstd: {e}")))?;
+            let mut limited = decoder.take(decoded_len as u64 + 1);
+            limited
+                .read_to_end(&mut out)
+                .map_err(|e| WireError::section(section, offset, format!("zstd: {e}")))?;
+            if out.len() > decoded_len {
+                return Err(wrong_length(&format!("more than {decoded_len}")));
+            }
+            if out.len() != decoded_len {
+                return Err(wrong_length(&out.len()));
+            }
+            Ok(out)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> Vec<u8> {
+        (0..100_000u32).map(|i| (i / 7 % 13) as u8).collect()
+    }
+
+    #[test]
+    fn every_method_round_trips() {
+        let data = sample();
+        for m in [Compression::None, Compression::Lz4, Compression::Zstd] {
+            let (used, p) = compress(&data, m, 3).unwrap();
+            assert_eq!(used, m);
+            assert!(used.max_decoded(p.len() as u64) >= data.len() as u64);
+            assert_eq!(decompress(&p, used, data.len(), "t", 0).unwrap(), data);
+        }
+    }
+
+    #[test]
+    fn incompressible_data_is_stored() {
+        let data = [7u8; 3];
+        let (used, p) = compress(&data, Compression::Zstd, 3).unwrap();
+        assert_eq!((used, p.as_slice()), (Compression::None, &data[..]));
+    }
+
+    #[test]
+    fn a_wrong_decoded_length_is_an_error_either_way() {
+        let data = sample();
+        for m in [Compression::Lz4, Compression::Zstd] {
+            let (_, p) = compress(&data, m, 3).unwrap();
+            for len in [data.len() - 1, data.len() + 1, 0] {
+                assert!(
+                    decompress(&p, m, len, "t", 0).is_err(),
+                    "{m:?} with {len} bytes announced"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_zstd_bomb_is_cut_at_the_announced_length() {
+        let data = vec![0u8; 4 << 20];
+        let (_, p) = compress(&data, Compression::Zstd, 3).unwrap();
+        assert!(
+            p.len() * ZSTD_PREALLOC_RATIO < data.len(),
+            "takes the streaming path"
+        );
+        assert!(decompress(&p, Compression::Zstd, 1 << 20, "t", 0).is_err());
+        assert_eq!(
+            decompress(&p, Compression::Zstd, data.len(), "t", 0).unwrap(),
+            data
+        );
+    }
+
+    #[test]
+    fn garbage_is_an_error() {
+        let junk: Vec<u8> = (0..64).map(|i| (i * 37 + 11) as u8).collect();
+        assert!(decompress(&junk, Compression::Zstd, 1000, "t", 0).is_err());
+        assert!(decompress(&junk, Compression::Lz4, 1000, "t", 0).is_err());
+    }
+}

@@ -1,0 +1,371 @@
+//! The codecs: how a DeepFrame becomes a list of sections and back, all lossless.
+//!
+//! A codec is a *layout* (which sections, what bytes each holds before compression) plus the
+//! general-purpose compressor applied to every section:
+//!
+//! | codec | id | layout | compressor |
+//! | --- | --- | --- | --- |
+//! | `raw` | 0 | [`seed`]: one section, the seed's header + 12-byte nodes | none |
+//! | `lz4` | 1 | [`seed`] | LZ4 block — seed 000's comparison (Table A.1) |
+//! | `zstd` | 2 | [`seed`] | zstd, level configurable (default 3) |
+//! | `deep-lz4` | 3 | [`deep`]: counts, depth, colour, object sections after prediction | LZ4 block |
+//! | `deep-zstd` | 4 | [`deep`] | zstd (default level 1) |
+//!
+//! Sections are compressed independently (and in parallel); a section that would not shrink is
+//! stored (`compression = none`), which the decoder accepts for any codec.
+
+pub mod compress;
+pub mod deep;
+pub mod seed;
+
+use std::fmt;
+use std::str::FromStr;
+
+use rayon::prelude::*;
+use strata_core::DeepFrame;
+
+pub use compress::Compression;
+
+use crate::error::WireError;
+
+/// Default zstd level of the `zstd` codec (the zstd library's own default).
+pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+/// Default zstd level of the `deep-zstd` codec: on prediction residuals level 1 compresses as
+/// well as level 3 at a third of the time (measured on the built-in scenes and meshes).
+pub const DEFAULT_DEEP_ZSTD_LEVEL: i32 = 1;
+
+/// A lossless DeepFrame codec; see the module docs for the table of codecs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Codec {
+    /// Seed layout, uncompressed: the baseline.
+    Raw,
+    /// Seed layout under LZ4.
+    Lz4,
+    /// Seed layout under zstd.
+    Zstd {
+        /// zstd level, -128..=22.
+        level: i32,
+    },
+    /// DeepFrame-aware layout under LZ4.
+    DeepLz4,
+    /// DeepFrame-aware layout under zstd.
+    DeepZstd {
+        /// zstd level, -128..=22.
+        level: i32,
+    },
+}
+
+impl Codec {
+    /// Every codec at its default settings, baseline first.
+    pub const ALL: [Codec; 5] = [
+        Codec::Raw,
+        Codec::Lz4,
+        Codec::Zstd {
+            level: DEFAULT_ZSTD_LEVEL,
+        },
+        Codec::DeepLz4,
+        Codec::DeepZstd {
+            level: DEFAULT_DEEP_ZSTD_LEVEL,
+        },
+    ];
+
+    /// The name used on the command line and in reports (`raw`, `lz4`, `zstd`, `deep-lz4`,
+    /// `deep-zstd`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Codec::Raw => "raw",
+            Codec::Lz4 => "lz4",
+            Codec::Zstd { .. } => "zstd",
+            Codec::DeepLz4 => "deep-lz4",
+            Codec::DeepZstd { .. } => "deep-zstd",
+        }
+    }
+
+    /// The `codec` byte.
+    pub fn id(self) -> u8 {
+        match self {
+            Codec::Raw => 0,
+            Codec::Lz4 => 1,
+            Codec::Zstd { .. } => 2,
+            Codec::DeepLz4 => 3,
+            Codec::DeepZstd { .. } => 4,
+        }
+    }
+
+    /// The `codec_param` byte: the zstd level as an `i8`, 0 for the others.
+    pub fn param(self) -> u8 {
+        match self {
+            Codec::Zstd { level } | Codec::DeepZstd { level } => level as i8 as u8,
+            _ => 0,
+        }
+    }
+
+    /// The codec a `codec` and `codec_param` byte pair names.
+    pub fn from_bytes(id: u8, param: u8) -> Option<Self> {
+        let level = i32::from(param as i8);
+        match id {
+            0 => Some(Codec::Raw),
+            1 => Some(Codec::Lz4),
+            2 => Some(Codec::Zstd { level }),
+            3 => Some(Codec::DeepLz4),
+            4 => Some(Codec::DeepZstd { level }),
+            _ => None,
+        }
+    }
+
+    /// The compressor applied to each section.
+    pub fn compression(self) -> Compression {
+        match self {
+            Codec::Raw => Compression::None,
+            Codec::Lz4 | Codec::DeepLz4 => Compression::Lz4,
+            Codec::Zstd { .. } | Codec::DeepZstd { .. } => Compression::Zstd,
+        }
+    }
+
+    fn level(self) -> i32 {
+        match self {
+            Codec::Zstd { level } | Codec::DeepZstd { level } => level,
+            _ => 0,
+        }
+    }
+
+    /// The sections this codec's layout has, in wire order.
+    pub fn sections(self) -> &'static [SectionTag] {
+        match self {
+            Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => &[SectionTag::Seed],
+            Codec::DeepLz4 | Codec::DeepZstd { .. } => &[
+                SectionTag::Counts,
+                SectionTag::Depth,
+                SectionTag::Color,
+                SectionTag::Object,
+            ],
+        }
+    }
+
+    /// Checks the settings an encoder would write.
+    pub fn validate(self) -> Result<(), WireError> {
+        let level = self.level();
+        if !(-128..=22).contains(&level) {
+            return Err(WireError::Encode(format!(
+                "zstd level {level} is outside -128..=22"
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Display for Codec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Codec::Zstd { level } if *level != DEFAULT_ZSTD_LEVEL => write!(f, "zstd:{level}"),
+            Codec::DeepZstd { level } if *level != DEFAULT_DEEP_ZSTD_LEVEL => {
+                write!(f, "deep-zstd:{level}")
+            }
+            c => f.write_str(c.name()),
+        }
+    }
+}
+
+/// A codec name that does not parse.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown codec '{0}': expected raw, lz4, zstd[:LEVEL], deep-lz4 or deep-zstd[:LEVEL]")]
+pub struct UnknownCodec(pub String);
+
+impl FromStr for Codec {
+    type Err = UnknownCodec;
+
+    /// Parses `raw`, `lz4`, `zstd`, `zstd:LEVEL`, `deep-lz4`, `deep-zstd`, `deep-zstd:LEVEL`
+    /// (`deep` is short for `deep-zstd`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = || UnknownCodec(s.to_owned());
+        let (name, level) = match s.split_once(':') {
+            Some((n, l)) => (n, Some(l.parse::<i32>().map_err(|_| bad())?)),
+            None => (s, None),
+        };
+        let codec = match (name, level) {
+            ("raw", None) => Codec::Raw,
+            ("lz4", None) => Codec::Lz4,
+            ("deep-lz4", None) => Codec::DeepLz4,
+            ("zstd", l) => Codec::Zstd {
+                level: l.unwrap_or(DEFAULT_ZSTD_LEVEL),
+            },
+            ("deep-zstd" | "deep", l) => Codec::DeepZstd {
+                level: l.unwrap_or(DEFAULT_DEEP_ZSTD_LEVEL),
+            },
+            _ => return Err(bad()),
+        };
+        codec.validate().map_err(|_| bad())?;
+        Ok(codec)
+    }
+}
+
+/// What a section holds (the section table's `tag` byte).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum SectionTag {
+    /// The seed layout: per-pixel u32 counts, then 12-byte nodes.
+    Seed = 1,
+    /// Deep layout: per-pixel fragment counts as varints.
+    Counts = 16,
+    /// Deep layout: depth prediction residuals, four byte planes.
+    Depth = 17,
+    /// Deep layout: colour prediction residuals, four channel planes.
+    Color = 18,
+    /// Deep layout: object-id prediction residuals, zero-run coded.
+    Object = 19,
+}
+
+impl SectionTag {
+    /// The wire byte's meaning, if any.
+    pub fn from_byte(b: u8) -> Option<Self> {
+        match b {
+            1 => Some(SectionTag::Seed),
+            16 => Some(SectionTag::Counts),
+            17 => Some(SectionTag::Depth),
+            18 => Some(SectionTag::Color),
+            19 => Some(SectionTag::Object),
+            _ => None,
+        }
+    }
+
+    /// Lower-case name, as in error messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            SectionTag::Seed => "seed",
+            SectionTag::Counts => "counts",
+            SectionTag::Depth => "depth",
+            SectionTag::Color => "color",
+            SectionTag::Object => "object",
+        }
+    }
+
+    /// The decoded lengths this section may announce for `pixels` pixels and `fragments`
+    /// fragments, as an inclusive range; checked before anything is allocated.
+    pub fn decoded_range(self, pixels: u64, fragments: u64) -> (u64, u64) {
+        match self {
+            SectionTag::Seed => {
+                let n = 4 * pixels + 12 * fragments;
+                (n, n)
+            }
+            SectionTag::Counts => (pixels, 5 * pixels),
+            SectionTag::Depth | SectionTag::Color => (4 * fragments, 4 * fragments),
+            // Zero-run pairs: at most one 5-byte run and one 5-byte value per fragment, plus the
+            // final run.
+            SectionTag::Object => (1, 10 * fragments + 5),
+        }
+    }
+}
+
+/// One section's entry in the section table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SectionInfo {
+    /// What it holds.
+    pub tag: SectionTag,
+    /// How its payload is compressed.
+    pub compression: Compression,
+    /// Payload bytes on the wire.
+    pub encoded_len: u64,
+    /// Bytes after decompression.
+    pub decoded_len: u64,
+}
+
+/// A section ready to be written: its table entry and payload.
+#[derive(Debug)]
+pub(crate) struct EncodedSection {
+    pub(crate) info: SectionInfo,
+    pub(crate) payload: Vec<u8>,
+}
+
+/// Encodes `frame` into its sections with `codec`.
+pub(crate) fn encode_sections(
+    frame: &DeepFrame,
+    codec: Codec,
+) -> Result<Vec<EncodedSection>, WireError> {
+    codec.validate()?;
+    let raw: Vec<(SectionTag, Vec<u8>)> = match codec {
+        Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => {
+            vec![(SectionTag::Seed, seed::encode(frame))]
+        }
+        Codec::DeepLz4 | Codec::DeepZstd { .. } => deep::encode(frame),
+    };
+    let (method, level) = (codec.compression(), codec.level());
+    raw.into_par_iter()
+        .map(|(tag, bytes)| {
+            let (compression, payload) = compress::compress(&bytes, method, level)?;
+            Ok(EncodedSection {
+                info: SectionInfo {
+                    tag,
+                    compression,
+                    encoded_len: payload.len() as u64,
+                    decoded_len: bytes.len() as u64,
+                },
+                payload,
+            })
+        })
+        .collect()
+}
+
+/// A section as found in a message: its table entry, payload, and where the payload starts.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SectionRef<'a> {
+    pub(crate) info: SectionInfo,
+    pub(crate) payload: &'a [u8],
+    pub(crate) offset: u64,
+}
+
+/// Decompresses every section (in parallel) after the caller validated the table.
+pub(crate) fn decompress_sections(sections: &[SectionRef<'_>]) -> Result<Vec<Vec<u8>>, WireError> {
+    sections
+        .par_iter()
+        .map(|s| {
+            compress::decompress(
+                s.payload,
+                s.info.compression,
+                s.info.decoded_len as usize,
+                s.info.tag.name(),
+                s.offset,
+            )
+        })
+        .collect()
+}
+
+/// Rebuilds the frame from decompressed sections (in the codec's order).
+pub(crate) fn decode_sections(
+    codec: Codec,
+    width: u32,
+    height: u32,
+    fragments: u32,
+    sections: &[SectionRef<'_>],
+    decoded: Vec<Vec<u8>>,
+) -> Result<DeepFrame, WireError> {
+    match codec {
+        Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => {
+            seed::decode(width, height, fragments, &decoded[0], sections[0].offset)
+        }
+        Codec::DeepLz4 | Codec::DeepZstd { .. } => {
+            let offsets: Vec<u64> = sections.iter().map(|s| s.offset).collect();
+            deep::decode(width, height, fragments, &decoded, &offsets)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codec_bytes_and_names_round_trip() {
+        for c in Codec::ALL
+            .into_iter()
+            .chain([Codec::Zstd { level: -7 }, Codec::DeepZstd { level: 19 }])
+        {
+            assert_eq!(Codec::from_bytes(c.id(), c.param()), Some(c));
+            assert_eq!(c.to_string().parse::<Codec>(), Ok(c));
+        }
+        assert_eq!("deep".parse::<Codec>(), Ok(Codec::ALL[4]));
+        assert!("zstd:99".parse::<Codec>().is_err());
+        assert!("lz4:3".parse::<Codec>().is_err());
+        assert!("gzip".parse::<Codec>().is_err());
+        assert_eq!(Codec::from_bytes(5, 0), None);
+    }
+}

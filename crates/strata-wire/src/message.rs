@@ -1,0 +1,699 @@
+//! Message framing: the 20-byte prefix every message starts with, and the frame message.
+//!
+//! All integers and floats are little-endian. Offsets below are from the first byte of the
+//! message; `docs/wire-format.md` is the full specification with a worked example.
+//!
+//! # Prefix (20 bytes, every message type)
+//!
+//! ```text
+//!  0  magic        [u8; 4]  "STRW"
+//!  4  version      u16      1
+//!  6  type         u8       1 = frame (2 camera, 3 delta, 4 error: reserved)
+//!  7  flags        u8       0 (reserved)
+//!  8  body_len     u64      bytes after the prefix
+//! 16  body_crc32   u32      CRC-32 (ISO-HDLC, as zlib) of those bytes
+//! ```
+//!
+//! A stream reader reads the prefix ([`parse_prefix`]), checks `body_len` against its limit, then
+//! reads exactly `body_len` more bytes.
+//!
+//! # Frame body (type 1)
+//!
+//! ```text
+//!  20  frame_number       u64
+//!  28  node_id            u32
+//!  32  width              u32      ≤ 16384 by default
+//!  36  height             u32      ≤ 16384 by default
+//!  40  fragment_count     u32
+//!  44  transfer           u8       0 full, 1 depth-limited, 2 difference, 3 reprojection
+//!  45  transfer_flags     u8       bit 0: opacity threshold present (depth-limited only)
+//!  46  codec              u8       0 raw, 1 lz4, 2 zstd, 3 deep-lz4, 4 deep-zstd
+//!  47  codec_param        i8       zstd level (zstd, deep-zstd), else 0
+//!  48  layers             u32      depth-limited: N ≥ 1, else 0
+//!  52  opacity_threshold  f32      depth-limited with threshold: in (0, 1], else 0
+//!  56  view               [f32; 16] column-major, world → eye
+//! 120  projection         [f32; 16] column-major, eye → clip
+//! 184  section_count      u16      the codec's section count
+//! 186  reserved           u16      0
+//! 188  section table      section_count × 20 bytes:
+//!        +0 tag u8 | +1 compression u8 | +2 reserved u16 | +4 encoded_len u64 | +12 decoded_len u64
+//! 188 + 20·section_count  the payloads, in table order, back to back
+//! ```
+
+use strata_core::DeepFrame;
+
+use crate::bytes::Reader;
+use crate::codec::{self, Codec, Compression, EncodedSection, SectionInfo, SectionRef, SectionTag};
+use crate::error::WireError;
+
+/// The four bytes every message starts with.
+pub const MAGIC: [u8; 4] = *b"STRW";
+/// The format version this crate writes and reads.
+pub const VERSION: u16 = 1;
+/// Bytes in the prefix.
+pub const PREFIX_LEN: usize = 20;
+/// Bytes of a frame message before its section table.
+pub const FRAME_HEADER_LEN: usize = 188;
+/// Bytes per section-table entry.
+pub const SECTION_ENTRY_LEN: usize = 20;
+
+/// What a message carries (the prefix's `type` byte).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+#[non_exhaustive]
+pub enum MessageType {
+    /// A DeepFrame rendered by a node.
+    Frame = 1,
+}
+
+impl MessageType {
+    /// The type byte's meaning, or the error a decoder reports for it.
+    pub fn from_byte(b: u8) -> Result<Self, WireError> {
+        let what = match b {
+            1 => return Ok(MessageType::Frame),
+            2 => "reserved for camera messages (display to node)",
+            3 => "reserved for delta messages (difference and reprojection transfers)",
+            4 => "reserved for error messages",
+            _ => "unknown",
+        };
+        Err(WireError::UnsupportedMessageType { found: b, what })
+    }
+}
+
+/// What a decoder accepts; every limit is checked before the allocation it guards.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecodeOptions {
+    /// Largest `width` (default 16384).
+    pub max_width: u32,
+    /// Largest `height` (default 16384).
+    pub max_height: u32,
+    /// Largest `width · height` (default 2^26 = 64 Mi pixels, e.g. 8192 × 8192).
+    pub max_pixels: u64,
+    /// Largest `fragment_count` (default 2^28 = 256 Mi fragments, 3 GiB of columns).
+    pub max_fragments: u64,
+    /// Largest `body_len` (default 2^32 bytes).
+    pub max_body_bytes: u64,
+    /// Check the body's CRC-32 (default true; fuzzing turns it off to reach the fields).
+    pub verify_checksum: bool,
+}
+
+impl Default for DecodeOptions {
+    fn default() -> Self {
+        DecodeOptions {
+            max_width: 16_384,
+            max_height: 16_384,
+            max_pixels: 1 << 26,
+            max_fragments: 1 << 28,
+            max_body_bytes: 1 << 32,
+            verify_checksum: true,
+        }
+    }
+}
+
+/// The parsed prefix.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Prefix {
+    /// The message type.
+    pub kind: MessageType,
+    /// Bytes after the prefix.
+    pub body_len: u64,
+    /// CRC-32 of the body.
+    pub body_crc32: u32,
+}
+
+/// How the node chose the fragments it sent (seed 000 ch. 3–5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TransferMethod {
+    /// Every fragment.
+    Full,
+    /// The `layers` nearest fragments per pixel, stopping early once the accumulated opacity
+    /// reaches `opacity_threshold` when there is one (seed 000 ch. 3).
+    DepthLimited {
+        /// N ≥ 1.
+        layers: u32,
+        /// In (0, 1].
+        opacity_threshold: Option<f32>,
+    },
+    /// Only pixels whose fragment list changed (seed 000 ch. 4).
+    Difference,
+    /// Inserts and removals against the reprojected previous frame (seed 000 ch. 5).
+    Reprojection,
+}
+
+impl TransferMethod {
+    /// `(transfer, transfer_flags, layers, opacity_threshold)` as written.
+    fn to_fields(self) -> (u8, u8, u32, f32) {
+        match self {
+            TransferMethod::Full => (0, 0, 0, 0.0),
+            TransferMethod::DepthLimited {
+                layers,
+                opacity_threshold,
+            } => match opacity_threshold {
+                Some(t) => (1, 1, layers, t),
+                None => (1, 0, layers, 0.0),
+            },
+            TransferMethod::Difference => (2, 0, 0, 0.0),
+            TransferMethod::Reprojection => (3, 0, 0, 0.0),
+        }
+    }
+
+    fn check(self) -> Result<(), String> {
+        if let TransferMethod::DepthLimited {
+            layers,
+            opacity_threshold,
+        } = self
+        {
+            if layers == 0 {
+                return Err("depth-limited transfer needs at least 1 layer".into());
+            }
+            if let Some(t) = opacity_threshold
+                && !(t > 0.0 && t <= 1.0)
+            {
+                return Err(format!("opacity threshold {t} is outside (0, 1]"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Everything about a frame except its fragments.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameHeader {
+    /// The animation frame (display's numbering).
+    pub frame_number: u64,
+    /// The render node that sent it.
+    pub node_id: u32,
+    /// World → eye matrix the frame was rendered with, column-major (`glam::Mat4::to_cols_array`).
+    pub view: [f32; 16],
+    /// Eye → clip matrix, column-major.
+    pub projection: [f32; 16],
+    /// How the fragments were chosen.
+    pub transfer: TransferMethod,
+}
+
+impl Default for FrameHeader {
+    /// Frame 0 of node 0, identity matrices, full transfer.
+    fn default() -> Self {
+        const IDENTITY: [f32; 16] = [
+            1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+        ];
+        FrameHeader {
+            frame_number: 0,
+            node_id: 0,
+            view: IDENTITY,
+            projection: IDENTITY,
+            transfer: TransferMethod::Full,
+        }
+    }
+}
+
+/// A decoded frame message.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameMessage {
+    /// Its header.
+    pub header: FrameHeader,
+    /// The codec it was encoded with.
+    pub codec: Codec,
+    /// The fragments.
+    pub frame: DeepFrame,
+}
+
+/// A frame message's header and section table, without decoding its payloads.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameInfo {
+    /// Its header.
+    pub header: FrameHeader,
+    /// The codec.
+    pub codec: Codec,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Fragments the frame holds.
+    pub fragment_count: u32,
+    /// The section table.
+    pub sections: Vec<SectionInfo>,
+}
+
+/// Any decoded message.
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum Message {
+    /// A frame.
+    Frame(FrameMessage),
+}
+
+// ----- encoding -----------------------------------------------------------------------------
+
+/// Encodes `frame` as one frame message.
+pub fn encode_frame(
+    header: &FrameHeader,
+    frame: &DeepFrame,
+    codec: Codec,
+) -> Result<Vec<u8>, WireError> {
+    let mut out = Vec::new();
+    encode_frame_into(&mut out, header, frame, codec)?;
+    Ok(out)
+}
+
+/// Encodes `frame` as one frame message, replacing the contents of `out` (whose capacity is
+/// reused).
+pub fn encode_frame_into(
+    out: &mut Vec<u8>,
+    header: &FrameHeader,
+    frame: &DeepFrame,
+    codec: Codec,
+) -> Result<(), WireError> {
+    header.transfer.check().map_err(WireError::Encode)?;
+    let sections = codec::encode_sections(frame, codec)?;
+    write_frame(out, header, frame, codec, &sections);
+    Ok(())
+}
+
+fn write_frame(
+    out: &mut Vec<u8>,
+    header: &FrameHeader,
+    frame: &DeepFrame,
+    codec: Codec,
+    sections: &[EncodedSection],
+) {
+    let payload: usize = sections.iter().map(|s| s.payload.len()).sum();
+    out.clear();
+    out.reserve(FRAME_HEADER_LEN + SECTION_ENTRY_LEN * sections.len() + payload);
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.push(MessageType::Frame as u8);
+    out.push(0); // flags
+    out.extend_from_slice(&[0; 12]); // body_len and crc, patched below
+    out.extend_from_slice(&header.frame_number.to_le_bytes());
+    out.extend_from_slice(&header.node_id.to_le_bytes());
+    out.extend_from_slice(&frame.width().to_le_bytes());
+    out.extend_from_slice(&frame.height().to_le_bytes());
+    out.extend_from_slice(&(frame.fragment_count() as u32).to_le_bytes());
+    let (transfer, flags, layers, threshold) = header.transfer.to_fields();
+    out.extend_from_slice(&[transfer, flags, codec.id(), codec.param()]);
+    out.extend_from_slice(&layers.to_le_bytes());
+    out.extend_from_slice(&threshold.to_le_bytes());
+    for v in header.view.iter().chain(&header.projection) {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(&(sections.len() as u16).to_le_bytes());
+    out.extend_from_slice(&[0, 0]);
+    debug_assert_eq!(out.len(), FRAME_HEADER_LEN);
+    for s in sections {
+        out.extend_from_slice(&[s.info.tag as u8, s.info.compression as u8, 0, 0]);
+        out.extend_from_slice(&s.info.encoded_len.to_le_bytes());
+        out.extend_from_slice(&s.info.decoded_len.to_le_bytes());
+    }
+    for s in sections {
+        out.extend_from_slice(&s.payload);
+    }
+    let body_len = (out.len() - PREFIX_LEN) as u64;
+    let crc = crc32fast::hash(&out[PREFIX_LEN..]);
+    out[8..16].copy_from_slice(&body_len.to_le_bytes());
+    out[16..20].copy_from_slice(&crc.to_le_bytes());
+}
+
+// ----- decoding -----------------------------------------------------------------------------
+
+/// Parses and checks the 20-byte prefix (magic, version, type, flags, `body_len` against
+/// `options.max_body_bytes`). `bytes` may be longer than the prefix.
+pub fn parse_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Prefix, WireError> {
+    let mut r = Reader::new(bytes, 0);
+    let magic = r.bytes4("magic")?;
+    if magic != MAGIC {
+        return Err(WireError::BadMagic { found: magic });
+    }
+    let version = r.u16("version")?;
+    if version != VERSION {
+        return Err(WireError::UnsupportedVersion {
+            found: version,
+            supported: VERSION,
+        });
+    }
+    let kind = MessageType::from_byte(r.u8("type")?)?;
+    let flags = r.u8("flags")?;
+    if flags != 0 {
+        return Err(WireError::invalid(
+            "flags",
+            7,
+            format!("{flags:#04x}"),
+            "no flags are defined in version 1",
+        ));
+    }
+    let body_len = r.u64("body_len")?;
+    if body_len > options.max_body_bytes {
+        return Err(WireError::Limit {
+            field: "body_len",
+            offset: 8,
+            value: body_len,
+            limit: options.max_body_bytes,
+        });
+    }
+    let body_crc32 = r.u32("body_crc32")?;
+    Ok(Prefix {
+        kind,
+        body_len,
+        body_crc32,
+    })
+}
+
+/// Decodes one complete message (exactly one: trailing bytes are an error).
+pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Message, WireError> {
+    let prefix = parse_prefix(bytes, options)?;
+    match prefix.kind {
+        MessageType::Frame => decode_frame(bytes, options).map(Message::Frame),
+    }
+}
+
+/// Decodes one complete frame message.
+pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessage, WireError> {
+    let parsed = parse_frame(bytes, options)?;
+    let decoded = codec::decompress_sections(&parsed.sections)?;
+    let frame = codec::decode_sections(
+        parsed.info.codec,
+        parsed.info.width,
+        parsed.info.height,
+        parsed.info.fragment_count,
+        &parsed.sections,
+        decoded,
+    )?;
+    Ok(FrameMessage {
+        header: parsed.info.header,
+        codec: parsed.info.codec,
+        frame,
+    })
+}
+
+/// Parses and validates a frame message's header and section table without decompressing
+/// anything (what `strata codecs` reports per section).
+pub fn inspect_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameInfo, WireError> {
+    parse_frame(bytes, options).map(|p| p.info)
+}
+
+struct ParsedFrame<'a> {
+    info: FrameInfo,
+    sections: Vec<SectionRef<'a>>,
+}
+
+/// Everything that can be checked without decompressing, in message order.
+fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFrame<'a>, WireError> {
+    let prefix = parse_prefix(bytes, options)?;
+    if prefix.kind != MessageType::Frame {
+        return Err(WireError::invalid(
+            "type",
+            6,
+            prefix.kind as u8,
+            "not a frame message",
+        ));
+    }
+    let available = (bytes.len() - PREFIX_LEN) as u64;
+    if prefix.body_len != available {
+        return Err(if prefix.body_len > available {
+            WireError::Truncated {
+                field: "body",
+                offset: PREFIX_LEN as u64,
+                needed: prefix.body_len,
+                available,
+            }
+        } else {
+            WireError::invalid(
+                "body_len",
+                8,
+                prefix.body_len,
+                format!("the message has {available} bytes after the prefix"),
+            )
+        });
+    }
+    let body = &bytes[PREFIX_LEN..];
+    if options.verify_checksum {
+        let computed = crc32fast::hash(body);
+        if computed != prefix.body_crc32 {
+            return Err(WireError::Checksum {
+                expected: prefix.body_crc32,
+                computed,
+            });
+        }
+    }
+    let mut r = Reader::new(body, PREFIX_LEN as u64);
+    let frame_number = r.u64("frame_number")?;
+    let node_id = r.u32("node_id")?;
+    let width = limited(&mut r, "width", u64::from(options.max_width))?;
+    let height = limited(&mut r, "height", u64::from(options.max_height))?;
+    let pixels = u64::from(width) * u64::from(height);
+    if pixels > options.max_pixels {
+        return Err(WireError::Limit {
+            field: "width·height",
+            offset: 32,
+            value: pixels,
+            limit: options.max_pixels,
+        });
+    }
+    let fragment_count = limited(&mut r, "fragment_count", options.max_fragments)?;
+    let transfer_kind = r.u8("transfer")?;
+    let transfer_flags = r.u8("transfer_flags")?;
+    let codec_id = r.u8("codec")?;
+    let codec_param = r.u8("codec_param")?;
+    let layers = r.u32("layers")?;
+    let threshold = r.f32("opacity_threshold")?;
+    let codec = Codec::from_bytes(codec_id, codec_param).ok_or_else(|| {
+        WireError::invalid("codec", 46, codec_id, "unknown codec (0–4 are defined)")
+    })?;
+    let transfer = transfer_from_fields(transfer_kind, transfer_flags, layers, threshold)?;
+    let mut view = [0f32; 16];
+    for v in &mut view {
+        *v = r.f32("view")?;
+    }
+    let mut projection = [0f32; 16];
+    for v in &mut projection {
+        *v = r.f32("projection")?;
+    }
+    let count_at = r.offset();
+    let section_count = r.u16("section_count")?;
+    let expected = codec.sections();
+    if usize::from(section_count) != expected.len() {
+        return Err(WireError::invalid(
+            "section_count",
+            count_at,
+            section_count,
+            format!("codec {} has {} sections", codec.name(), expected.len()),
+        ));
+    }
+    reserved(&mut r, 2, "reserved")?;
+
+    // The section table: every length checked against the header before anything is allocated.
+    let mut infos = Vec::with_capacity(expected.len());
+    let mut payload_total: u64 = 0;
+    for &want in expected {
+        let entry_at = r.offset();
+        let tag_byte = r.u8("section tag")?;
+        if SectionTag::from_byte(tag_byte) != Some(want) {
+            return Err(WireError::invalid(
+                "section tag",
+                entry_at,
+                tag_byte,
+                format!(
+                    "codec {} expects the {} section ({}) here",
+                    codec.name(),
+                    want.name(),
+                    want as u8
+                ),
+            ));
+        }
+        let comp_byte = r.u8("section compression")?;
+        let compression = match Compression::from_byte(comp_byte) {
+            Some(c) if c == Compression::None || c == codec.compression() => c,
+            _ => {
+                return Err(WireError::invalid(
+                    "section compression",
+                    entry_at + 1,
+                    comp_byte,
+                    format!(
+                        "codec {} allows {} ({}) or none (0)",
+                        codec.name(),
+                        codec.compression().name(),
+                        codec.compression() as u8
+                    ),
+                ));
+            }
+        };
+        reserved(&mut r, 2, "section reserved")?;
+        let encoded_len = r.u64("encoded_len")?;
+        let decoded_at = r.offset();
+        let decoded_len = r.u64("decoded_len")?;
+        payload_total = payload_total.saturating_add(encoded_len);
+        if payload_total > available {
+            return Err(WireError::invalid(
+                "encoded_len",
+                entry_at + 4,
+                encoded_len,
+                format!(
+                    "the {} section does not fit in the {available}-byte body",
+                    want.name()
+                ),
+            ));
+        }
+        let (lo, hi) = want.decoded_range(pixels, u64::from(fragment_count));
+        if decoded_len < lo || decoded_len > hi {
+            let need = if lo == hi {
+                format!("exactly {lo}")
+            } else {
+                format!("{lo} to {hi}")
+            };
+            return Err(WireError::invalid(
+                "decoded_len",
+                decoded_at,
+                decoded_len,
+                format!(
+                    "the {} section of a {width}x{height} frame of {fragment_count} fragments decodes to {need} bytes",
+                    want.name()
+                ),
+            ));
+        }
+        if decoded_len > compression.max_decoded(encoded_len) {
+            return Err(WireError::invalid(
+                "decoded_len",
+                decoded_at,
+                decoded_len,
+                format!(
+                    "{} cannot expand {encoded_len} bytes that far (at most {})",
+                    compression.name(),
+                    compression.max_decoded(encoded_len)
+                ),
+            ));
+        }
+        infos.push(SectionInfo {
+            tag: want,
+            compression,
+            encoded_len,
+            decoded_len,
+        });
+    }
+    if payload_total != r.remaining() as u64 {
+        return Err(WireError::invalid(
+            "encoded_len",
+            r.offset(),
+            payload_total,
+            format!(
+                "the sections add up to {payload_total} bytes, {} follow the table",
+                r.remaining()
+            ),
+        ));
+    }
+    let mut sections = Vec::with_capacity(infos.len());
+    for info in &infos {
+        let offset = r.offset();
+        let payload = r.take(info.encoded_len as usize, "section payload")?;
+        sections.push(SectionRef {
+            info: *info,
+            payload,
+            offset,
+        });
+    }
+    Ok(ParsedFrame {
+        info: FrameInfo {
+            header: FrameHeader {
+                frame_number,
+                node_id,
+                view,
+                projection,
+                transfer,
+            },
+            codec,
+            width,
+            height,
+            fragment_count,
+            sections: infos,
+        },
+        sections,
+    })
+}
+
+fn limited(r: &mut Reader<'_>, field: &'static str, limit: u64) -> Result<u32, WireError> {
+    let offset = r.offset();
+    let v = r.u32(field)?;
+    if u64::from(v) > limit {
+        return Err(WireError::Limit {
+            field,
+            offset,
+            value: u64::from(v),
+            limit,
+        });
+    }
+    Ok(v)
+}
+
+fn reserved(r: &mut Reader<'_>, n: usize, field: &'static str) -> Result<(), WireError> {
+    let offset = r.offset();
+    let b = r.take(n, field)?;
+    if b.iter().any(|&x| x != 0) {
+        return Err(WireError::invalid(
+            field,
+            offset,
+            format!("{b:02x?}"),
+            "reserved bytes must be 0",
+        ));
+    }
+    Ok(())
+}
+
+/// The transfer method from bytes 44–45 (`transfer`, `transfer_flags`) and 48–55 (`layers`,
+/// `opacity_threshold`).
+fn transfer_from_fields(
+    kind: u8,
+    flags: u8,
+    layers: u32,
+    threshold: f32,
+) -> Result<TransferMethod, WireError> {
+    if kind > 3 {
+        return Err(WireError::invalid(
+            "transfer",
+            44,
+            kind,
+            "unknown transfer method (0–3 are defined)",
+        ));
+    }
+    let allowed = if kind == 1 { 0x01 } else { 0x00 };
+    if flags & !allowed != 0 {
+        return Err(WireError::invalid(
+            "transfer_flags",
+            45,
+            format!("{flags:#04x}"),
+            "undefined flag bits for this transfer method",
+        ));
+    }
+    if kind != 1 && (layers != 0 || threshold.to_bits() != 0) {
+        return Err(WireError::invalid(
+            "layers",
+            48,
+            format!("layers {layers}, threshold {threshold}"),
+            "only a depth-limited transfer has layers and a threshold",
+        ));
+    }
+    let t = match kind {
+        0 => TransferMethod::Full,
+        1 => {
+            let opacity_threshold = if flags & 1 != 0 {
+                Some(threshold)
+            } else if threshold.to_bits() != 0 {
+                return Err(WireError::invalid(
+                    "opacity_threshold",
+                    52,
+                    threshold,
+                    "must be 0 when the threshold flag is clear",
+                ));
+            } else {
+                None
+            };
+            TransferMethod::DepthLimited {
+                layers,
+                opacity_threshold,
+            }
+        }
+        2 => TransferMethod::Difference,
+        _ => TransferMethod::Reprojection,
+    };
+    t.check()
+        .map_err(|reason| WireError::invalid("layers", 48, layers, reason))?;
+    Ok(t)
+}
