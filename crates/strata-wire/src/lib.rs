@@ -13,6 +13,8 @@
 //!   over that layout, and `deep-lz4` / `deep-zstd`, a DeepFrame-aware layout (varint counts,
 //!   depth and colour predicted from neighbouring pixels' same layer, byte planes, zero-run object
 //!   ids) under LZ4 or zstd;
+//! - [`mask`]: sets of pixels as runs (what a `difference` frame replaces);
+//! - [`control`]: the services' small messages — request, hello, stats, error;
 //! - [`WireError`]: every failure, naming the field and its byte offset; decoding never panics.
 //!
 //! ```
@@ -31,13 +33,19 @@
 
 mod bytes;
 pub mod codec;
+pub mod control;
 mod error;
+pub mod mask;
 pub mod message;
 
 pub use codec::{Codec, Compression, SectionInfo, SectionTag, UnknownCodec};
+pub use control::{
+    Hello, NodeStats, Request, RequestKind, decode_error, encode_error_into, seed_layout_bytes,
+};
 pub use error::WireError;
+pub use mask::{MaskBuilder, PixelMask};
 pub use message::{
     DecodeOptions, FrameHeader, FrameInfo, FrameMessage, MAGIC, Message, MessageType, PREFIX_LEN,
-    Prefix, TransferMethod, VERSION, decode, decode_frame, encode_frame, encode_frame_into,
-    inspect_frame, parse_prefix,
+    Prefix, TransferMethod, VERSION, decode, decode_frame, encode_delta_into, encode_frame,
+    encode_frame_into, inspect_frame, parse_prefix,
 };

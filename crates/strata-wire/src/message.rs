@@ -8,7 +8,7 @@
 //! ```text
 //!  0  magic        [u8; 4]  "STRW"
 //!  4  version      u16      1
-//!  6  type         u8       1 = frame (2 camera, 3 delta, 4 error: reserved)
+//!  6  type         u8       1 frame, 2 request, 4 error, 5 hello, 6 stats (3: reserved)
 //!  7  flags        u8       0 (reserved)
 //!  8  body_len     u64      bytes after the prefix
 //! 16  body_crc32   u32      CRC-32 (ISO-HDLC, as zlib) of those bytes
@@ -27,6 +27,7 @@
 //!  40  fragment_count     u32
 //!  44  transfer           u8       0 full, 1 depth-limited, 2 difference, 3 reprojection
 //!  45  transfer_flags     u8       bit 0: opacity threshold present (depth-limited only)
+//!                                  bit 1: fixup reply (difference only)
 //!  46  codec              u8       0 raw, 1 lz4, 2 zstd, 3 deep-lz4, 4 deep-zstd
 //!  47  codec_param        i8       zstd level (zstd, deep-zstd), else 0
 //!  48  layers             u32      depth-limited: N ≥ 1, else 0
@@ -39,12 +40,17 @@
 //!        +0 tag u8 | +1 compression u8 | +2 reserved u16 | +4 encoded_len u64 | +12 decoded_len u64
 //! 188 + 20·section_count  the payloads, in table order, back to back
 //! ```
+//!
+//! A `difference` frame has one more section before the codec's: `mask` (tag 32), the
+//! [`PixelMask`] of the pixels whose runs the message replaces, compressed like the others. Its
+//! frame holds no fragments outside the mask; a masked pixel with no fragments is a deletion.
 
 use strata_core::DeepFrame;
 
 use crate::bytes::Reader;
 use crate::codec::{self, Codec, Compression, EncodedSection, SectionInfo, SectionRef, SectionTag};
 use crate::error::WireError;
+use crate::mask::PixelMask;
 
 /// The four bytes every message starts with.
 pub const MAGIC: [u8; 4] = *b"STRW";
@@ -64,6 +70,14 @@ pub const SECTION_ENTRY_LEN: usize = 20;
 pub enum MessageType {
     /// A DeepFrame rendered by a node.
     Frame = 1,
+    /// The display asks a node for a frame ([`crate::Request`]).
+    Request = 2,
+    /// Something went wrong; the sender closes the connection ([`crate::encode_error_into`]).
+    Error = 4,
+    /// A node introduces itself ([`crate::Hello`]).
+    Hello = 5,
+    /// A node's figures for the frame message it just sent ([`crate::NodeStats`]).
+    Stats = 6,
 }
 
 impl MessageType {
@@ -71,9 +85,11 @@ impl MessageType {
     pub fn from_byte(b: u8) -> Result<Self, WireError> {
         let what = match b {
             1 => return Ok(MessageType::Frame),
-            2 => "reserved for camera messages (display to node)",
-            3 => "reserved for delta messages (difference and reprojection transfers)",
-            4 => "reserved for error messages",
+            2 => return Ok(MessageType::Request),
+            4 => return Ok(MessageType::Error),
+            5 => return Ok(MessageType::Hello),
+            6 => return Ok(MessageType::Stats),
+            3 => "reserved for reprojection deltas",
             _ => "unknown",
         };
         Err(WireError::UnsupportedMessageType { found: b, what })
@@ -142,7 +158,7 @@ pub enum TransferMethod {
 
 impl TransferMethod {
     /// `(transfer, transfer_flags, layers, opacity_threshold)` as written.
-    fn to_fields(self) -> (u8, u8, u32, f32) {
+    pub(crate) fn to_fields(self) -> (u8, u8, u32, f32) {
         match self {
             TransferMethod::Full => (0, 0, 0, 0.0),
             TransferMethod::DepthLimited {
@@ -157,7 +173,7 @@ impl TransferMethod {
         }
     }
 
-    fn check(self) -> Result<(), String> {
+    pub(crate) fn check(self) -> Result<(), String> {
         if let TransferMethod::DepthLimited {
             layers,
             opacity_threshold,
@@ -189,6 +205,10 @@ pub struct FrameHeader {
     pub projection: [f32; 16],
     /// How the fragments were chosen.
     pub transfer: TransferMethod,
+    /// Difference transfer only: this message answers the display's request for exact copies of
+    /// some pixels of frame `frame_number` (the display's fixup round), rather than being the
+    /// frame's delta.
+    pub fixup: bool,
 }
 
 impl Default for FrameHeader {
@@ -203,6 +223,7 @@ impl Default for FrameHeader {
             view: IDENTITY,
             projection: IDENTITY,
             transfer: TransferMethod::Full,
+            fixup: false,
         }
     }
 }
@@ -216,6 +237,8 @@ pub struct FrameMessage {
     pub codec: Codec,
     /// The fragments.
     pub frame: DeepFrame,
+    /// Difference transfer: the pixels whose runs `frame` replaces (runs outside it are empty).
+    pub changed: Option<PixelMask>,
 }
 
 /// A frame message's header and section table, without decoding its payloads.
@@ -231,7 +254,7 @@ pub struct FrameInfo {
     pub height: u32,
     /// Fragments the frame holds.
     pub fragment_count: u32,
-    /// The section table.
+    /// The section table (the mask first in a difference frame).
     pub sections: Vec<SectionInfo>,
 }
 
@@ -241,6 +264,14 @@ pub struct FrameInfo {
 pub enum Message {
     /// A frame.
     Frame(FrameMessage),
+    /// A request for a frame.
+    Request(crate::Request),
+    /// An error text.
+    Error(String),
+    /// A node's introduction.
+    Hello(crate::Hello),
+    /// A node's statistics.
+    Stats(crate::NodeStats),
 }
 
 // ----- encoding -----------------------------------------------------------------------------
@@ -264,10 +295,72 @@ pub fn encode_frame_into(
     frame: &DeepFrame,
     codec: Codec,
 ) -> Result<(), WireError> {
+    if header.transfer == TransferMethod::Difference {
+        return Err(WireError::Encode(
+            "a difference frame needs its pixel mask: use encode_delta_into".into(),
+        ));
+    }
     header.transfer.check().map_err(WireError::Encode)?;
     let sections = codec::encode_sections(frame, codec)?;
     write_frame(out, header, frame, codec, &sections);
     Ok(())
+}
+
+/// Encodes a `difference` frame: the runs of `frame` at the pixels of `changed` replace the
+/// display's copies (an empty run deletes). `frame` must hold no fragments outside `changed`.
+pub fn encode_delta_into(
+    out: &mut Vec<u8>,
+    header: &FrameHeader,
+    changed: &PixelMask,
+    frame: &DeepFrame,
+    codec: Codec,
+) -> Result<(), WireError> {
+    if header.transfer != TransferMethod::Difference {
+        return Err(WireError::Encode(
+            "only a difference frame carries a pixel mask".into(),
+        ));
+    }
+    let pixels = u64::from(frame.width()) * u64::from(frame.height());
+    if u64::from(changed.frame_pixels()) != pixels {
+        return Err(WireError::Encode(format!(
+            "the mask covers {} pixels, the frame has {pixels}",
+            changed.frame_pixels()
+        )));
+    }
+    let outside = outside_mask(frame, changed);
+    if outside > 0 {
+        return Err(WireError::Encode(format!(
+            "{outside} fragments lie outside the pixel mask"
+        )));
+    }
+    let mut mask = Vec::new();
+    changed.encode(&mut mask);
+    let (compression, payload) =
+        codec::compress::compress(&mask, codec.compression(), codec.level())?;
+    let mut sections = vec![EncodedSection {
+        info: SectionInfo {
+            tag: SectionTag::Mask,
+            compression,
+            encoded_len: payload.len() as u64,
+            decoded_len: mask.len() as u64,
+        },
+        payload,
+    }];
+    sections.extend(codec::encode_sections(frame, codec)?);
+    write_frame(out, header, frame, codec, &sections);
+    Ok(())
+}
+
+/// Fragments of `frame` at pixels outside `mask`.
+fn outside_mask(frame: &DeepFrame, mask: &PixelMask) -> u64 {
+    let offsets = frame.offsets();
+    let total = frame.fragment_count() as u64;
+    let inside: u64 = mask
+        .runs()
+        .iter()
+        .map(|&(s, l)| u64::from(offsets[(s + l) as usize] - offsets[s as usize]))
+        .sum();
+    total - inside
 }
 
 fn write_frame(
@@ -290,7 +383,10 @@ fn write_frame(
     out.extend_from_slice(&frame.width().to_le_bytes());
     out.extend_from_slice(&frame.height().to_le_bytes());
     out.extend_from_slice(&(frame.fragment_count() as u32).to_le_bytes());
-    let (transfer, flags, layers, threshold) = header.transfer.to_fields();
+    let (transfer, mut flags, layers, threshold) = header.transfer.to_fields();
+    if header.fixup {
+        flags |= 2;
+    }
     out.extend_from_slice(&[transfer, flags, codec.id(), codec.param()]);
     out.extend_from_slice(&layers.to_le_bytes());
     out.extend_from_slice(&threshold.to_le_bytes());
@@ -363,25 +459,47 @@ pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Message, WireErro
     let prefix = parse_prefix(bytes, options)?;
     match prefix.kind {
         MessageType::Frame => decode_frame(bytes, options).map(Message::Frame),
+        MessageType::Request => crate::Request::decode(bytes, options).map(Message::Request),
+        MessageType::Error => crate::control::decode_error(bytes, options).map(Message::Error),
+        MessageType::Hello => crate::Hello::decode(bytes, options).map(Message::Hello),
+        MessageType::Stats => crate::NodeStats::decode(bytes, options).map(Message::Stats),
     }
 }
 
 /// Decodes one complete frame message.
 pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessage, WireError> {
     let parsed = parse_frame(bytes, options)?;
-    let decoded = codec::decompress_sections(&parsed.sections)?;
+    let mut decoded = codec::decompress_sections(&parsed.sections)?;
+    let pixels = parsed.info.width * parsed.info.height;
+    let (changed, sections) = if parsed.info.header.transfer == TransferMethod::Difference {
+        let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
+        (Some(mask), &parsed.sections[1..])
+    } else {
+        (None, &parsed.sections[..])
+    };
     let frame = codec::decode_sections(
         parsed.info.codec,
         parsed.info.width,
         parsed.info.height,
         parsed.info.fragment_count,
-        &parsed.sections,
+        sections,
         decoded,
     )?;
+    if let Some(mask) = &changed {
+        let outside = outside_mask(&frame, mask);
+        if outside > 0 {
+            return Err(WireError::section(
+                "mask",
+                parsed.sections[0].offset,
+                format!("{outside} fragments lie outside the pixel mask"),
+            ));
+        }
+    }
     Ok(FrameMessage {
         header: parsed.info.header,
         codec: parsed.info.codec,
         frame,
+        changed,
     })
 }
 
@@ -459,7 +577,13 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
     let codec = Codec::from_bytes(codec_id, codec_param).ok_or_else(|| {
         WireError::invalid("codec", 46, codec_id, "unknown codec (0–4 are defined)")
     })?;
-    let transfer = transfer_from_fields(transfer_kind, transfer_flags, layers, threshold)?;
+    let fixup = transfer_kind == 2 && transfer_flags & 2 != 0;
+    let transfer = transfer_from_fields(
+        transfer_kind,
+        transfer_flags & !(u8::from(fixup) << 1),
+        layers,
+        threshold,
+    )?;
     let mut view = [0f32; 16];
     for v in &mut view {
         *v = r.f32("view")?;
@@ -470,13 +594,26 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
     }
     let count_at = r.offset();
     let section_count = r.u16("section_count")?;
-    let expected = codec.sections();
+    let codec_sections = codec.sections();
+    let with_mask: Vec<SectionTag>;
+    let expected: &[SectionTag] = if transfer == TransferMethod::Difference {
+        with_mask = std::iter::once(SectionTag::Mask)
+            .chain(codec_sections.iter().copied())
+            .collect();
+        &with_mask
+    } else {
+        codec_sections
+    };
     if usize::from(section_count) != expected.len() {
         return Err(WireError::invalid(
             "section_count",
             count_at,
             section_count,
-            format!("codec {} has {} sections", codec.name(), expected.len()),
+            format!(
+                "codec {} with this transfer has {} sections",
+                codec.name(),
+                expected.len()
+            ),
         ));
     }
     reserved(&mut r, 2, "reserved")?;
@@ -598,6 +735,7 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
                 view,
                 projection,
                 transfer,
+                fixup,
             },
             codec,
             width,
@@ -639,7 +777,7 @@ fn reserved(r: &mut Reader<'_>, n: usize, field: &'static str) -> Result<(), Wir
 
 /// The transfer method from bytes 44–45 (`transfer`, `transfer_flags`) and 48–55 (`layers`,
 /// `opacity_threshold`).
-fn transfer_from_fields(
+pub(crate) fn transfer_from_fields(
     kind: u8,
     flags: u8,
     layers: u32,

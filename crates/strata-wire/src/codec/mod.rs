@@ -122,7 +122,7 @@ impl Codec {
         }
     }
 
-    fn level(self) -> i32 {
+    pub(crate) fn level(self) -> i32 {
         match self {
             Codec::Zstd { level } | Codec::DeepZstd { level } => level,
             _ => 0,
@@ -213,6 +213,9 @@ pub enum SectionTag {
     Color = 18,
     /// Deep layout: object-id prediction residuals, zero-run coded.
     Object = 19,
+    /// Difference transfer: the pixels the message replaces ([`crate::PixelMask`]), before the
+    /// codec's sections.
+    Mask = 32,
 }
 
 impl SectionTag {
@@ -224,6 +227,7 @@ impl SectionTag {
             17 => Some(SectionTag::Depth),
             18 => Some(SectionTag::Color),
             19 => Some(SectionTag::Object),
+            32 => Some(SectionTag::Mask),
             _ => None,
         }
     }
@@ -236,6 +240,7 @@ impl SectionTag {
             SectionTag::Depth => "depth",
             SectionTag::Color => "color",
             SectionTag::Object => "object",
+            SectionTag::Mask => "mask",
         }
     }
 
@@ -252,6 +257,8 @@ impl SectionTag {
             // Zero-run pairs: at most one 5-byte run and one 5-byte value per fragment, plus the
             // final run.
             SectionTag::Object => (1, 10 * fragments + 5),
+            // A run count, then at most one (gap, len) pair of two 5-byte varints per two pixels.
+            SectionTag::Mask => (1, 5 * pixels + 15),
         }
     }
 }
