@@ -41,9 +41,11 @@
 //! 188 + 20·section_count  the payloads, in table order, back to back
 //! ```
 //!
-//! A `difference` frame has one more section before the codec's: `mask` (tag 32), the
-//! [`PixelMask`] of the pixels whose runs the message replaces, compressed like the others. Its
-//! frame holds no fragments outside the mask; a masked pixel with no fragments is a deletion.
+//! A `difference` frame has two more sections before the codec's, both [`PixelMask`]s compressed
+//! like the others: `mask` (tag 32), the pixels whose runs the message replaces — its frame holds
+//! no fragments elsewhere, and a masked pixel with no fragments is a deletion — and `stale`
+//! (tag 33), pixels not replaced whose runs changed in depth but not in resolved colour, so the
+//! display's copy is stale there if another node's fragments interleave with it.
 
 use strata_core::DeepFrame;
 
@@ -239,6 +241,8 @@ pub struct FrameMessage {
     pub frame: DeepFrame,
     /// Difference transfer: the pixels whose runs `frame` replaces (runs outside it are empty).
     pub changed: Option<PixelMask>,
+    /// Difference transfer: pixels whose held copy became depth-stale.
+    pub stale: Option<PixelMask>,
 }
 
 /// A frame message's header and section table, without decoding its payloads.
@@ -312,6 +316,7 @@ pub fn encode_delta_into(
     out: &mut Vec<u8>,
     header: &FrameHeader,
     changed: &PixelMask,
+    stale: &PixelMask,
     frame: &DeepFrame,
     codec: Codec,
 ) -> Result<(), WireError> {
@@ -321,10 +326,11 @@ pub fn encode_delta_into(
         ));
     }
     let pixels = u64::from(frame.width()) * u64::from(frame.height());
-    if u64::from(changed.frame_pixels()) != pixels {
+    if u64::from(changed.frame_pixels()) != pixels || u64::from(stale.frame_pixels()) != pixels {
         return Err(WireError::Encode(format!(
-            "the mask covers {} pixels, the frame has {pixels}",
-            changed.frame_pixels()
+            "the masks cover {} and {} pixels, the frame has {pixels}",
+            changed.frame_pixels(),
+            stale.frame_pixels()
         )));
     }
     let outside = outside_mask(frame, changed);
@@ -333,19 +339,22 @@ pub fn encode_delta_into(
             "{outside} fragments lie outside the pixel mask"
         )));
     }
-    let mut mask = Vec::new();
-    changed.encode(&mut mask);
-    let (compression, payload) =
-        codec::compress::compress(&mask, codec.compression(), codec.level())?;
-    let mut sections = vec![EncodedSection {
-        info: SectionInfo {
-            tag: SectionTag::Mask,
-            compression,
-            encoded_len: payload.len() as u64,
-            decoded_len: mask.len() as u64,
-        },
-        payload,
-    }];
+    let mut sections = Vec::with_capacity(6);
+    for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
+        let mut mask = Vec::new();
+        m.encode(&mut mask);
+        let (compression, payload) =
+            codec::compress::compress(&mask, codec.compression(), codec.level())?;
+        sections.push(EncodedSection {
+            info: SectionInfo {
+                tag,
+                compression,
+                encoded_len: payload.len() as u64,
+                decoded_len: mask.len() as u64,
+            },
+            payload,
+        });
+    }
     sections.extend(codec::encode_sections(frame, codec)?);
     write_frame(out, header, frame, codec, &sections);
     Ok(())
@@ -471,11 +480,13 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
     let parsed = parse_frame(bytes, options)?;
     let mut decoded = codec::decompress_sections(&parsed.sections)?;
     let pixels = parsed.info.width * parsed.info.height;
-    let (changed, sections) = if parsed.info.header.transfer == TransferMethod::Difference {
+    let (changed, stale, sections) = if parsed.info.header.transfer == TransferMethod::Difference
+    {
         let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
-        (Some(mask), &parsed.sections[1..])
+        let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
+        (Some(mask), Some(stale), &parsed.sections[2..])
     } else {
-        (None, &parsed.sections[..])
+        (None, None, &parsed.sections[..])
     };
     let frame = codec::decode_sections(
         parsed.info.codec,
@@ -500,6 +511,7 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
         codec: parsed.info.codec,
         frame,
         changed,
+        stale,
     })
 }
 
@@ -597,7 +609,8 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
     let codec_sections = codec.sections();
     let with_mask: Vec<SectionTag>;
     let expected: &[SectionTag] = if transfer == TransferMethod::Difference {
-        with_mask = std::iter::once(SectionTag::Mask)
+        with_mask = [SectionTag::Mask, SectionTag::Stale]
+            .into_iter()
             .chain(codec_sections.iter().copied())
             .collect();
         &with_mask

@@ -216,6 +216,9 @@ pub enum SectionTag {
     /// Difference transfer: the pixels the message replaces ([`crate::PixelMask`]), before the
     /// codec's sections.
     Mask = 32,
+    /// Difference transfer: pixels not replaced whose runs changed depth but not colour, so the
+    /// display's copy is stale there (see `strata-remote`'s difference module).
+    Stale = 33,
 }
 
 impl SectionTag {
@@ -228,6 +231,7 @@ impl SectionTag {
             18 => Some(SectionTag::Color),
             19 => Some(SectionTag::Object),
             32 => Some(SectionTag::Mask),
+            33 => Some(SectionTag::Stale),
             _ => None,
         }
     }
@@ -241,6 +245,7 @@ impl SectionTag {
             SectionTag::Color => "color",
             SectionTag::Object => "object",
             SectionTag::Mask => "mask",
+            SectionTag::Stale => "stale",
         }
     }
 
@@ -258,7 +263,7 @@ impl SectionTag {
             // final run.
             SectionTag::Object => (1, 10 * fragments + 5),
             // A run count, then at most one (gap, len) pair of two 5-byte varints per two pixels.
-            SectionTag::Mask => (1, 5 * pixels + 15),
+            SectionTag::Mask | SectionTag::Stale => (1, 5 * pixels + 15),
         }
     }
 }

@@ -1,0 +1,138 @@
+//! The display's merge and resolve: per pixel, the sorted runs of every node merged front to back
+//! and composited (seed 000 Algorithm A.3's display pass, for several nodes).
+//!
+//! Each node's run is already sorted by [`Fragment::order_key`] (depth, then object id, then
+//! colour: a total order on values), so merging them gives the same sequence as sorting the union
+//! — the run the exact local render of the whole scene holds, bit for bit, whenever each object
+//! is rendered by one node. A pixel one node covers (most pixels) is composited straight from
+//! its run; only shared pixels go through the k-way merge, which picks the smallest head key
+//! among the runs (k is the number of nodes, a handful) without allocating.
+//!
+//! Rows are resolved in parallel chunks.
+
+use rayon::prelude::*;
+use strata_core::composite::{background_pixel, resolve_pixel};
+use strata_core::{DeepFrame, Fragment, Rgb8Image, Rgba8};
+
+/// Pixels per parallel task.
+const CHUNK: usize = 8 * 1024;
+
+/// Most nodes one display merges.
+pub const MAX_NODES: usize = 64;
+
+/// Resolves the per-pixel merge of `frames` (all `width × height`) over `background`.
+///
+/// # Panics
+/// When the frames differ in size or there are more than [`MAX_NODES`]: the display checks both.
+pub fn merge_resolve(
+    frames: &[&DeepFrame],
+    width: u32,
+    height: u32,
+    background: [f32; 3],
+) -> Rgb8Image {
+    assert!(frames.len() <= MAX_NODES, "at most {MAX_NODES} nodes");
+    assert!(
+        frames
+            .iter()
+            .all(|f| f.width() == width && f.height() == height),
+        "every frame is {width}x{height}"
+    );
+    let mut image = Rgb8Image::filled(width, height, [0; 3]);
+    let bg = background_pixel(background);
+    image
+        .as_bytes_mut()
+        .par_chunks_mut(CHUNK * 3)
+        .enumerate()
+        .for_each(|(chunk, out)| {
+            let mut heads = [0usize; MAX_NODES];
+            for (i, px) in out.chunks_exact_mut(3).enumerate() {
+                let p = chunk * CHUNK + i;
+                px.copy_from_slice(&resolve_merged(frames, p, background, bg, &mut heads));
+            }
+        });
+    image
+}
+
+fn resolve_merged(
+    frames: &[&DeepFrame],
+    p: usize,
+    background: [f32; 3],
+    bg: [u8; 3],
+    heads: &mut [usize; MAX_NODES],
+) -> [u8; 3] {
+    let mut covering = 0;
+    let mut only = 0;
+    for (i, f) in frames.iter().enumerate() {
+        if !f.run(p).is_empty() {
+            covering += 1;
+            only = i;
+        }
+    }
+    let colors: &mut dyn Iterator<Item = Rgba8> = match covering {
+        0 => return bg,
+        1 => &mut frames[only].run(p).color.iter().copied(),
+        _ => {
+            heads[..frames.len()].fill(0);
+            &mut std::iter::from_fn(|| {
+                let mut best: Option<(usize, (u64, u32))> = None;
+                for (i, f) in frames.iter().enumerate() {
+                    if let Some(frag) = f.run(p).get(heads[i]) {
+                        let k = Fragment::order_key(&frag);
+                        if best.is_none_or(|(_, b)| k < b) {
+                            best = Some((i, k));
+                        }
+                    }
+                }
+                let (i, _) = best?;
+                let c = frames[i].run(p).color[heads[i]];
+                heads[i] += 1;
+                Some(c)
+            })
+        }
+    };
+    resolve_pixel(colors, background)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_core::ObjectId;
+
+    #[test]
+    fn merging_equals_resolving_the_union() {
+        let f = |depth: f32, object: u32, r: u8| Fragment {
+            depth,
+            color: Rgba8([r, 255 - r, 7, 100]),
+            object: ObjectId(object),
+        };
+        let a = vec![
+            vec![f(0.1, 1, 10), f(0.5, 1, 20)],
+            vec![],
+            vec![f(0.3, 1, 1)],
+            vec![],
+        ];
+        let b = vec![
+            vec![f(0.3, 2, 30), f(0.5, 2, 40)],
+            vec![],
+            vec![],
+            vec![f(0.9, 2, 5)],
+        ];
+        let union: Vec<Vec<Fragment>> = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| [x.clone(), y.clone()].concat())
+            .collect();
+        let (fa, fb, fu) = (
+            DeepFrame::from_pixel_lists(2, 2, &a).unwrap(),
+            DeepFrame::from_pixel_lists(2, 2, &b).unwrap(),
+            DeepFrame::from_pixel_lists(2, 2, &union).unwrap(),
+        );
+        let bg = [0.2, 0.4, 0.6];
+        assert_eq!(merge_resolve(&[&fa, &fb], 2, 2, bg), fu.resolve(bg));
+        assert_eq!(merge_resolve(&[&fb, &fa], 2, 2, bg), fu.resolve(bg));
+        assert_eq!(
+            merge_resolve(&[], 2, 2, bg),
+            DeepFrame::empty(2, 2).resolve(bg)
+        );
+    }
+}

@@ -1,0 +1,200 @@
+//! Nodes that misbehave: the display reports them, keeps composing with the others, never
+//! panics and never waits longer than its timeout.
+
+use std::io::{Read, Write};
+use std::net::TcpListener;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use strata_remote::Transfer;
+use strata_remote::display::{self, DisplayConfig, OnFault};
+use strata_remote::node::{NodeConfig, serve};
+use strata_scene::{Scene, SearchPath, open_scene};
+use strata_stores::MethodOptions;
+use strata_wire::{Codec, DecodeOptions, Hello};
+
+fn scene() -> Arc<Scene> {
+    Arc::new(open_scene("mixed", &SearchPath::new([])).expect("built-in scene"))
+}
+
+/// A real node for objects 0 and 1 on a loopback port.
+fn real_node(scene: &Arc<Scene>) -> (String, tokio::runtime::Runtime) {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    l.set_nonblocking(true).unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let listener = {
+        let _g = runtime.enter();
+        tokio::net::TcpListener::from_std(l).unwrap()
+    };
+    let config = NodeConfig {
+        scene: scene.clone(),
+        objects: vec![scene.objects[0].id, scene.objects[1].id],
+        method: "abuffer".into(),
+        method_options: MethodOptions::default(),
+        limits: DecodeOptions::default(),
+    };
+    runtime.spawn(serve(listener, config, |_| {}));
+    (addr, runtime)
+}
+
+/// A fake node: greets every connection properly, then does `then` with the socket.
+fn fake_node(then: fn(std::net::TcpStream)) -> String {
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        for s in l.incoming() {
+            let Ok(mut s) = s else { return };
+            let mut hello = Vec::new();
+            Hello {
+                triangles: 1,
+                scene: "mixed".into(),
+                objects: vec![(2, "fake".into())],
+            }
+            .encode_into(&mut hello)
+            .unwrap();
+            if s.write_all(&hello).is_err() {
+                continue;
+            }
+            std::thread::spawn(move || then(s));
+        }
+    });
+    addr
+}
+
+fn config(scene: &Arc<Scene>, nodes: Vec<String>, on_fault: OnFault) -> DisplayConfig {
+    DisplayConfig {
+        scene: scene.clone(),
+        nodes,
+        transfer: Transfer::Full,
+        codec: Codec::Lz4,
+        first_frame: 0,
+        frames: 3,
+        width: 64,
+        height: 36,
+        in_flight: 2,
+        timeout: Duration::from_millis(700),
+        on_fault,
+        limits: DecodeOptions::default(),
+    }
+}
+
+/// Runs the display against a real node and `bad`; returns the incidents' texts.
+fn run_against(bad: String, on_fault: OnFault) -> Vec<String> {
+    let s = scene();
+    let (good, _rt) = real_node(&s);
+    let start = Instant::now();
+    let r = display::run(config(&s, vec![good, bad], on_fault), &mut ()).unwrap();
+    assert!(
+        start.elapsed() < Duration::from_secs(20),
+        "the display must not hang on a bad node"
+    );
+    assert_eq!(r.per_frame.len(), 3, "every frame is composed");
+    for f in &r.per_frame {
+        assert_eq!(f.nodes[0].status, "ok", "the good node keeps contributing");
+        assert!(f.nodes[0].fragments_sent > 0);
+        assert_ne!(f.nodes[1].status, "ok");
+    }
+    r.incidents.iter().map(|i| i.what.clone()).collect()
+}
+
+#[test]
+fn a_stalled_node_times_out() {
+    let bad = fake_node(|mut s| {
+        // Read requests forever, answer none.
+        let mut buf = [0u8; 4096];
+        while matches!(s.read(&mut buf), Ok(n) if n > 0) {}
+    });
+    let what = run_against(bad, OnFault::Hold);
+    assert!(what.iter().any(|w| w.contains("stalled")), "{what:?}");
+}
+
+#[test]
+fn garbage_mid_stream_is_reported() {
+    let bad = fake_node(|mut s| {
+        let mut buf = [0u8; 4096];
+        let _ = s.read(&mut buf);
+        // A frame prefix announcing 64 bytes of body that are not a frame.
+        let mut msg = b"STRW\x01\x00\x01\x00".to_vec();
+        msg.extend_from_slice(&64u64.to_le_bytes());
+        msg.extend_from_slice(&[0; 4]);
+        msg.extend_from_slice(&[0xAB; 64]);
+        let _ = s.write_all(&msg);
+        // A stats message follows so the frame is decoded (and fails its checksum).
+        let mut stats = Vec::new();
+        strata_wire::NodeStats::default().encode_into(&mut stats);
+        let _ = s.write_all(&stats);
+        std::thread::sleep(Duration::from_secs(5));
+    });
+    let what = run_against(bad, OnFault::Drop);
+    assert!(
+        what.iter()
+            .any(|w| w.contains("does not decode") || w.contains("checksum")),
+        "{what:?}"
+    );
+}
+
+#[test]
+fn random_bytes_instead_of_messages_are_reported() {
+    let bad = fake_node(|mut s| {
+        let mut buf = [0u8; 4096];
+        let _ = s.read(&mut buf);
+        let _ = s.write_all(&[0x5A; 100]);
+        std::thread::sleep(Duration::from_secs(5));
+    });
+    let what = run_against(bad, OnFault::Drop);
+    assert!(what.iter().any(|w| w.contains("magic")), "{what:?}");
+}
+
+#[test]
+fn a_node_that_hangs_up_is_reported() {
+    let bad = fake_node(drop);
+    let what = run_against(bad, OnFault::Hold);
+    assert!(
+        what.iter()
+            .any(|w| w.contains("closed") || w.contains("reset by peer")),
+        "{what:?}"
+    );
+}
+
+#[test]
+fn an_unreachable_node_is_reported_once() {
+    // A port nothing listens on.
+    let addr = {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().to_string()
+    };
+    let what = run_against(addr, OnFault::Drop);
+    let connects = what.iter().filter(|w| w.contains("cannot connect")).count();
+    assert_eq!(connects, 1, "{what:?}");
+}
+
+#[test]
+fn bad_configurations_are_errors() {
+    let s = scene();
+    let mut c = config(&s, vec![], OnFault::Hold);
+    assert!(display::run(c.clone(), &mut ()).is_err());
+    c.nodes = vec!["127.0.0.1:1".into()];
+    c.transfer = Transfer::Reprojection;
+    assert!(display::run(c.clone(), &mut ()).is_err());
+    c.transfer = Transfer::Full;
+    c.in_flight = 0;
+    assert!(display::run(c, &mut ()).is_err());
+    let bad = NodeConfig {
+        scene: s.clone(),
+        objects: vec![],
+        method: "wboit".into(),
+        method_options: MethodOptions::default(),
+        limits: DecodeOptions::default(),
+    };
+    let e = bad.check().unwrap_err().to_string();
+    assert!(e.contains("wboit"), "{e}");
+    let e = NodeConfig::select_objects(&s, &["no such thing".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("glass torus"), "lists the objects: {e}");
+}

@@ -1,0 +1,282 @@
+//! Render nodes and a display on loopback: the display's image must equal the exact local render
+//! of the whole scene, frame after frame, for every transfer that promises it.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use strata_core::{ObjectId, Rgb8Image};
+use strata_raster::Rasterizer;
+use strata_remote::Transfer;
+use strata_remote::display::{self, DisplayConfig, Observer, OnFault};
+use strata_remote::node::{NodeConfig, serve};
+use strata_remote::reference::exact_image;
+use strata_remote::report::{FrameStats, NodeIncident};
+use strata_scene::{Animation, Scene, SearchPath, open_scene};
+use strata_stores::MethodOptions;
+use strata_wire::{Codec, DecodeOptions};
+
+const W: u32 = 256;
+const H: u32 = 144;
+
+/// `mixed` (opaque and translucent objects intersecting), turning 5° per frame.
+fn scene() -> Arc<Scene> {
+    let mut s = open_scene("mixed", &SearchPath::new([])).expect("built-in scene");
+    s.animation = Some(Animation {
+        frames: 72,
+        rotate_deg_per_frame: glam::Vec3::new(0.0, 5.0, 0.0),
+    });
+    Arc::new(s)
+}
+
+/// A node serving `objects` (indices) of the scene on a loopback port, alive until dropped.
+struct Node {
+    addr: String,
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl Node {
+    fn start(scene: &Arc<Scene>, objects: &[usize]) -> Node {
+        Self::start_at(scene, objects, "127.0.0.1:0")
+    }
+
+    fn start_at(scene: &Arc<Scene>, objects: &[usize], addr: &str) -> Node {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .unwrap();
+        // Bound without block_on, so a node can be started from inside the display's observer.
+        let std_listener = std::net::TcpListener::bind(addr).unwrap();
+        std_listener.set_nonblocking(true).unwrap();
+        let listener = {
+            let _guard = runtime.enter();
+            tokio::net::TcpListener::from_std(std_listener).unwrap()
+        };
+        let addr = listener.local_addr().unwrap().to_string();
+        let ids: Vec<ObjectId> = objects.iter().map(|&i| scene.objects[i].id).collect();
+        let config = NodeConfig {
+            scene: scene.clone(),
+            objects: ids,
+            method: "abuffer".into(),
+            method_options: MethodOptions::default(),
+            limits: DecodeOptions::default(),
+        };
+        runtime.spawn(serve(listener, config, |_| {}));
+        Node {
+            addr,
+            runtime: Some(runtime),
+        }
+    }
+
+    /// Kills the node: its runtime and every connection go.
+    fn kill(&mut self) {
+        if let Some(r) = self.runtime.take() {
+            r.shutdown_background();
+        }
+    }
+}
+
+impl Drop for Node {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+fn config(scene: &Arc<Scene>, nodes: &[&Node], transfer: Transfer, frames: u64) -> DisplayConfig {
+    DisplayConfig {
+        scene: scene.clone(),
+        nodes: nodes.iter().map(|n| n.addr.clone()).collect(),
+        transfer,
+        codec: Codec::ALL[3],
+        first_frame: 0,
+        frames,
+        width: W,
+        height: H,
+        in_flight: 2,
+        timeout: Duration::from_secs(10),
+        on_fault: OnFault::Hold,
+        limits: DecodeOptions::default(),
+    }
+}
+
+/// Keeps every frame's image.
+#[derive(Default)]
+struct Keep {
+    images: Vec<(u64, Rgb8Image)>,
+    incidents: Vec<NodeIncident>,
+}
+
+impl Observer for Keep {
+    fn frame(&mut self, stats: &FrameStats, image: &Rgb8Image) {
+        self.images.push((stats.frame, image.clone()));
+    }
+    fn incident(&mut self, i: &NodeIncident) {
+        self.incidents.push(i.clone());
+    }
+}
+
+fn assert_exact(scene: &Scene, keep: &Keep) {
+    let mut raster = Rasterizer::default();
+    for (f, image) in &keep.images {
+        let want = exact_image(scene, *f, W, H, &mut raster).unwrap();
+        assert!(
+            image == &want,
+            "frame {f}: the display differs from the exact render in {} pixels",
+            strata_core::metrics::bad_pixels(image, &want, 0)
+                .unwrap()
+                .count
+        );
+    }
+}
+
+#[test]
+fn two_nodes_full_transfer_equal_the_exact_render() {
+    let s = scene();
+    let (a, b) = (Node::start(&s, &[0, 2]), Node::start(&s, &[1, 3, 4]));
+    let mut keep = Keep::default();
+    let r = display::run(config(&s, &[&a, &b], Transfer::Full, 4), &mut keep).unwrap();
+    assert_eq!(r.per_frame.len(), 4);
+    assert!(r.incidents.is_empty(), "{:?}", r.incidents);
+    assert_exact(&s, &keep);
+    for f in &r.per_frame {
+        assert_eq!(f.fragments_sent(), f.fragments_rendered());
+        assert!(f.fragments_rendered() > 10_000);
+        assert!(f.nodes.iter().all(|n| n.status == "ok" && n.bytes > 0));
+    }
+}
+
+#[test]
+fn depth_limited_with_enough_layers_is_exact_and_with_few_sends_less() {
+    let s = scene();
+    let (a, b) = (Node::start(&s, &[0, 1]), Node::start(&s, &[2, 3, 4]));
+    let mut keep = Keep::default();
+    let deep = Transfer::DepthLimited {
+        layers: 64,
+        opacity_threshold: None,
+    };
+    display::run(config(&s, &[&a, &b], deep, 3), &mut keep).unwrap();
+    assert_exact(&s, &keep);
+
+    let shallow = Transfer::DepthLimited {
+        layers: 1,
+        opacity_threshold: None,
+    };
+    let r = display::run(config(&s, &[&a, &b], shallow, 2), &mut ()).unwrap();
+    for f in &r.per_frame {
+        assert!(f.fragments_sent() < f.fragments_rendered());
+        for n in &f.nodes {
+            // One layer per node: at most one fragment per pixel.
+            assert!(n.fragments_sent <= u64::from(W * H));
+        }
+    }
+}
+
+#[test]
+fn difference_is_exact_on_every_frame_with_overlapping_nodes() {
+    let s = scene();
+    // The torus (1) pierces the cube (0) and the glass sphere (4): the nodes overlap on screen.
+    let (a, b) = (Node::start(&s, &[0, 3]), Node::start(&s, &[1, 2, 4]));
+    let mut keep = Keep::default();
+    let r = display::run(config(&s, &[&a, &b], Transfer::Difference, 8), &mut keep).unwrap();
+    assert!(r.incidents.is_empty(), "{:?}", r.incidents);
+    assert_exact(&s, &keep);
+    let first = &r.per_frame[0];
+    assert_eq!(first.fragments_sent(), first.fragments_rendered());
+    let later: u64 = r.per_frame[1..]
+        .iter()
+        .map(FrameStats::fragments_sent)
+        .sum();
+    let rendered: u64 = r.per_frame[1..]
+        .iter()
+        .map(FrameStats::fragments_rendered)
+        .sum();
+    assert!(
+        later < rendered,
+        "difference sends less after the first frame"
+    );
+    assert!(
+        r.per_frame[1..]
+            .iter()
+            .any(|f| f.nodes.iter().any(|n| n.fixup_pixels > 0)),
+        "overlapping nodes need fixups"
+    );
+}
+
+#[test]
+fn a_static_scene_sends_nothing_after_the_first_frame_under_difference() {
+    let mut s = open_scene("mixed", &SearchPath::new([])).unwrap();
+    s.animation = None;
+    let s = Arc::new(s);
+    let (a, b) = (Node::start(&s, &[0, 1]), Node::start(&s, &[2, 3, 4]));
+    let mut keep = Keep::default();
+    let r = display::run(config(&s, &[&a, &b], Transfer::Difference, 4), &mut keep).unwrap();
+    assert_exact(&s, &keep);
+    assert!(r.per_frame[0].fragments_sent() > 0);
+    for f in &r.per_frame[1..] {
+        assert_eq!(f.fragments_sent(), 0, "frame {}", f.frame);
+    }
+}
+
+#[test]
+fn a_dead_node_is_reported_held_and_reconnected() {
+    let s = scene();
+    let a = Node::start(&s, &[0, 1, 2]);
+    let mut b = Node::start(&s, &[3, 4]);
+    let addr_b = b.addr.clone();
+    let mut cfg = config(&s, &[&a, &b], Transfer::Difference, 14);
+    cfg.timeout = Duration::from_secs(2);
+
+    // Kill b after a few frames and bring it back on the same port a little later.
+    struct Chaos {
+        keep: Keep,
+        b: Option<Node>,
+        scene: Arc<Scene>,
+        addr_b: String,
+    }
+    impl Observer for Chaos {
+        fn frame(&mut self, stats: &FrameStats, image: &Rgb8Image) {
+            self.keep.frame(stats, image);
+            if stats.frame == 3 {
+                self.b.as_mut().unwrap().kill();
+            }
+            if stats.frame == 6 {
+                self.b = Some(Node::start_at(&self.scene, &[3, 4], &self.addr_b));
+            }
+        }
+        fn incident(&mut self, i: &NodeIncident) {
+            self.keep.incident(i);
+        }
+    }
+    let mut chaos = Chaos {
+        keep: Keep::default(),
+        b: Some(std::mem::replace(
+            &mut b,
+            Node {
+                addr: String::new(),
+                runtime: None,
+            },
+        )),
+        scene: s.clone(),
+        addr_b,
+    };
+    let r = display::run(cfg, &mut chaos).unwrap();
+    assert_eq!(r.per_frame.len(), 14, "the display kept composing");
+    let whats: Vec<&str> = r.incidents.iter().map(|i| i.what.as_str()).collect();
+    assert!(whats.iter().any(|w| w.starts_with("down")), "{whats:?}");
+    assert!(
+        whats.iter().any(|w| w.starts_with("reconnected")),
+        "{whats:?}"
+    );
+    assert!(
+        r.per_frame.iter().any(|f| f.nodes[1].status == "held"),
+        "the dead node's last frame was held"
+    );
+    // Once back, the display is exact again.
+    let last = r.per_frame.last().unwrap();
+    assert!(last.nodes.iter().all(|n| n.status == "ok"));
+    let keep = Keep {
+        images: chaos.keep.images.split_off(12),
+        incidents: Vec::new(),
+    };
+    assert_exact(&s, &keep);
+}
