@@ -45,6 +45,10 @@ enum Command {
     /// Encode a scene's DeepFrames with every wire codec: bytes, ratios against raw and the
     /// seed's LZ4, encode and decode times, bit-exact round trips.
     Codecs(cmd::codecs::Args),
+    /// Serve a display as a render node: render some objects of a scene, stream the fragments.
+    Node(cmd::node::Args),
+    /// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
+    Display(cmd::display::Args),
 }
 
 fn main() -> ExitCode {
@@ -74,6 +78,8 @@ fn main() -> ExitCode {
         Command::Methods(a) => cmd::methods::run(a),
         Command::TfssSim(a) => cmd::tfss_sim::run(a),
         Command::Codecs(a) => cmd::codecs::run(a),
+        Command::Node(a) => cmd::node::run(a),
+        Command::Display(a) => cmd::display::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

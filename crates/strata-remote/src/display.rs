@@ -68,6 +68,9 @@ pub struct DisplayConfig {
     pub transfer: Transfer,
     /// How they encode them.
     pub codec: Codec,
+    /// Difference transfer: colour changes of at most this many 8-bit steps are not sent (0:
+    /// exact; see the difference module).
+    pub tolerance: u8,
     /// First animation frame.
     pub first_frame: u64,
     /// Frames to compose.
@@ -234,6 +237,11 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             transfer: config.transfer,
             codec: config.codec,
             kind,
+            tolerance: if config.transfer == Transfer::Difference {
+                config.tolerance
+            } else {
+                0
+            },
         };
         let mut b = Vec::new();
         // The configuration was validated; a request always encodes.

@@ -369,7 +369,7 @@ fn encode_thread(
     out: mpsc::Sender<Vec<u8>>,
     recent: Recent,
 ) {
-    let mut diff = DiffEncoder::new(background);
+    let mut diff = DiffEncoder::new(background, 0);
     while let Some(EncodeJob {
         request,
         frame,
@@ -385,7 +385,7 @@ fn encode_thread(
         let (sent, select_us, encode_us, result) = match request.transfer {
             TransferMethod::Difference => {
                 if matches!(request.kind, RequestKind::Render { reset: true }) {
-                    diff.reset();
+                    diff = DiffEncoder::new(background, request.tolerance);
                 }
                 let d = diff.diff(frame.clone());
                 let select_us = select_start.elapsed().as_micros() as u64;

@@ -72,6 +72,7 @@ fn config(scene: &Arc<Scene>, nodes: Vec<String>, on_fault: OnFault) -> DisplayC
         nodes,
         transfer: Transfer::Full,
         codec: Codec::Lz4,
+        tolerance: 0,
         first_frame: 0,
         frames: 3,
         width: 64,

@@ -17,7 +17,8 @@
 //!  23  codec_param        u8
 //!  24  transfer           u8      as in the frame header (fixup: 2)
 //!  25  transfer_flags     u8
-//!  26  reserved           u16     0
+//!  26  tolerance          u8      difference: largest colour change (8-bit steps) not sent
+//!  27  reserved           u8      0
 //!  28  layers             u32
 //!  32  opacity_threshold  f32
 //!  36  view               [f32; 16]
@@ -109,6 +110,9 @@ pub struct Request {
     pub codec: Codec,
     /// Render or fixup.
     pub kind: RequestKind,
+    /// Difference transfer: a pixel whose resolved colour moved by at most this many 8-bit steps
+    /// in every channel from what the display shows is not sent (0: any change is sent).
+    pub tolerance: u8,
 }
 
 /// A node's introduction (type 5).
@@ -243,7 +247,7 @@ impl Request {
                 RequestKind::Fixup(_) => (1, 0),
             };
             b.extend_from_slice(&[kind, rflags, self.codec.id(), self.codec.param()]);
-            b.extend_from_slice(&[transfer, flags, 0, 0]);
+            b.extend_from_slice(&[transfer, flags, self.tolerance, 0]);
             b.extend_from_slice(&layers.to_le_bytes());
             b.extend_from_slice(&threshold.to_le_bytes());
             for v in self.view.iter().chain(&self.projection) {
@@ -292,13 +296,22 @@ impl Request {
         codec.validate()?;
         let transfer_kind = r.u8("transfer")?;
         let transfer_flags = r.u8("transfer_flags")?;
-        let res_at = r.offset();
-        if r.u16("reserved")? != 0 {
-            return Err(WireError::invalid("reserved", res_at, "", "must be 0"));
+        let tol_at = r.offset();
+        let tolerance = r.u8("tolerance")?;
+        if r.u8("reserved")? != 0 {
+            return Err(WireError::invalid("reserved", tol_at + 1, "", "must be 0"));
         }
         let layers = r.u32("layers")?;
         let threshold = r.f32("opacity_threshold")?;
         let transfer = transfer_from_fields(transfer_kind, transfer_flags, layers, threshold)?;
+        if tolerance != 0 && transfer != TransferMethod::Difference {
+            return Err(WireError::invalid(
+                "tolerance",
+                tol_at,
+                tolerance,
+                "only the difference transfer has a tolerance",
+            ));
+        }
         let mut view = [0f32; 16];
         for v in &mut view {
             *v = r.f32("view")?;
@@ -338,6 +351,7 @@ impl Request {
             transfer,
             codec,
             kind,
+            tolerance,
         })
     }
 }
@@ -496,6 +510,7 @@ mod tests {
             transfer,
             codec: Codec::DeepLz4,
             kind,
+            tolerance: 0,
         }
     }
 
@@ -519,6 +534,13 @@ mod tests {
                 RequestKind::Fixup(PixelMask::from_fn(32, |p| p % 5 == 0)),
                 TransferMethod::Difference,
             ),
+            Request {
+                tolerance: 2,
+                ..request(
+                    RequestKind::Render { reset: false },
+                    TransferMethod::Difference,
+                )
+            },
         ] {
             r.encode_into(&mut b).unwrap();
             assert_eq!(Request::decode(&b, &o).unwrap(), r);

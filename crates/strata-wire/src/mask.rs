@@ -245,7 +245,7 @@ mod tests {
             (&[2, 0, 1, 0, 1], "mask run"), // adjacent runs
             (&[1, 0, 1, 9], "mask"),        // trailing byte
             (&[200, 1], "mask run_count"),  // more runs than bytes
-            (&[1, 0], "mask run_count"), // truncated: caught by the size bound
+            (&[1, 0], "mask run_count"),    // truncated: caught by the size bound
         ];
         for (bytes, field) in cases {
             let e = PixelMask::decode(bytes, 100, 20).unwrap_err();

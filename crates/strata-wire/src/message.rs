@@ -480,8 +480,7 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
     let parsed = parse_frame(bytes, options)?;
     let mut decoded = codec::decompress_sections(&parsed.sections)?;
     let pixels = parsed.info.width * parsed.info.height;
-    let (changed, stale, sections) = if parsed.info.header.transfer == TransferMethod::Difference
-    {
+    let (changed, stale, sections) = if parsed.info.header.transfer == TransferMethod::Difference {
         let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
         let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
         (Some(mask), Some(stale), &parsed.sections[2..])

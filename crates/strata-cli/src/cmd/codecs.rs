@@ -86,6 +86,7 @@ fn header_for(input: &FrameInput<'_>, frame: u32) -> FrameHeader {
         view: input.view.to_cols_array(),
         projection: input.projection.to_cols_array(),
         transfer: TransferMethod::Full,
+        fixup: false,
     }
 }
 

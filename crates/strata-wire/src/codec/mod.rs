@@ -100,17 +100,21 @@ impl Codec {
         }
     }
 
-    /// The codec a `codec` and `codec_param` byte pair names.
+    /// The codec a `codec` and `codec_param` byte pair names, if any: `codec_param` must be 0
+    /// for the codecs without a parameter and a level the encoder accepts (-128..=22) for the
+    /// zstd ones, so that every decoded codec can be written again and every message has one
+    /// header.
     pub fn from_bytes(id: u8, param: u8) -> Option<Self> {
         let level = i32::from(param as i8);
-        match id {
-            0 => Some(Codec::Raw),
-            1 => Some(Codec::Lz4),
-            2 => Some(Codec::Zstd { level }),
-            3 => Some(Codec::DeepLz4),
-            4 => Some(Codec::DeepZstd { level }),
-            _ => None,
-        }
+        let codec = match (id, param) {
+            (0, 0) => Codec::Raw,
+            (1, 0) => Codec::Lz4,
+            (2, _) => Codec::Zstd { level },
+            (3, 0) => Codec::DeepLz4,
+            (4, _) => Codec::DeepZstd { level },
+            _ => return None,
+        };
+        codec.validate().ok().map(|()| codec)
     }
 
     /// The compressor applied to each section.
@@ -250,18 +254,25 @@ impl SectionTag {
     }
 
     /// The decoded lengths this section may announce for `pixels` pixels and `fragments`
-    /// fragments, as an inclusive range; checked before anything is allocated.
+    /// fragments, as an inclusive range; checked before anything is allocated. The bounds
+    /// saturate at `u64::MAX` (a decoder whose limits allow `u32::MAX × u32::MAX` pixels must get
+    /// an error from the check, not an overflow).
     pub fn decoded_range(self, pixels: u64, fragments: u64) -> (u64, u64) {
         match self {
             SectionTag::Seed => {
-                let n = 4 * pixels + 12 * fragments;
+                let n = pixels
+                    .saturating_mul(4)
+                    .saturating_add(fragments.saturating_mul(12));
                 (n, n)
             }
-            SectionTag::Counts => (pixels, 5 * pixels),
-            SectionTag::Depth | SectionTag::Color => (4 * fragments, 4 * fragments),
+            SectionTag::Counts => (pixels, pixels.saturating_mul(5)),
+            SectionTag::Depth | SectionTag::Color => {
+                let n = fragments.saturating_mul(4);
+                (n, n)
+            }
             // Zero-run pairs: at most one 5-byte run and one 5-byte value per fragment, plus the
             // final run.
-            SectionTag::Object => (1, 10 * fragments + 5),
+            SectionTag::Object => (1, fragments.saturating_mul(10).saturating_add(5)),
             // A run count, then at most one (gap, len) pair of two 5-byte varints per two pixels.
             SectionTag::Mask | SectionTag::Stale => (1, 5 * pixels + 15),
         }
@@ -379,5 +390,25 @@ mod tests {
         assert!("lz4:3".parse::<Codec>().is_err());
         assert!("gzip".parse::<Codec>().is_err());
         assert_eq!(Codec::from_bytes(5, 0), None);
+        // A parameter where none is defined, or a level the encoder refuses, names no codec.
+        assert_eq!(Codec::from_bytes(0, 1), None);
+        assert_eq!(Codec::from_bytes(3, 0xff), None);
+        assert_eq!(Codec::from_bytes(2, 23), None);
+        assert_eq!(Codec::from_bytes(4, 127), None);
+        assert_eq!(Codec::from_bytes(2, 22), Some(Codec::Zstd { level: 22 }));
+        assert_eq!(
+            Codec::from_bytes(4, 0x80),
+            Some(Codec::DeepZstd { level: -128 })
+        );
+    }
+
+    #[test]
+    fn decoded_ranges_saturate_instead_of_overflowing() {
+        let max = u64::from(u32::MAX);
+        assert_eq!(SectionTag::Seed.decoded_range(max * max, max).0, u64::MAX);
+        assert_eq!(SectionTag::Counts.decoded_range(max * max, 0).1, u64::MAX);
+        assert_eq!(SectionTag::Depth.decoded_range(0, u64::MAX).0, u64::MAX);
+        assert_eq!(SectionTag::Object.decoded_range(0, u64::MAX).1, u64::MAX);
+        assert_eq!(SectionTag::Seed.decoded_range(6, 7), (108, 108));
     }
 }

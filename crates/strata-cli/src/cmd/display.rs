@@ -1,0 +1,259 @@
+//! `strata display`: the display node of seed 000's remote rendering.
+
+use std::fs;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use strata_core::{Rgb8Image, metrics};
+use strata_raster::Rasterizer;
+use strata_remote::display::{self, DisplayConfig, Observer, OnFault};
+use strata_remote::reference::exact_image;
+use strata_remote::report::{FrameStats, NodeIncident, Summary};
+use strata_remote::transfer;
+use strata_wire::{Codec, DecodeOptions};
+
+use crate::options::{open_scene, search_path};
+
+/// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
+///
+/// Asks every node (`strata node`) for each frame of the scene's animation, receives from all of
+/// them at once, merges their per-pixel runs, resolves, and prints a summary: bytes raw and
+/// encoded, node render / select / encode and display transfer / decode / merge / resolve times,
+/// fragments sent against rendered, display fps, and bad pixels against the exact local render
+/// of the whole scene (checked after the run, so the check does not slow the display). A node that
+/// fails is reported, composed without (or from its last frame, `--on-fault hold`) and
+/// reconnected when it returns.
+#[derive(clap::Args, Debug)]
+pub(crate) struct Args {
+    /// Scene file (TOML) or built-in scene name: the same scene the nodes serve.
+    #[arg(long)]
+    pub(crate) scene: String,
+
+    /// Render node addresses, comma-separated (`host:port`).
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub(crate) nodes: Vec<String>,
+
+    /// Transfer method: full, depth-limited (with --layers), difference.
+    #[arg(long, default_value = "full")]
+    pub(crate) transfer: String,
+
+    /// depth-limited: fragments per pixel to send (the N nearest).
+    #[arg(long)]
+    pub(crate) layers: Option<u32>,
+
+    /// depth-limited: stop a pixel once the opacity in front reaches this, in (0, 1].
+    #[arg(long)]
+    pub(crate) opacity_threshold: Option<f32>,
+
+    /// difference: colour changes of at most this many 8-bit steps are not sent (0: exact; 2:
+    /// no bad pixels at the default --threshold, with fewer fragments).
+    #[arg(long, default_value_t = 0)]
+    pub(crate) tolerance: u8,
+
+    /// Codec the nodes encode with: raw, lz4, zstd[:LEVEL], deep-lz4, deep-zstd[:LEVEL].
+    #[arg(long, default_value = "deep-lz4")]
+    pub(crate) codec: Codec,
+
+    /// Frames to compose.
+    #[arg(long, default_value_t = 72)]
+    pub(crate) frames: u64,
+
+    /// First animation frame.
+    #[arg(long, default_value_t = 0)]
+    pub(crate) first_frame: u64,
+
+    /// Frame size WIDTHxHEIGHT (default: the scene's).
+    #[arg(long, value_parser = parse_size)]
+    pub(crate) size: Option<(u32, u32)>,
+
+    /// Frames requested ahead of the one being composed, so nodes render while frames travel.
+    #[arg(long, default_value_t = 2)]
+    pub(crate) in_flight: usize,
+
+    /// Seconds to wait for a node's frame (and for a connection) before reporting it.
+    #[arg(long, default_value_t = 5.0)]
+    pub(crate) timeout: f64,
+
+    /// Without a node's frame: compose with its last frame (hold) or without it (drop).
+    #[arg(long, default_value = "hold", value_parser = ["hold", "drop"])]
+    pub(crate) on_fault: String,
+
+    /// Compare every frame with the exact local render after the run (off: --no-check).
+    #[arg(long = "no-check", action = clap::ArgAction::SetFalse)]
+    pub(crate) check: bool,
+
+    /// A pixel is bad if some channel differs from the exact render by more than this many 8-bit
+    /// steps (DESIGN: 2).
+    #[arg(long, default_value_t = metrics::DEFAULT_BAD_PIXEL_THRESHOLD)]
+    pub(crate) threshold: u8,
+
+    /// Folder for summary.json, summary.txt and (with --save-frames) the frames as PNG.
+    #[arg(long)]
+    pub(crate) out_dir: Option<PathBuf>,
+
+    /// Write every composed frame as frame-NNNN.png into --out-dir.
+    #[arg(long, requires = "out_dir")]
+    pub(crate) save_frames: bool,
+
+    /// Extra directory to look for mesh files in (repeatable).
+    #[arg(long = "models", value_name = "DIR")]
+    pub(crate) model_dirs: Vec<PathBuf>,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("'{s}': expected WIDTHxHEIGHT such as 1280x720");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h) = (
+        w.trim().parse::<u32>().map_err(|_| bad())?,
+        h.trim().parse::<u32>().map_err(|_| bad())?,
+    );
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(format!("'{s}': width and height must be within 1..=16384"));
+    }
+    Ok((w, h))
+}
+
+/// Shows progress, keeps frames for the check, saves them when asked.
+struct Progress {
+    bar: ProgressBar,
+    images: Vec<(u64, Rgb8Image)>,
+    keep: bool,
+    save: Option<PathBuf>,
+    error: Option<anyhow::Error>,
+}
+
+impl Observer for Progress {
+    fn frame(&mut self, stats: &FrameStats, image: &Rgb8Image) {
+        let mb = stats.bytes() as f64 / 1e6;
+        self.bar.set_message(format!(
+            "frame {}: {mb:.2} MB, {} fragments sent",
+            stats.frame,
+            stats.fragments_sent()
+        ));
+        self.bar.inc(1);
+        if let Some(dir) = &self.save
+            && self.error.is_none()
+        {
+            let path = dir.join(format!("frame-{:04}.png", stats.frame));
+            if let Err(e) = image.write_png(&path) {
+                self.error = Some(anyhow::anyhow!("writing {}: {e}", path.display()));
+            }
+        }
+        if self.keep {
+            self.images.push((stats.frame, image.clone()));
+        }
+    }
+
+    fn incident(&mut self, i: &NodeIncident) {
+        self.bar
+            .println(format!("frame {}: node {}: {}", i.frame, i.node, i.what));
+    }
+}
+
+pub(crate) fn run(args: Args) -> Result<()> {
+    let t = transfer::parse(&args.transfer, args.layers, args.opacity_threshold)
+        .map_err(anyhow::Error::msg)?;
+    if !(args.timeout > 0.0 && args.timeout <= 3600.0) {
+        bail!("--timeout must be within (0, 3600] seconds");
+    }
+    if args.tolerance != 0 && t != transfer::Transfer::Difference {
+        bail!("--tolerance applies to --transfer difference only");
+    }
+    if args.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    let scene = Arc::new(open_scene(&args.scene, &search_path(&args.model_dirs))?);
+    let (width, height) = args.size.unwrap_or((scene.width, scene.height));
+    if let Some(dir) = &args.out_dir {
+        fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let config = DisplayConfig {
+        scene: scene.clone(),
+        nodes: args.nodes.clone(),
+        transfer: t,
+        codec: args.codec,
+        tolerance: args.tolerance,
+        first_frame: args.first_frame,
+        frames: args.frames,
+        width,
+        height,
+        in_flight: args.in_flight,
+        timeout: Duration::from_secs_f64(args.timeout),
+        on_fault: if args.on_fault == "drop" {
+            OnFault::Drop
+        } else {
+            OnFault::Hold
+        },
+        limits: DecodeOptions::default(),
+    };
+    let bar = ProgressBar::new(args.frames).with_style(
+        ProgressStyle::with_template("{spinner} {pos}/{len} frames [{elapsed_precise}] {wide_msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut progress = Progress {
+        bar,
+        images: Vec::new(),
+        keep: args.check,
+        save: args.save_frames.then(|| args.out_dir.clone()).flatten(),
+        error: None,
+    };
+    let result = display::run(config, &mut progress)?;
+    progress.bar.finish_and_clear();
+    if let Some(e) = progress.error {
+        return Err(e);
+    }
+    let mut per_frame = result.per_frame;
+    if args.check && !progress.images.is_empty() {
+        let bar = ProgressBar::new(progress.images.len() as u64).with_style(
+            ProgressStyle::with_template("checking against the exact render {pos}/{len}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        let mut raster = Rasterizer::default();
+        for ((f, image), stats) in progress.images.iter().zip(per_frame.iter_mut()) {
+            let exact =
+                exact_image(&scene, *f, width, height, &mut raster).map_err(anyhow::Error::msg)?;
+            stats.bad_pixels = Some(metrics::bad_pixels(image, &exact, args.threshold)?.count);
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+    }
+    let transfer_label = match t {
+        transfer::Transfer::DepthLimited {
+            layers,
+            opacity_threshold: Some(o),
+        } => format!("depth-limited --layers {layers} --opacity-threshold {o}"),
+        transfer::Transfer::DepthLimited { layers, .. } => {
+            format!("depth-limited --layers {layers}")
+        }
+        transfer::Transfer::Difference if args.tolerance > 0 => {
+            format!("difference --tolerance {}", args.tolerance)
+        }
+        other => transfer::name(other).to_string(),
+    };
+    let summary = Summary::new(
+        scene.name.clone(),
+        width,
+        height,
+        transfer_label,
+        args.codec.to_string(),
+        args.nodes.clone(),
+        result.elapsed_s,
+        args.threshold,
+        result.incidents,
+        per_frame,
+    );
+    let table = summary.to_table();
+    out!("{table}")?;
+    if let Some(dir) = &args.out_dir {
+        let json = dir.join("summary.json");
+        fs::write(&json, summary.to_json())
+            .with_context(|| format!("writing {}", json.display()))?;
+        let txt = dir.join("summary.txt");
+        fs::write(&txt, &table).with_context(|| format!("writing {}", txt.display()))?;
+        eprintln!("wrote {} and {}", json.display(), txt.display());
+    }
+    Ok(())
+}
