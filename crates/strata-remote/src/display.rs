@@ -194,6 +194,10 @@ struct NodeState {
     next_request: u64,
     /// The first frame requested on this generation (its request carries `reset`).
     first_request: u64,
+    /// The scene the display shows; a node serving another one is left out.
+    scene: String,
+    /// Left out for good (it serves another scene).
+    refused: bool,
 }
 
 async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult {
@@ -217,6 +221,8 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             copy: NodeCopy::empty(config.width, config.height),
             next_request: config.first_frame,
             first_request: config.first_frame,
+            scene: config.scene.name.clone(),
+            refused: false,
         });
     }
     drop(evt_tx);
@@ -513,6 +519,20 @@ fn on_event(
     match e {
         LinkEvent::Up(i, generation, hello) => {
             let n = &mut nodes[i];
+            if n.refused {
+                return;
+            }
+            if hello.scene != n.scene {
+                n.refused = true;
+                note(
+                    n,
+                    format!(
+                        "serves scene '{}', not '{}': left out",
+                        hello.scene, n.scene
+                    ),
+                );
+                return;
+            }
             n.up = true;
             n.generation = generation;
             // It joins with the next frame not yet composed, from a clean state.

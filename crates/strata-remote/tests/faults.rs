@@ -155,11 +155,8 @@ fn random_bytes_instead_of_messages_are_reported() {
 fn a_node_that_hangs_up_is_reported() {
     let bad = fake_node(drop);
     let what = run_against(bad, OnFault::Hold);
-    assert!(
-        what.iter()
-            .any(|w| w.contains("closed") || w.contains("reset by peer")),
-        "{what:?}"
-    );
+    // Depending on timing the display sees the close, a reset, or a broken pipe.
+    assert!(what.iter().any(|w| w.starts_with("down:")), "{what:?}");
 }
 
 #[test]
@@ -172,6 +169,26 @@ fn an_unreachable_node_is_reported_once() {
     let what = run_against(addr, OnFault::Drop);
     let connects = what.iter().filter(|w| w.contains("cannot connect")).count();
     assert_eq!(connects, 1, "{what:?}");
+}
+
+#[test]
+fn a_node_serving_another_scene_is_left_out() {
+    let other = fake_node(|mut s| {
+        let mut buf = [0u8; 4096];
+        while matches!(s.read(&mut buf), Ok(n) if n > 0) {}
+    });
+    // fake_node greets as scene "mixed"; the display shows "spheres".
+    let s = Arc::new(open_scene("spheres", &SearchPath::new([])).unwrap());
+    let r = display::run(config(&s, vec![other], OnFault::Drop), &mut ()).unwrap();
+    assert_eq!(r.per_frame.len(), 3);
+    assert!(
+        r.incidents
+            .iter()
+            .any(|i| i.what.contains("serves scene 'mixed', not 'spheres'")),
+        "{:?}",
+        r.incidents
+    );
+    assert!(r.per_frame.iter().all(|f| f.fragments_displayed == 0));
 }
 
 #[test]
