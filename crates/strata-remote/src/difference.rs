@@ -52,7 +52,7 @@ use strata_core::DeepFrame;
 use strata_core::composite::resolve_pixel;
 use strata_wire::{MaskBuilder, PixelMask};
 
-use crate::select::{Columns, restrict};
+use crate::select::{gather, restrict, run_range};
 
 /// Pixels per parallel task when computing keys.
 const CHUNK: usize = 16 * 1024;
@@ -238,18 +238,13 @@ impl NodeCopy {
         for &(s, l) in changed.runs() {
             self.stale[s as usize..(s + l) as usize].fill(false);
         }
+        let flags = changed.to_flags();
         let old = &self.frame;
-        let pixels = old.width() as usize * old.height() as usize;
-        let mut out = Columns::with_capacity(pixels, old.fragment_count() + delta.fragment_count());
-        let mut p = 0usize;
-        for &(s, l) in changed.runs() {
-            let (s, e) = (s as usize, (s + l) as usize);
-            out.push_span(old, p, s);
-            out.push_span(delta, s, e);
-            p = e;
-        }
-        out.push_span(old, p, pixels);
-        self.frame = out.finish(old.width(), old.height());
+        let frame = gather(old.width(), old.height(), |p| {
+            let src = if flags[p] { delta } else { old };
+            (src, run_range(src, p))
+        });
+        self.frame = frame;
     }
 }
 

@@ -6,19 +6,86 @@
 //! the opacity in front of it, `1 − Π(1 − αᵢ)`, is still below T. The first fragment is always
 //! kept; the one that crosses T is kept too (it is what makes the pixel reach T).
 //!
-//! Both build the output columns directly from the input's (`DeepFrame::from_parts`), one pass
-//! over the pixels and one copy of each kept fragment.
+//! Both build the output with [`gather`]: per pixel, a span of some source frame's columns;
+//! counted in parallel chunks, prefix-summed, then copied in parallel chunks into columns
+//! allocated once — no per-pixel allocation and no re-sorting (spans of sorted runs are sorted).
 
+use std::ops::Range;
+
+use rayon::prelude::*;
 use strata_core::{DeepFrame, ObjectId, Rgba8};
 use strata_wire::PixelMask;
+
+/// Pixels per parallel task.
+const CHUNK: usize = 16 * 1024;
+
+/// Builds a `width × height` frame whose pixel `p` holds fragments `span(p).1` (indices into the
+/// columns of frame `span(p).0`, within one run of it).
+pub(crate) fn gather<'a, F>(width: u32, height: u32, span: F) -> DeepFrame
+where
+    F: Fn(usize) -> (&'a DeepFrame, Range<usize>) + Sync,
+{
+    let pixels = width as usize * height as usize;
+    let mut counts = vec![0u32; pixels];
+    counts
+        .par_chunks_mut(CHUNK)
+        .enumerate()
+        .for_each(|(c, out)| {
+            for (i, n) in out.iter_mut().enumerate() {
+                *n = span(c * CHUNK + i).1.len() as u32;
+            }
+        });
+    let mut offsets = Vec::with_capacity(pixels + 1);
+    let mut total = 0u32;
+    offsets.push(0);
+    for &n in &counts {
+        total += n;
+        offsets.push(total);
+    }
+    let n = total as usize;
+    let (mut depth, mut color, mut object) = (
+        vec![0f32; n],
+        vec![Rgba8::default(); n],
+        vec![ObjectId::default(); n],
+    );
+    let mut tasks = Vec::with_capacity(pixels / CHUNK + 1);
+    {
+        let (mut d, mut c, mut o) = (&mut depth[..], &mut color[..], &mut object[..]);
+        for p0 in (0..pixels).step_by(CHUNK) {
+            let p1 = (p0 + CHUNK).min(pixels);
+            let len = (offsets[p1] - offsets[p0]) as usize;
+            let (dh, dt) = std::mem::take(&mut d).split_at_mut(len);
+            let (ch, ct) = std::mem::take(&mut c).split_at_mut(len);
+            let (oh, ot) = std::mem::take(&mut o).split_at_mut(len);
+            tasks.push((p0..p1, dh, ch, oh));
+            (d, c, o) = (dt, ct, ot);
+        }
+    }
+    tasks.into_par_iter().for_each(|(range, d, c, o)| {
+        let mut at = 0;
+        for p in range {
+            let (src, r) = span(p);
+            let len = r.len();
+            d[at..at + len].copy_from_slice(&src.depths()[r.clone()]);
+            c[at..at + len].copy_from_slice(&src.colors()[r.clone()]);
+            o[at..at + len].copy_from_slice(&src.objects()[r]);
+            at += len;
+        }
+    });
+    DeepFrame::from_parts(width, height, offsets, depth, color, object)
+        .expect("runs copied from valid frames form a valid frame")
+}
+
+/// The fragment range of pixel `p`'s whole run.
+pub(crate) fn run_range(frame: &DeepFrame, p: usize) -> Range<usize> {
+    frame.offsets()[p] as usize..frame.offsets()[p + 1] as usize
+}
 
 /// Keeps at most `layers` nearest fragments of every pixel, stopping early where the opacity
 /// in front reaches `opacity_threshold`.
 pub fn depth_limit(frame: &DeepFrame, layers: u32, opacity_threshold: Option<f32>) -> DeepFrame {
     let threshold = opacity_threshold.unwrap_or(f32::INFINITY);
-    let pixels = frame.width() as usize * frame.height() as usize;
-    let mut out = Columns::with_capacity(pixels, frame.fragment_count());
-    for p in 0..pixels {
+    gather(frame.width(), frame.height(), |p| {
         let run = frame.run(p);
         let mut keep = run.len().min(layers as usize);
         if opacity_threshold.is_some() {
@@ -31,92 +98,21 @@ pub fn depth_limit(frame: &DeepFrame, layers: u32, opacity_threshold: Option<f32
                 transparency *= 1.0 - f32::from(c.0[3]) / 255.0;
             }
         }
-        out.push_run(frame, p, 0..keep);
-    }
-    out.finish(frame.width(), frame.height())
+        let start = frame.offsets()[p] as usize;
+        (frame, start..start + keep)
+    })
 }
 
 /// The runs of `frame` at the pixels of `mask`; every other pixel is empty.
 pub fn restrict(frame: &DeepFrame, mask: &PixelMask) -> DeepFrame {
-    let pixels = frame.width() as usize * frame.height() as usize;
-    let offsets = frame.offsets();
-    let inside: usize = mask
-        .runs()
-        .iter()
-        .map(|&(s, l)| (offsets[(s + l) as usize] - offsets[s as usize]) as usize)
-        .sum();
-    let mut out = Columns::with_capacity(pixels, inside);
-    let mut p = 0usize;
-    for &(s, l) in mask.runs() {
-        out.push_empty(s as usize - p);
-        out.push_span(frame, s as usize, (s + l) as usize);
-        p = (s + l) as usize;
-    }
-    out.push_empty(pixels - p);
-    out.finish(frame.width(), frame.height())
-}
-
-/// The columns of a DeepFrame under construction, pixel by pixel.
-pub(crate) struct Columns {
-    offsets: Vec<u32>,
-    depth: Vec<f32>,
-    color: Vec<Rgba8>,
-    object: Vec<ObjectId>,
-}
-
-impl Columns {
-    pub(crate) fn with_capacity(pixels: usize, fragments: usize) -> Self {
-        let mut offsets = Vec::with_capacity(pixels + 1);
-        offsets.push(0);
-        Columns {
-            offsets,
-            depth: Vec::with_capacity(fragments),
-            color: Vec::with_capacity(fragments),
-            object: Vec::with_capacity(fragments),
+    let flags = mask.to_flags();
+    gather(frame.width(), frame.height(), |p| {
+        if flags[p] {
+            (frame, run_range(frame, p))
+        } else {
+            (frame, 0..0)
         }
-    }
-
-    /// Fragments `range` of pixel `p`'s run of `frame`, as the next pixel.
-    pub(crate) fn push_run(&mut self, frame: &DeepFrame, p: usize, range: std::ops::Range<usize>) {
-        let start = frame.offsets()[p] as usize;
-        let (a, b) = (start + range.start, start + range.end);
-        self.depth.extend_from_slice(&frame.depths()[a..b]);
-        self.color.extend_from_slice(&frame.colors()[a..b]);
-        self.object.extend_from_slice(&frame.objects()[a..b]);
-        self.offsets.push(self.depth.len() as u32);
-    }
-
-    /// Pixels `p0..p1` of `frame`, whole runs, as the next pixels.
-    pub(crate) fn push_span(&mut self, frame: &DeepFrame, p0: usize, p1: usize) {
-        let offsets = frame.offsets();
-        let (a, b) = (offsets[p0] as usize, offsets[p1] as usize);
-        let base = self.depth.len() as u32;
-        self.depth.extend_from_slice(&frame.depths()[a..b]);
-        self.color.extend_from_slice(&frame.colors()[a..b]);
-        self.object.extend_from_slice(&frame.objects()[a..b]);
-        let shift = base.wrapping_sub(offsets[p0]);
-        self.offsets
-            .extend(offsets[p0 + 1..=p1].iter().map(|&o| o.wrapping_add(shift)));
-    }
-
-    /// `n` empty pixels.
-    pub(crate) fn push_empty(&mut self, n: usize) {
-        let end = self.depth.len() as u32;
-        self.offsets.extend(std::iter::repeat_n(end, n));
-    }
-
-    /// The frame; the runs came from valid frames, so its invariants hold.
-    pub(crate) fn finish(self, width: u32, height: u32) -> DeepFrame {
-        DeepFrame::from_parts(
-            width,
-            height,
-            self.offsets,
-            self.depth,
-            self.color,
-            self.object,
-        )
-        .expect("runs copied from valid frames form a valid frame")
-    }
+    })
 }
 
 #[cfg(test)]
