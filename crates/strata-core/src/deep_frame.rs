@@ -110,16 +110,19 @@ pub struct Run<'a> {
 
 impl<'a> Run<'a> {
     /// Number of fragments.
+    #[inline]
     pub fn len(&self) -> usize {
         self.depth.len()
     }
 
     /// True if the pixel holds no fragment.
+    #[inline]
     pub fn is_empty(&self) -> bool {
         self.depth.is_empty()
     }
 
     /// The `i`-th fragment from the front.
+    #[inline]
     pub fn get(&self, i: usize) -> Option<Fragment> {
         Some(Fragment {
             depth: *self.depth.get(i)?,
@@ -340,36 +343,43 @@ impl DeepFrame {
     }
 
     /// Width in pixels.
+    #[inline]
     pub fn width(&self) -> u32 {
         self.width
     }
 
     /// Height in pixels.
+    #[inline]
     pub fn height(&self) -> u32 {
         self.height
     }
 
     /// Total fragments.
+    #[inline]
     pub fn fragment_count(&self) -> usize {
         self.depth.len()
     }
 
     /// The prefix-summed offsets, `w*h + 1` entries.
+    #[inline]
     pub fn offsets(&self) -> &[u32] {
         &self.offsets
     }
 
     /// The depth column.
+    #[inline]
     pub fn depths(&self) -> &[f32] {
         &self.depth
     }
 
     /// The colour column.
+    #[inline]
     pub fn colors(&self) -> &[Rgba8] {
         &self.color
     }
 
     /// The object-id column.
+    #[inline]
     pub fn objects(&self) -> &[ObjectId] {
         &self.object
     }
@@ -378,6 +388,7 @@ impl DeepFrame {
     ///
     /// # Panics
     /// If `p >= width * height`.
+    #[inline]
     pub fn run(&self, p: usize) -> Run<'_> {
         let (a, b) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
         Run {

@@ -10,6 +10,7 @@
 //! counted in parallel chunks, prefix-summed, then copied in parallel chunks into columns
 //! allocated once — no per-pixel allocation and no re-sorting (spans of sorted runs are sorted).
 
+use std::borrow::Cow;
 use std::ops::Range;
 
 use rayon::prelude::*;
@@ -82,15 +83,25 @@ pub(crate) fn run_range(frame: &DeepFrame, p: usize) -> Range<usize> {
 }
 
 /// Keeps at most `layers` nearest fragments of every pixel, stopping early where the opacity
-/// in front reaches `opacity_threshold`.
-pub fn depth_limit(frame: &DeepFrame, layers: u32, opacity_threshold: Option<f32>) -> DeepFrame {
+/// in front reaches `opacity_threshold`; borrows `frame` when that keeps everything.
+pub fn depth_limit(
+    frame: &DeepFrame,
+    layers: u32,
+    opacity_threshold: Option<f32>,
+) -> Cow<'_, DeepFrame> {
+    let offsets = frame.offsets();
+    if opacity_threshold.is_none() && offsets.par_windows(2).all(|w| w[1] - w[0] <= layers) {
+        return Cow::Borrowed(frame);
+    }
     let threshold = opacity_threshold.unwrap_or(f32::INFINITY);
-    gather(frame.width(), frame.height(), |p| {
-        let run = frame.run(p);
-        let mut keep = run.len().min(layers as usize);
+    let colors = frame.colors();
+    Cow::Owned(gather(frame.width(), frame.height(), |p| {
+        let start = offsets[p] as usize;
+        let len = (offsets[p + 1] - offsets[p]) as usize;
+        let mut keep = len.min(layers as usize);
         if opacity_threshold.is_some() {
             let mut transparency = 1.0f32;
-            for (i, c) in run.color.iter().take(keep).enumerate() {
+            for (i, c) in colors[start..start + keep].iter().enumerate() {
                 if 1.0 - transparency >= threshold {
                     keep = i;
                     break;
@@ -98,9 +109,8 @@ pub fn depth_limit(frame: &DeepFrame, layers: u32, opacity_threshold: Option<f32
                 transparency *= 1.0 - f32::from(c.0[3]) / 255.0;
             }
         }
-        let start = frame.offsets()[p] as usize;
         (frame, start..start + keep)
-    })
+    }))
 }
 
 /// The runs of `frame` at the pixels of `mask`; every other pixel is empty.
@@ -152,7 +162,11 @@ mod tests {
                 assert_eq!(l.run(p).iter().collect::<Vec<_>>(), want, "n {n} pixel {p}");
             }
         }
-        assert_eq!(depth_limit(&f, 100, None), f);
+        assert!(
+            matches!(depth_limit(&f, 100, None), Cow::Borrowed(_)),
+            "nothing to cut"
+        );
+        assert_eq!(*depth_limit(&f, 10, None), f);
     }
 
     #[test]
