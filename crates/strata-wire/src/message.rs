@@ -299,6 +299,11 @@ pub fn encode_frame_into(
     frame: &DeepFrame,
     codec: Codec,
 ) -> Result<(), WireError> {
+    if header.fixup {
+        return Err(WireError::Encode(
+            "only a difference frame can be a fixup reply".into(),
+        ));
+    }
     if header.transfer == TransferMethod::Difference {
         return Err(WireError::Encode(
             "a difference frame needs its pixel mask: use encode_delta_into".into(),
@@ -479,7 +484,16 @@ pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Message, WireErro
 pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessage, WireError> {
     let parsed = parse_frame(bytes, options)?;
     let mut decoded = codec::decompress_sections(&parsed.sections)?;
-    let pixels = parsed.info.width * parsed.info.height;
+    // Below the decode limits; u32 because masks index pixels with u32.
+    let pixels = u32::try_from(u64::from(parsed.info.width) * u64::from(parsed.info.height))
+        .map_err(|_| {
+            WireError::invalid(
+                "width·height",
+                32,
+                u64::from(parsed.info.width) * u64::from(parsed.info.height),
+                "a difference frame holds at most 2^32 - 1 pixels",
+            )
+        })?;
     let (changed, stale, sections) = if parsed.info.header.transfer == TransferMethod::Difference {
         let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
         let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
@@ -586,7 +600,16 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
     let layers = r.u32("layers")?;
     let threshold = r.f32("opacity_threshold")?;
     let codec = Codec::from_bytes(codec_id, codec_param).ok_or_else(|| {
-        WireError::invalid("codec", 46, codec_id, "unknown codec (0–4 are defined)")
+        if codec_id <= 4 {
+            WireError::invalid(
+                "codec_param",
+                47,
+                codec_param,
+                "zstd codecs take a level in -128..=22, the others 0",
+            )
+        } else {
+            WireError::invalid("codec", 46, codec_id, "unknown codec (0–4 are defined)")
+        }
     })?;
     let fixup = transfer_kind == 2 && transfer_flags & 2 != 0;
     let transfer = transfer_from_fields(

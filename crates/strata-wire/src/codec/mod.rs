@@ -274,7 +274,9 @@ impl SectionTag {
             // final run.
             SectionTag::Object => (1, fragments.saturating_mul(10).saturating_add(5)),
             // A run count, then at most one (gap, len) pair of two 5-byte varints per two pixels.
-            SectionTag::Mask | SectionTag::Stale => (1, 5 * pixels + 15),
+            SectionTag::Mask | SectionTag::Stale => {
+                (1, pixels.saturating_mul(5).saturating_add(15))
+            }
         }
     }
 }
@@ -409,6 +411,8 @@ mod tests {
         assert_eq!(SectionTag::Counts.decoded_range(max * max, 0).1, u64::MAX);
         assert_eq!(SectionTag::Depth.decoded_range(0, u64::MAX).0, u64::MAX);
         assert_eq!(SectionTag::Object.decoded_range(0, u64::MAX).1, u64::MAX);
+        assert_eq!(SectionTag::Mask.decoded_range(max * max, 0).1, u64::MAX);
+        assert_eq!(SectionTag::Stale.decoded_range(max * max, 0).1, u64::MAX);
         assert_eq!(SectionTag::Seed.decoded_range(6, 7), (108, 108));
     }
 }
