@@ -38,6 +38,22 @@ pub struct FrameInput<'a> {
     pub background: [f32; 3],
     /// The objects, in draw order.
     pub objects: Vec<DrawObject<'a>>,
+    /// What the fragments' colour bytes hold.
+    pub output: FragmentOutput,
+}
+
+/// What the four colour bytes of the rasterizer's fragments hold.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum FragmentOutput {
+    /// The shaded colour (DESIGN §2: headlight or unlit, RGBA8).
+    #[default]
+    Shaded,
+    /// Normal fragments (seed 000 §2.1): the perspective-correctly interpolated eye-space normal
+    /// of lit objects as a [`strata_core::PackedNormal`]; unlit objects give
+    /// [`strata_core::PackedNormal::NONE`]. Depth and object are as for shaded fragments, so the
+    /// eye-space position is the unprojection of the pixel centre at the fragment's depth, and a
+    /// receiver that knows the materials can shade the fragment exactly as the rasterizer would.
+    PackedNormal,
 }
 
 impl<'a> FrameInput<'a> {
@@ -62,6 +78,7 @@ impl<'a> FrameInput<'a> {
             projection: scene.camera.projection(scene.width, scene.height),
             background: scene.background,
             objects,
+            output: FragmentOutput::Shaded,
         }
     }
 

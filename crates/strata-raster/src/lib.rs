@@ -62,6 +62,6 @@ pub mod setup;
 pub mod sink;
 pub mod vertex;
 
-pub use frame::{DrawObject, FrameInput};
+pub use frame::{DrawObject, FragmentOutput, FrameInput};
 pub use rasterizer::{Prepared, RasterConfig, RasterStats, Rasterizer, SetupStats};
 pub use sink::{CaptureTarget, FragmentSink, FragmentVec, StripLayout};

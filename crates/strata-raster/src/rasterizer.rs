@@ -3,9 +3,9 @@
 use std::time::Instant;
 
 use rayon::prelude::*;
-use strata_core::{PassTimings, Rgba8, Shading, fragment::unorm8};
+use strata_core::{PackedNormal, PassTimings, Rgba8, Shading, fragment::unorm8};
 
-use crate::frame::FrameInput;
+use crate::frame::{FragmentOutput, FrameInput};
 use crate::scan::{Shade, scan_triangle};
 pub use crate::setup::SetupStats;
 use crate::setup::{CLIPPED, Chunk, ClippedTriangle, PixelFragment, SetupContext, setup_chunk};
@@ -186,12 +186,18 @@ impl Rasterizer {
             .iter()
             .map(|o| {
                 let c = o.material.color;
+                let packed = input.output == FragmentOutput::PackedNormal;
                 (
                     Shade {
                         rgb: [c[0], c[1], c[2]],
                         alpha: unorm8(c[3]),
-                        flat: Rgba8::from_unorm(c),
+                        flat: if packed {
+                            Rgba8::from_bits(PackedNormal::NONE.to_bits())
+                        } else {
+                            Rgba8::from_unorm(c)
+                        },
                         id: o.id,
+                        packed,
                     },
                     o.material.shading == Shading::Headlight,
                 )

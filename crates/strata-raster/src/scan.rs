@@ -15,7 +15,7 @@
 
 use glam::Vec3A;
 use strata_core::fragment::unorm8;
-use strata_core::{Fragment, ObjectId, Rgba8};
+use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
 use crate::coverage::{Edges, Micro, SMALL, Triangle};
 use crate::sink::FragmentSink;
@@ -32,6 +32,10 @@ pub struct Shade {
     pub flat: Rgba8,
     /// Object id.
     pub id: ObjectId,
+    /// Emit the packed eye-space normal instead of the shaded colour
+    /// ([`crate::FragmentOutput::PackedNormal`]); lit objects only — unlit ones carry
+    /// [`PackedNormal::NONE`] in `flat`.
+    pub packed: bool,
 }
 
 /// A triangle's interpolation constants.
@@ -76,7 +80,10 @@ impl Interp {
             return None; // beyond the far plane
         }
         let depth = if z > 0.0 { z } else { 0.0 };
-        let color = if LIT {
+        let color = if LIT && shade.packed {
+            let n = self.n[0] * l[0] + self.n[1] * l[1] + self.n[2] * l[2];
+            Rgba8::from_bits(PackedNormal::pack(n.to_array()).to_bits())
+        } else if LIT {
             let n = self.n[0] * l[0] + self.n[1] * l[1] + self.n[2] * l[2];
             let p = self.p[0] * l[0] + self.p[1] * l[1] + self.p[2] * l[2];
             let f = headlight(n, p);
@@ -243,6 +250,7 @@ mod tests {
         alpha: 128,
         flat: Rgba8([255, 0, 0, 128]),
         id: ObjectId(3),
+        packed: false,
     };
 
     fn cover(tris: &[[ScreenPos; 3]], w: i32, h: i32) -> Vec<u32> {

@@ -5,7 +5,7 @@
 
 use glam::{DMat4, DVec3, DVec4, Mat4, Vec3};
 use strata_core::{Fragment, Material, ObjectId, Shading};
-use strata_raster::{DrawObject, FragmentVec, FrameInput, Rasterizer};
+use strata_raster::{DrawObject, FragmentOutput, FragmentVec, FrameInput, Rasterizer};
 use strata_scene::Mesh;
 
 // ----- helpers ----------------------------------------------------------------------------------
@@ -91,6 +91,7 @@ fn render(cam: &Cam, objects: &[(&Mesh, Mat4, Shading)]) -> Vec<Vec<Fragment>> {
                 id: ObjectId(i as u32),
             })
             .collect(),
+        output: FragmentOutput::Shaded,
     };
     let mut raster = Rasterizer::default();
     let prepared = raster.prepare(&input);
@@ -504,6 +505,7 @@ fn rasterizer_buffers_are_reused_across_frames_of_different_sizes() {
                 material: material(Shading::Unlit),
                 id: ObjectId(0),
             }],
+            output: FragmentOutput::Shaded,
         };
         let mut out = FragmentVec::new();
         raster.prepare(&input).rasterize(&mut out);

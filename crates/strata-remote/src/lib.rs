@@ -22,6 +22,7 @@ pub mod display;
 pub mod merge;
 pub mod node;
 pub mod reference;
+pub mod reprojection;
 pub mod report;
 pub mod select;
 mod stream;

@@ -37,6 +37,7 @@ pub mod control;
 mod error;
 pub mod mask;
 pub mod message;
+pub mod removals;
 
 pub use codec::{Codec, Compression, SectionInfo, SectionTag, UnknownCodec};
 pub use control::{
@@ -44,8 +45,9 @@ pub use control::{
 };
 pub use error::WireError;
 pub use mask::{MaskBuilder, PixelMask};
+pub use removals::Removals;
 pub use message::{
     DecodeOptions, FrameHeader, FrameInfo, FrameMessage, MAGIC, Message, MessageType, PREFIX_LEN,
     Prefix, TransferMethod, VERSION, decode, decode_frame, encode_delta_into, encode_frame,
-    encode_frame_into, inspect_frame, parse_prefix,
+    encode_frame_into, encode_reprojection_into, inspect_frame, parse_prefix,
 };

@@ -46,6 +46,11 @@
 //! no fragments elsewhere, and a masked pixel with no fragments is a deletion — and `stale`
 //! (tag 33), pixels not replaced whose runs changed in depth but not in resolved colour, so the
 //! display's copy is stale there if another node's fragments interleave with it.
+//!
+//! A `reprojection` frame has two sections before the codec's: `mask` (tag 32), the pixels it
+//! touches, and `removals` (tag 34, [`Removals`]), the positions each touched pixel loses from the
+//! display's reprojected run. Its frame holds the inserted *normal* fragments (their colour bytes
+//! are [`strata_core::PackedNormal`]s) and no fragments outside the mask.
 
 use strata_core::DeepFrame;
 
@@ -53,6 +58,7 @@ use crate::bytes::Reader;
 use crate::codec::{self, Codec, Compression, EncodedSection, SectionInfo, SectionRef, SectionTag};
 use crate::error::WireError;
 use crate::mask::PixelMask;
+use crate::removals::Removals;
 
 /// The four bytes every message starts with.
 pub const MAGIC: [u8; 4] = *b"STRW";
@@ -243,6 +249,8 @@ pub struct FrameMessage {
     pub changed: Option<PixelMask>,
     /// Difference transfer: pixels whose held copy became depth-stale.
     pub stale: Option<PixelMask>,
+    /// Reprojection transfer: the positions each pixel of `changed` loses.
+    pub removals: Option<Removals>,
 }
 
 /// A frame message's header and section table, without decoding its payloads.
@@ -309,6 +317,11 @@ pub fn encode_frame_into(
             "a difference frame needs its pixel mask: use encode_delta_into".into(),
         ));
     }
+    if header.transfer == TransferMethod::Reprojection {
+        return Err(WireError::Encode(
+            "a reprojection frame needs its mask and removals: use encode_reprojection_into".into(),
+        ));
+    }
     header.transfer.check().map_err(WireError::Encode)?;
     let sections = codec::encode_sections(frame, codec)?;
     write_frame(out, header, frame, codec, &sections);
@@ -348,21 +361,77 @@ pub fn encode_delta_into(
     for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
         let mut mask = Vec::new();
         m.encode(&mut mask);
-        let (compression, payload) =
-            codec::compress::compress(&mask, codec.compression(), codec.level())?;
-        sections.push(EncodedSection {
-            info: SectionInfo {
-                tag,
-                compression,
-                encoded_len: payload.len() as u64,
-                decoded_len: mask.len() as u64,
-            },
-            payload,
-        });
+        sections.push(compressed_section(tag, &mask, codec)?);
     }
     sections.extend(codec::encode_sections(frame, codec)?);
     write_frame(out, header, frame, codec, &sections);
     Ok(())
+}
+
+/// Encodes a `reprojection` frame: at the pixels of `touched`, the display removes the positions
+/// `removals` lists (one entry per touched pixel, in order) from its reprojected runs and inserts
+/// the normal fragments of `inserts`, which must hold none outside `touched`.
+pub fn encode_reprojection_into(
+    out: &mut Vec<u8>,
+    header: &FrameHeader,
+    touched: &PixelMask,
+    removals: &Removals,
+    inserts: &DeepFrame,
+    codec: Codec,
+) -> Result<(), WireError> {
+    if header.transfer != TransferMethod::Reprojection || header.fixup {
+        return Err(WireError::Encode(
+            "encode_reprojection_into writes reprojection frames only".into(),
+        ));
+    }
+    let pixels = u64::from(inserts.width()) * u64::from(inserts.height());
+    if u64::from(touched.frame_pixels()) != pixels {
+        return Err(WireError::Encode(format!(
+            "the mask covers {} pixels, the frame has {pixels}",
+            touched.frame_pixels()
+        )));
+    }
+    if removals.pixel_count() != touched.len() as usize {
+        return Err(WireError::Encode(format!(
+            "{} removal entries for {} touched pixels",
+            removals.pixel_count(),
+            touched.len()
+        )));
+    }
+    let outside = outside_mask(inserts, touched);
+    if outside > 0 {
+        return Err(WireError::Encode(format!(
+            "{outside} fragments lie outside the pixel mask"
+        )));
+    }
+    let mut bytes = Vec::new();
+    touched.encode(&mut bytes);
+    let mut sections = vec![compressed_section(SectionTag::Mask, &bytes, codec)?];
+    bytes.clear();
+    removals.encode(&mut bytes);
+    sections.push(compressed_section(SectionTag::Removals, &bytes, codec)?);
+    sections.extend(codec::encode_sections(inserts, codec)?);
+    write_frame(out, header, inserts, codec, &sections);
+    Ok(())
+}
+
+/// A section outside the codec's own, compressed with the codec's compressor.
+fn compressed_section(
+    tag: SectionTag,
+    bytes: &[u8],
+    codec: Codec,
+) -> Result<EncodedSection, WireError> {
+    let (compression, payload) =
+        codec::compress::compress(bytes, codec.compression(), codec.level())?;
+    Ok(EncodedSection {
+        info: SectionInfo {
+            tag,
+            compression,
+            encoded_len: payload.len() as u64,
+            decoded_len: bytes.len() as u64,
+        },
+        payload,
+    })
 }
 
 /// Fragments of `frame` at pixels outside `mask`.
@@ -494,12 +563,19 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
                 "a difference frame holds at most 2^32 - 1 pixels",
             )
         })?;
-    let (changed, stale, sections) = if parsed.info.header.transfer == TransferMethod::Difference {
-        let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
-        let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
-        (Some(mask), Some(stale), &parsed.sections[2..])
-    } else {
-        (None, None, &parsed.sections[..])
+    let (changed, stale, removals, sections) = match parsed.info.header.transfer {
+        TransferMethod::Difference => {
+            let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
+            let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
+            (Some(mask), Some(stale), None, &parsed.sections[2..])
+        }
+        TransferMethod::Reprojection => {
+            let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
+            let removals =
+                Removals::decode(&decoded.remove(0), parsed.sections[1].offset, mask.len())?;
+            (Some(mask), None, Some(removals), &parsed.sections[2..])
+        }
+        _ => (None, None, None, &parsed.sections[..]),
     };
     let frame = codec::decode_sections(
         parsed.info.codec,
@@ -525,6 +601,7 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
         frame,
         changed,
         stale,
+        removals,
     })
 }
 
@@ -636,6 +713,12 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
             .chain(codec_sections.iter().copied())
             .collect();
         &with_mask
+    } else if transfer == TransferMethod::Reprojection {
+        with_mask = [SectionTag::Mask, SectionTag::Removals]
+            .into_iter()
+            .chain(codec_sections.iter().copied())
+            .collect();
+        &with_mask
     } else {
         codec_sections
     };
@@ -705,7 +788,11 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
                 ),
             ));
         }
-        let (lo, hi) = want.decoded_range(pixels, u64::from(fragment_count));
+        let (lo, hi) = if want == SectionTag::Removals {
+            want.decoded_range(pixels, options.max_fragments)
+        } else {
+            want.decoded_range(pixels, u64::from(fragment_count))
+        };
         if decoded_len < lo || decoded_len > hi {
             let need = if lo == hi {
                 format!("exactly {lo}")

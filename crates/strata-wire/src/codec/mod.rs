@@ -223,6 +223,9 @@ pub enum SectionTag {
     /// Difference transfer: pixels not replaced whose runs changed depth but not colour, so the
     /// display's copy is stale there (see `strata-remote`'s difference module).
     Stale = 33,
+    /// Reprojection transfer: the positions each touched pixel loses ([`crate::Removals`]),
+    /// after the mask and before the codec's sections.
+    Removals = 34,
 }
 
 impl SectionTag {
@@ -236,6 +239,7 @@ impl SectionTag {
             19 => Some(SectionTag::Object),
             32 => Some(SectionTag::Mask),
             33 => Some(SectionTag::Stale),
+            34 => Some(SectionTag::Removals),
             _ => None,
         }
     }
@@ -250,6 +254,7 @@ impl SectionTag {
             SectionTag::Object => "object",
             SectionTag::Mask => "mask",
             SectionTag::Stale => "stale",
+            SectionTag::Removals => "removals",
         }
     }
 
@@ -277,6 +282,15 @@ impl SectionTag {
             SectionTag::Mask | SectionTag::Stale => {
                 (1, pixels.saturating_mul(5).saturating_add(15))
             }
+            // The checksum, a count per pixel, a varint per removed position; `fragments` is the
+            // most the receiver holds (its `max_fragments`), not the message's count.
+            SectionTag::Removals => (
+                8,
+                pixels
+                    .saturating_add(fragments)
+                    .saturating_mul(5)
+                    .saturating_add(8),
+            ),
         }
     }
 }

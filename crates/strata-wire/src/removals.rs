@@ -1,0 +1,226 @@
+//! The removal list of a `reprojection` frame (seed 000 ch. 5, fig. 5.10's orange fragments).
+//!
+//! Both ends of a reprojection link hold the same per-pixel lists of normal fragments and move
+//! them to the new camera with the same arithmetic, so they agree on every pixel's reprojected,
+//! sorted run. A removal therefore names a fragment by its **position in that run** — an exact
+//! identity — instead of by a depth to be matched within a threshold, the merge the seed found
+//! ambiguous (fig. 5.8, 5.9).
+//!
+//! The list has one entry per pixel of the frame's `mask` (the touched pixels), in mask order:
+//! the positions that pixel loses, strictly increasing. A touched pixel may lose nothing and only
+//! gain inserts. `checksum` is a digest of the state the sender holds after the frame is applied;
+//! a receiver whose own digest differs has diverged (a different floating-point platform, a lost
+//! message) and must ask for a reset.
+//!
+//! # Wire encoding (section tag 34)
+//!
+//! ```text
+//! checksum   u64
+//! per touched pixel, in mask order:
+//!   count    varint        positions removed at this pixel (≤ 65 536)
+//!   first    varint        the first position
+//!   gaps     varint × (count − 1)   each next position minus the previous, minus one
+//! ```
+
+use crate::bytes::{Reader, put_varint};
+use crate::error::WireError;
+
+/// Most positions one pixel may lose in one frame (a pixel's run is shorter in practice; the
+/// limit keeps a hostile count from promising more work than its bytes could describe).
+pub const MAX_REMOVALS_PER_PIXEL: u32 = 1 << 16;
+
+/// The positions each touched pixel loses, and the sender's state digest.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Removals {
+    checksum: u64,
+    /// `offsets[k]..offsets[k + 1]` indexes `positions` for touched pixel `k`.
+    offsets: Vec<u32>,
+    positions: Vec<u32>,
+}
+
+impl Removals {
+    /// An empty list with the sender's state digest.
+    pub fn new(checksum: u64) -> Self {
+        Removals {
+            checksum,
+            offsets: vec![0],
+            positions: Vec::new(),
+        }
+    }
+
+    /// Empties the list, keeping its capacity.
+    pub fn clear(&mut self, checksum: u64) {
+        self.checksum = checksum;
+        self.offsets.clear();
+        self.offsets.push(0);
+        self.positions.clear();
+    }
+
+    /// Sets the state digest.
+    pub fn set_checksum(&mut self, checksum: u64) {
+        self.checksum = checksum;
+    }
+
+    /// Appends the next touched pixel's positions, which must be strictly increasing.
+    ///
+    /// # Panics
+    /// If they are not, or if there are more than [`MAX_REMOVALS_PER_PIXEL`] (a sender's bug).
+    pub fn push_pixel(&mut self, positions: impl IntoIterator<Item = u32>) {
+        let start = self.positions.len();
+        self.positions.extend(positions);
+        let new = &self.positions[start..];
+        assert!(
+            new.windows(2).all(|w| w[0] < w[1]),
+            "removal positions must be strictly increasing"
+        );
+        assert!(new.len() <= MAX_REMOVALS_PER_PIXEL as usize);
+        self.offsets.push(self.positions.len() as u32);
+    }
+
+    /// The state digest.
+    pub fn checksum(&self) -> u64 {
+        self.checksum
+    }
+
+    /// Touched pixels described.
+    pub fn pixel_count(&self) -> usize {
+        self.offsets.len() - 1
+    }
+
+    /// The positions touched pixel `k` loses.
+    pub fn pixel(&self, k: usize) -> &[u32] {
+        &self.positions[self.offsets[k] as usize..self.offsets[k + 1] as usize]
+    }
+
+    /// Positions removed over all pixels.
+    pub fn total(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Appends the wire encoding.
+    pub fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.checksum.to_le_bytes());
+        for k in 0..self.pixel_count() {
+            let p = self.pixel(k);
+            put_varint(out, p.len() as u32);
+            let mut prev: Option<u32> = None;
+            for &i in p {
+                put_varint(out, prev.map_or(i, |q| i - q - 1));
+                prev = Some(i);
+            }
+        }
+    }
+
+    /// Decodes a list for `touched` pixels from `bytes`, which start at message offset `base`.
+    pub fn decode(bytes: &[u8], base: u64, touched: u32) -> Result<Self, WireError> {
+        let mut r = Reader::new(bytes, base);
+        let checksum = r.u64("removals checksum")?;
+        // Every pixel costs at least one byte: the allocation is bounded by the input.
+        if u64::from(touched) > r.remaining() as u64 {
+            return Err(WireError::section(
+                "removals",
+                r.offset(),
+                format!(
+                    "{touched} touched pixels need at least {touched} bytes, {} remain",
+                    r.remaining()
+                ),
+            ));
+        }
+        let mut out = Removals::new(checksum);
+        out.offsets.reserve(touched as usize);
+        for _ in 0..touched {
+            let at = r.offset();
+            let count = r.varint("removal count")?;
+            if count > MAX_REMOVALS_PER_PIXEL || count as usize > r.remaining() {
+                return Err(WireError::invalid(
+                    "removal count",
+                    at,
+                    count,
+                    format!(
+                        "at most {MAX_REMOVALS_PER_PIXEL} per pixel, one byte each ({} remain)",
+                        r.remaining()
+                    ),
+                ));
+            }
+            let mut next: u64 = 0;
+            for _ in 0..count {
+                let at = r.offset();
+                let v = u64::from(r.varint("removal position")?) + next;
+                let position = u32::try_from(v).map_err(|_| {
+                    WireError::invalid("removal position", at, v, "positions are u32")
+                })?;
+                out.positions.push(position);
+                next = v + 1;
+            }
+            out.offsets.push(out.positions.len() as u32);
+        }
+        if r.remaining() != 0 {
+            return Err(WireError::section(
+                "removals",
+                r.offset(),
+                format!("{} bytes follow the last touched pixel", r.remaining()),
+            ));
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn round_trip_and_layout() {
+        let mut r = Removals::new(0x0102_0304_0506_0708);
+        r.push_pixel([]);
+        r.push_pixel([0, 1, 5]);
+        r.push_pixel([300]);
+        let mut bytes = Vec::new();
+        r.encode(&mut bytes);
+        assert_eq!(&bytes[..8], &0x0102_0304_0506_0708u64.to_le_bytes());
+        assert_eq!(&bytes[8..], &[0, 3, 0, 0, 3, 1, 0xAC, 0x02]);
+        assert_eq!(Removals::decode(&bytes, 0, 3).unwrap(), r);
+        assert_eq!(r.pixel(1), &[0, 1, 5]);
+        assert_eq!(r.total(), 4);
+    }
+
+    #[test]
+    fn hostile_lists_are_errors() {
+        let mut ok = Vec::new();
+        Removals::new(7).encode(&mut ok);
+        for (bytes, touched) in [
+            (vec![0u8; 7], 0),                      // short checksum
+            (ok.clone(), 1),                        // a pixel missing
+            ([ok.clone(), vec![0, 0]].concat(), 1), // trailing bytes
+            ([ok.clone(), vec![5, 1]].concat(), 1), // count beyond the bytes
+            ([ok.clone(), vec![0xFF; 5]].concat(), 1),
+            (
+                [ok.clone(), vec![2, 0xFF, 0xFF, 0xFF, 0xFF, 0x0F, 1]].concat(),
+                1,
+            ), // position overflow
+            (ok.clone(), u32::MAX),
+        ] {
+            assert!(Removals::decode(&bytes, 0, touched).is_err(), "{bytes:?}");
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn any_list_round_trips(pixels in proptest::collection::vec(
+            proptest::collection::btree_set(0u32..5000, 0..20), 0..50), checksum in any::<u64>()) {
+            let mut r = Removals::new(checksum);
+            for p in &pixels {
+                r.push_pixel(p.iter().copied());
+            }
+            let mut bytes = Vec::new();
+            r.encode(&mut bytes);
+            prop_assert_eq!(Removals::decode(&bytes, 0, pixels.len() as u32).unwrap(), r);
+        }
+
+        #[test]
+        fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..64), n in 0u32..40) {
+            let _ = Removals::decode(&bytes, 0, n);
+        }
+    }
+}
