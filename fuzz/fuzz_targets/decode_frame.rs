@@ -13,7 +13,7 @@
 use libfuzzer_sys::fuzz_target;
 use strata_wire::{
     DecodeOptions, FrameHeader, FrameMessage, Message, Request, decode, decode_error, decode_frame,
-    encode_delta_into, encode_error_into, encode_frame_into, inspect_frame, parse_prefix,
+    encode_delta_into, encode_error_into, encode_reprojection_into, encode_frame_into, inspect_frame, parse_prefix,
 };
 
 /// The header without its matrices, which are compared as bits (a NaN is not equal to itself).
@@ -38,14 +38,18 @@ fn assert_same(a: &FrameMessage, b: &FrameMessage) {
     );
     assert_eq!(without_matrices(&a.header), without_matrices(&b.header));
     assert_eq!((&a.changed, &a.stale), (&b.changed, &b.stale));
+    assert_eq!(a.removals, b.removals);
 }
 
 /// Encodes a decoded frame message again, as a relay would.
 fn encode(m: &FrameMessage) -> Vec<u8> {
     let mut out = Vec::new();
-    let written = match (&m.changed, &m.stale) {
-        (Some(changed), Some(stale)) => {
+    let written = match (&m.changed, &m.stale, &m.removals) {
+        (Some(changed), Some(stale), _) => {
             encode_delta_into(&mut out, &m.header, changed, stale, &m.frame, m.codec)
+        }
+        (Some(touched), None, Some(removals)) => {
+            encode_reprojection_into(&mut out, &m.header, touched, removals, &m.frame, m.codec)
         }
         _ => encode_frame_into(&mut out, &m.header, &m.frame, m.codec),
     };

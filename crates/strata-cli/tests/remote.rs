@@ -64,6 +64,8 @@ fn two_node_processes_merge_into_the_exact_image() {
         vec!["--transfer", "full"],
         vec!["--transfer", "depth-limited", "--layers", "32"],
         vec!["--transfer", "difference"],
+        // Within 2 steps of the exact render: no bad pixels at the default threshold.
+        vec!["--transfer", "reprojection"],
     ] {
         let out = strata()
             .args([
@@ -108,10 +110,9 @@ fn display_errors_are_clear() {
             &["--transfer", "full", "--layers", "3"],
             "--layers and --opacity-threshold apply",
         ),
-        (&["--transfer", "reprojection"], "not available yet"),
         (
             &["--tolerance", "2"],
-            "--tolerance applies to --transfer difference",
+            "--tolerance applies to --transfer difference and reprojection",
         ),
         (&["--size", "0x10"], "width and height"),
         (&["--frames", "0"], "--frames must be at least 1"),

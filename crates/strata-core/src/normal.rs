@@ -89,11 +89,19 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// The angle between two vectors, in f64 as atan2(|a×b|, a·b) (acos of an f32 dot product
+    /// cannot resolve angles below ~3·10⁻⁴).
     fn angle_between(a: [f32; 3], b: [f32; 3]) -> f32 {
-        let la = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-        let lb = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-        let c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (la * lb);
-        c.clamp(-1.0, 1.0).acos()
+        let a = a.map(f64::from);
+        let b = b.map(f64::from);
+        let cross = [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ];
+        let c = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        let d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        c.atan2(d) as f32
     }
 
     #[test]

@@ -30,7 +30,8 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use strata_core::{DeepFrame, Rgb8Image};
+use glam::Mat4;
+use strata_core::{DeepFrame, ObjectId, Rgb8Image};
 use strata_scene::Scene;
 use strata_wire::{
     Codec, DecodeOptions, FrameMessage, Hello, MessageType, NodeStats, Request, RequestKind,
@@ -46,6 +47,7 @@ use crate::Transfer;
 use crate::difference::{NodeCopy, stale_shared};
 use crate::merge::{MAX_NODES, merge_resolve};
 use crate::report::{FrameStats, NodeFrame, NodeIncident};
+use crate::reprojection::{ReprojCopy, View, ambiguous};
 use crate::stream::{ReadError, read_message};
 
 /// What to compose with when a node's frame is missing.
@@ -68,8 +70,8 @@ pub struct DisplayConfig {
     pub transfer: Transfer,
     /// How they encode them.
     pub codec: Codec,
-    /// Difference transfer: colour changes of at most this many 8-bit steps are not sent (0:
-    /// exact; see the difference module).
+    /// Difference and reprojection transfers: colour errors of at most this many 8-bit steps
+    /// are not corrected (0: exact; see the difference and reprojection modules).
     pub tolerance: u8,
     /// First animation frame.
     pub first_frame: u64,
@@ -133,11 +135,6 @@ pub fn run(config: DisplayConfig, observer: &mut dyn Observer) -> Result<RunResu
             config.nodes.len()
         )));
     }
-    if config.transfer == Transfer::Reprojection {
-        return Err(DisplayError::Config(
-            "the reprojection transfer is not available yet".into(),
-        ));
-    }
     if config.width == 0 || config.height == 0 {
         return Err(DisplayError::Config(
             "the frame size must be at least 1x1".into(),
@@ -190,6 +187,10 @@ struct NodeState {
     up: bool,
     generation: u64,
     copy: NodeCopy,
+    /// Reprojection transfer: the node's held normal fragments.
+    reproj: ReprojCopy,
+    /// Reprojection transfer: the depth error bound of its last frame.
+    depth_error: f32,
     /// The next frame to request on this generation.
     next_request: u64,
     /// The first frame requested on this generation (its request carries `reset`).
@@ -219,6 +220,8 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             up: false,
             generation: 0,
             copy: NodeCopy::empty(config.width, config.height),
+            reproj: ReprojCopy::empty(config.width, config.height),
+            depth_error: 0.0,
             next_request: config.first_frame,
             first_request: config.first_frame,
             scene: config.scene.name.clone(),
@@ -232,6 +235,7 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
         .camera
         .projection(config.width, config.height)
         .to_cols_array();
+    let all_objects: Vec<ObjectId> = config.scene.objects.iter().map(|o| o.id).collect();
     let request = |frame: u64, node: usize, kind: RequestKind| -> Vec<u8> {
         let r = Request {
             frame_number: frame,
@@ -243,10 +247,9 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             transfer: config.transfer,
             codec: config.codec,
             kind,
-            tolerance: if config.transfer == Transfer::Difference {
-                config.tolerance
-            } else {
-                0
+            tolerance: match config.transfer {
+                Transfer::Difference | Transfer::Reprojection => config.tolerance,
+                _ => 0,
             },
         };
         let mut b = Vec::new();
@@ -346,21 +349,73 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             })
             .collect();
         let mut taking_part = vec![false; nodes.len()];
+        let reproj_view = (config.transfer == Transfer::Reprojection).then(|| {
+            View::new(
+                &config.scene,
+                &all_objects,
+                t,
+                (config.width, config.height),
+                Mat4::from_cols_array(&view),
+                Mat4::from_cols_array(&projection),
+            )
+        });
         for (i, n) in nodes.iter_mut().enumerate() {
             let s = &mut stats[i];
             match buffer.remove(&(i, t, false)) {
                 Some(a) => {
                     if t == n.first_request {
                         n.copy = NodeCopy::empty(config.width, config.height);
+                        n.reproj = ReprojCopy::empty(config.width, config.height);
                     }
                     record(s, &a);
                     s.status = "ok";
                     let Arrival { msg, .. } = *a;
-                    match (msg.changed, msg.stale) {
-                        (Some(changed), Some(stale)) => {
+                    match (msg.changed, msg.stale, msg.removals, &reproj_view) {
+                        (Some(changed), Some(stale), None, None) => {
                             n.copy.apply_delta(&changed, &stale, &msg.frame)
                         }
-                        _ => n.copy.replace(msg.frame),
+                        (Some(touched), None, Some(removals), Some(v)) => {
+                            let applied = tokio::task::block_in_place(|| {
+                                n.reproj.apply(v, &touched, &removals, &msg.frame)
+                            });
+                            match applied {
+                                Ok(()) => {
+                                    n.depth_error = removals.depth_error();
+                                    n.copy.replace(n.reproj.held().to_frame())
+                                }
+                                Err(e) => {
+                                    // Both ends start over from an empty state.
+                                    let inc = NodeIncident {
+                                        frame: t,
+                                        node: n.addr.clone(),
+                                        what: format!("{e}; reconnecting"),
+                                    };
+                                    observer.incident(&inc);
+                                    incidents.push(inc);
+                                    s.status = "held";
+                                    n.up = false;
+                                    n.cmd.send(LinkCmd::Reconnect).await.ok();
+                                    continue;
+                                }
+                            }
+                        }
+                        (None, None, None, None) => n.copy.replace(msg.frame),
+                        _ => {
+                            let inc = NodeIncident {
+                                frame: t,
+                                node: n.addr.clone(),
+                                what: format!(
+                                    "sent a frame of another transfer than {}; reconnecting",
+                                    crate::transfer::name(config.transfer)
+                                ),
+                            };
+                            observer.incident(&inc);
+                            incidents.push(inc);
+                            s.status = "held";
+                            n.up = false;
+                            n.cmd.send(LinkCmd::Reconnect).await.ok();
+                            continue;
+                        }
                     }
                     taking_part[i] = true;
                 }
@@ -378,10 +433,23 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
         let mut merge_ms = apply_start.elapsed().as_secs_f64() * 1e3;
 
         // Difference: pixels shared between nodes need current depths from every node there.
-        if config.transfer == Transfer::Difference && nodes.len() > 1 {
+        // Reprojection: so do pixels where reprojected depths of two nodes are too close to order.
+        let fixups = match config.transfer {
+            Transfer::Difference | Transfer::Reprojection => nodes.len() > 1,
+            _ => false,
+        };
+        if fixups {
             let fix_start = Instant::now();
-            let copies: Vec<&NodeCopy> = nodes.iter().map(|n| &n.copy).collect();
-            let stale = tokio::task::block_in_place(|| stale_shared(&copies, &taking_part));
+            let stale = tokio::task::block_in_place(|| {
+                if config.transfer == Transfer::Difference {
+                    let copies: Vec<&NodeCopy> = nodes.iter().map(|n| &n.copy).collect();
+                    stale_shared(&copies, &taking_part)
+                } else {
+                    let frames: Vec<&DeepFrame> = nodes.iter().map(|n| n.copy.frame()).collect();
+                    let errors: Vec<f32> = nodes.iter().map(|n| n.depth_error).collect();
+                    ambiguous(&frames, &errors, &taking_part)
+                }
+            });
             let mut asked = Vec::new();
             for (i, m) in stale.into_iter().enumerate() {
                 if !m.is_empty() && nodes[i].up {
@@ -435,7 +503,15 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
                 if let Some(a) = buffer.remove(&(i, t, true)) {
                     record(&mut stats[i], &a);
                     if let Some(mask) = &a.msg.changed {
-                        nodes[i].copy.apply(mask, &a.msg.frame);
+                        match &reproj_view {
+                            // Exact runs for this frame's composition; the held state stays.
+                            Some(v) => {
+                                let runs =
+                                    tokio::task::block_in_place(|| v.shade_frame(&a.msg.frame));
+                                nodes[i].copy.apply(mask, &runs);
+                            }
+                            None => nodes[i].copy.apply(mask, &a.msg.frame),
+                        }
                     }
                 }
             }

@@ -26,20 +26,26 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use strata_core::{DeepFrame, ObjectId, PassTimings};
-use strata_raster::{FrameInput, Rasterizer};
+use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
 use strata_stores::{Method, MethodOptions};
 use strata_wire::{
     DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
-    TransferMethod, encode_delta_into, encode_error_into, encode_frame_into, seed_layout_bytes,
+    TransferMethod, encode_delta_into, encode_error_into, encode_frame_into,
+    encode_reprojection_into, seed_layout_bytes,
 };
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 
 use crate::difference::DiffEncoder;
+use crate::reprojection::{ReprojEncoder, View};
 use crate::select::{depth_limit, restrict};
 use crate::stream::{ReadError, read_message};
+
+/// Stores that keep every fragment whatever its colour bytes hold: the ones a node can render
+/// normal fragments with (the others read alpha, which a packed normal does not have).
+pub const EXACT_STORES: &[&str] = &["abuffer", "abuffer-array", "sbuffer"];
 
 /// Frames kept for fixup requests.
 const RECENT_FRAMES: usize = 8;
@@ -225,12 +231,12 @@ pub async fn serve_connection(stream: TcpStream, config: NodeConfig) -> Result<(
             .map_err(|e| e.to_string())?
     };
     let encode = {
-        let background = config.scene.background;
+        let config = config.clone();
         let out = out_tx.clone();
         let recent = recent.clone();
         std::thread::Builder::new()
             .name("strata-node-encode".into())
-            .spawn(move || encode_thread(background, encode_rx, out, recent))
+            .spawn(move || encode_thread(config, encode_rx, out, recent))
             .map_err(|e| e.to_string())?
     };
     let writer_task = tokio::spawn(async move {
@@ -256,8 +262,15 @@ pub async fn serve_connection(stream: TcpStream, config: NodeConfig) -> Result<(
             Ok(r) => r,
             Err(e) => break Err(format!("malformed request: {e}")),
         };
-        if request.transfer == TransferMethod::Reprojection {
-            break Err("this node does not implement the reprojection transfer yet".into());
+        if request.transfer == TransferMethod::Reprojection
+            && !EXACT_STORES.contains(&config.method.as_str())
+        {
+            break Err(format!(
+                "the reprojection transfer needs every fragment with its normal, from one of {}; \
+                 this node runs '{}'",
+                EXACT_STORES.join(", "),
+                config.method
+            ));
         }
         match request.kind {
             RequestKind::Render { .. } => {
@@ -327,6 +340,9 @@ fn render_thread(
         input.height = request.height;
         input.view = glam::Mat4::from_cols_array(&request.view);
         input.projection = glam::Mat4::from_cols_array(&request.projection);
+        if request.transfer == TransferMethod::Reprojection {
+            input.output = FragmentOutput::PackedNormal;
+        }
         let frame = method
             .clear(input.width, input.height)
             .and_then(|()| method.capture(&mut raster, &input, &mut PassTimings::new()))
@@ -364,12 +380,14 @@ fn header_for(request: &Request, fixup: bool) -> FrameHeader {
 }
 
 fn encode_thread(
-    background: [f32; 3],
+    config: NodeConfig,
     mut jobs: mpsc::Receiver<EncodeJob>,
     out: mpsc::Sender<Vec<u8>>,
     recent: Recent,
 ) {
+    let background = config.scene.background;
     let mut diff = DiffEncoder::new(background, 0);
+    let mut reproj = ReprojEncoder::new(0);
     while let Some(EncodeJob {
         request,
         frame,
@@ -420,8 +438,37 @@ fn encode_thread(
                     r,
                 )
             }
-            TransferMethod::Full | TransferMethod::Reprojection => {
-                // Reprojection requests are refused by the reader; full sends everything.
+            TransferMethod::Reprojection => {
+                if matches!(request.kind, RequestKind::Render { reset: true }) {
+                    reproj = ReprojEncoder::new(request.tolerance);
+                }
+                let view = View::new(
+                    &config.scene,
+                    &config.objects,
+                    request.frame_number,
+                    (request.width, request.height),
+                    glam::Mat4::from_cols_array(&request.view),
+                    glam::Mat4::from_cols_array(&request.projection),
+                );
+                let d = reproj.encode(&view, &frame);
+                let select_us = select_start.elapsed().as_micros() as u64;
+                let t = Instant::now();
+                let r = encode_reprojection_into(
+                    &mut bytes,
+                    &header,
+                    &d.touched,
+                    &d.removals,
+                    &d.inserts,
+                    request.codec,
+                );
+                (
+                    d.inserts.fragment_count() as u64,
+                    select_us,
+                    t.elapsed().as_micros() as u64,
+                    r,
+                )
+            }
+            TransferMethod::Full => {
                 let t = Instant::now();
                 let r = encode_frame_into(&mut bytes, &header, &frame, request.codec);
                 (rendered, 0, t.elapsed().as_micros() as u64, r)
@@ -439,7 +486,12 @@ fn encode_thread(
             frame_number: request.frame_number,
             fragments_rendered: rendered,
             fragments_sent: sent,
-            raw_bytes: seed_layout_bytes(pixels, sent),
+            // The seed's layout: 4-byte heads, 12-byte colour or 24-byte normal fragments.
+            raw_bytes: if request.transfer == TransferMethod::Reprojection {
+                seed_layout_bytes(pixels, sent) + 12 * sent
+            } else {
+                seed_layout_bytes(pixels, sent)
+            },
             render_us,
             select_us,
             encode_us,
@@ -493,9 +545,15 @@ fn fixup(recent: &Recent, request: &Request, mask: &PixelMask) -> Result<Vec<u8>
     let select_us = start.elapsed().as_micros() as u64;
     let t = Instant::now();
     let mut bytes = Vec::new();
+    // The reply is a difference fixup frame under either transfer (see strata-wire's control
+    // module): the runs as rendered, replacing nothing the display holds.
+    let header = FrameHeader {
+        transfer: TransferMethod::Difference,
+        ..header_for(request, true)
+    };
     encode_delta_into(
         &mut bytes,
-        &header_for(request, true),
+        &header,
         mask,
         &PixelMask::empty(mask.frame_pixels()),
         &runs,

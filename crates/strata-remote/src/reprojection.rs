@@ -193,7 +193,7 @@ impl View {
         let o = self.object(object)?;
         let eye = o.model_view.transform_point3(Vec3::from(surfel.position));
         let c = self.projection * eye.extend(1.0);
-        if !(c.w > 0.0) {
+        if c.w.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
         let iw = 1.0 / c.w;
@@ -218,7 +218,7 @@ impl View {
             Fragment {
                 depth,
                 color: Self::shade(o, surfel, eye),
-                object: object,
+                object,
             },
         ))
     }
@@ -254,6 +254,87 @@ impl View {
             surfel,
         })
     }
+}
+
+impl View {
+    /// The colour fragments the normal fragments of `normals` (rendered at this view) shade to,
+    /// runs sorted; fragments of unknown objects are left out.
+    pub fn shade_frame(&self, normals: &DeepFrame) -> DeepFrame {
+        let counts: Vec<u32> = (0..normals.offsets().len() - 1)
+            .map(|p| {
+                normals
+                    .run(p)
+                    .iter()
+                    .filter(|f| self.object(f.object).is_some())
+                    .count() as u32
+            })
+            .collect();
+        DeepFrame::build(normals.width(), normals.height(), &counts, |p, out| {
+            out.extend(
+                normals
+                    .run(p)
+                    .iter()
+                    .filter_map(|f| self.entry(p as u32, f).map(|e| e.fragment)),
+            )
+        })
+        .unwrap_or_else(|_| DeepFrame::empty(normals.width(), normals.height()))
+    }
+}
+
+/// For each node, the pixels whose order against another node's fragments the display cannot
+/// trust: where fragments of two nodes lie within `2 · max(depth_error)` of each other (the bound
+/// each node sent with its frame). Every node with fragments at such a pixel is asked for its
+/// exact run there (nodes not taking part this frame are asked for nothing).
+pub fn ambiguous(
+    frames: &[&DeepFrame],
+    depth_error: &[f32],
+    taking_part: &[bool],
+) -> Vec<PixelMask> {
+    assert_eq!(frames.len(), taking_part.len());
+    assert_eq!(frames.len(), depth_error.len());
+    let Some(first) = frames.first() else {
+        return Vec::new();
+    };
+    let pixels = first.offsets().len() - 1;
+    let slack = 2.0
+        * depth_error
+            .iter()
+            .zip(taking_part)
+            .filter(|&(_, &t)| t)
+            .map(|(&e, _)| e)
+            .fold(0f32, f32::max);
+    let flags: Vec<bool> = (0..pixels)
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|p| {
+            let mut depths: Vec<(f32, usize)> = Vec::new();
+            for (i, f) in frames.iter().enumerate() {
+                depths.extend(f.run(p).iter().map(|x| (x.depth, i)));
+            }
+            if depths.len() < 2 || slack <= 0.0 {
+                return false;
+            }
+            depths.sort_by(|a, b| a.0.total_cmp(&b.0));
+            depths
+                .windows(2)
+                .any(|w| w[0].1 != w[1].1 && w[1].0 - w[0].0 <= slack)
+        })
+        .collect();
+    frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let mut b = MaskBuilder::new(pixels as u32);
+            if taking_part[i] {
+                for (p, &flag) in flags.iter().enumerate() {
+                    if flag && !f.run(p).is_empty() {
+                        b.push(p as u32);
+                    }
+                }
+            }
+            b.finish()
+        })
+        .collect()
 }
 
 /// Per pixel, a sorted run of entries: what one node's fragments are on both ends.
@@ -521,9 +602,7 @@ pub fn merge_pixel(projected: &[Entry], removed: &[u32], inserts: &[Entry], out:
 #[inline]
 fn close(a: &Fragment, b: &Fragment, tolerance: u8) -> bool {
     let (x, y) = (a.color.0, b.color.0);
-    a.object == b.object
-        && x[3] == y[3]
-        && (0..3).all(|c| x[c].abs_diff(y[c]) <= tolerance)
+    a.object == b.object && x[3] == y[3] && (0..3).all(|c| x[c].abs_diff(y[c]) <= tolerance)
 }
 
 /// What a node sends for one frame.
@@ -556,6 +635,8 @@ struct BandOut {
     /// Inserted normal fragments, per touched pixel in order.
     insert_counts: Vec<u32>,
     inserts: Vec<Fragment>,
+    /// Largest |kept depth − rendered depth|.
+    depth_error: f32,
 }
 
 impl ReprojEncoder {
@@ -630,7 +711,12 @@ impl ReprojEncoder {
                             .iter()
                             .zip(&truth)
                             .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
-                    if !ok {
+                    if ok {
+                        for (m, (n, _)) in merged.iter().zip(&truth) {
+                            let e = (m.fragment.depth - n.fragment.depth).abs();
+                            out.depth_error = out.depth_error.max(e);
+                        }
+                    } else {
                         out.entries.truncate(start);
                         removed.clear();
                         removed.extend(0..held.len() as u32);
@@ -664,7 +750,9 @@ impl ReprojEncoder {
         let mut removals = Removals::new(0);
         let mut insert_counts = vec![0u32; pixels];
         let mut insert_list: Vec<Fragment> = Vec::new();
+        let mut depth_error = 0f32;
         for o in outs {
+            depth_error = depth_error.max(o.depth_error);
             for c in o.counts {
                 let last = *offsets.last().unwrap_or(&0);
                 offsets.push(last + c);
@@ -685,6 +773,7 @@ impl ReprojEncoder {
             view: Some(view.clone()),
         };
         removals.set_checksum(held.digest());
+        removals.set_depth_error(depth_error);
         let mut starts = Vec::with_capacity(pixels + 1);
         let mut acc = 0u32;
         for &c in &insert_counts {
@@ -741,6 +830,9 @@ pub enum ApplyError {
     },
 }
 
+/// One band's new runs: the entries and each pixel's count.
+type BandRuns = (Vec<Entry>, Vec<u32>);
+
 /// The display's side: one node's held fragments.
 #[derive(Clone, Debug)]
 pub struct ReprojCopy {
@@ -791,17 +883,18 @@ impl ReprojCopy {
         }
         let w = width as usize;
         let bands = (height as usize).div_ceil(BAND_ROWS);
-        let outs: Vec<Result<(Vec<Entry>, Vec<u32>), ApplyError>> = (0..bands)
+        let outs: Vec<Result<BandRuns, ApplyError>> = (0..bands)
             .into_par_iter()
             .map(|b| {
                 let mut entries = Vec::new();
                 let mut counts = Vec::new();
                 let mut ins: Vec<Entry> = Vec::new();
                 let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-                for p in rows.start * w..rows.end * w {
+                let first = rows.start * w;
+                for (p, &k) in (first..).zip(&slot[first..rows.end * w]) {
                     let start = entries.len();
                     let held = projected.run(p);
-                    match slot[p] {
+                    match k {
                         u32::MAX => entries.extend_from_slice(held),
                         k => {
                             let removed = removals.pixel(k as usize);
@@ -884,7 +977,12 @@ mod tests {
     }
 
     /// Renders `objects` of `scene` at `frame` as normal or shaded fragments, `W` × `H`.
-    fn render(scene: &Scene, objects: &[ObjectId], frame: u64, output: FragmentOutput) -> DeepFrame {
+    fn render(
+        scene: &Scene,
+        objects: &[ObjectId],
+        frame: u64,
+        output: FragmentOutput,
+    ) -> DeepFrame {
         let mut input = FrameInput::from_scene(scene, frame as u32);
         input.objects.retain(|o| objects.contains(&o.id));
         input.output = output;
@@ -1031,7 +1129,12 @@ mod tests {
         let mut tie = e(0.5, 1);
         tie.surfel.position[0] = 9.0;
         let mut out = Vec::new();
-        merge_pixel(&[e(0.1, 0), e(0.5, 1), e(0.9, 2)], &[0], &[tie, e(0.95, 3)], &mut out);
+        merge_pixel(
+            &[e(0.1, 0), e(0.5, 1), e(0.9, 2)],
+            &[0],
+            &[tie, e(0.95, 3)],
+            &mut out,
+        );
         assert_eq!(out, [e(0.5, 1), tie, e(0.9, 2), e(0.95, 3)]);
     }
 }

@@ -22,13 +22,7 @@ pub fn parse(
             opacity_threshold,
         },
         "difference" => Transfer::Difference,
-        "reprojection" => {
-            return Err(
-                "the reprojection transfer (seed 000 ch. 5) is not available yet: it needs normal \
-                 fragments from the rasterizer; use full, depth-limited or difference"
-                    .into(),
-            );
-        }
+        "reprojection" => Transfer::Reprojection,
         other => {
             return Err(format!(
                 "unknown transfer '{other}': expected one of {}",
@@ -90,11 +84,11 @@ mod tests {
             ("depth-limited", Some(2), Some(1.5)),
             ("full", Some(2), None),
             ("bilateral", None, None),
-            ("reprojection", None, None),
+            ("reprojection", Some(3), None),
         ] {
             assert!(parse(n, l, o).is_err(), "{n} {l:?} {o:?}");
         }
-        for n in ["full", "difference"] {
+        for n in ["full", "difference", "reprojection"] {
             assert_eq!(name(parse(n, None, None).unwrap()), n);
         }
     }

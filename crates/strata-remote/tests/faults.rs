@@ -197,9 +197,9 @@ fn bad_configurations_are_errors() {
     let mut c = config(&s, vec![], OnFault::Hold);
     assert!(display::run(c.clone(), &mut ()).is_err());
     c.nodes = vec!["127.0.0.1:1".into()];
-    c.transfer = Transfer::Reprojection;
+    c.width = 0;
     assert!(display::run(c.clone(), &mut ()).is_err());
-    c.transfer = Transfer::Full;
+    c.width = 64;
     c.in_flight = 0;
     assert!(display::run(c, &mut ()).is_err());
     let bad = NodeConfig {

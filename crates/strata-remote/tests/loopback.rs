@@ -308,3 +308,129 @@ fn a_dead_node_is_reported_held_and_reconnected() {
     };
     assert_exact(&s, &keep);
 }
+
+/// Largest channel difference between the display's frames and the exact render.
+fn max_error(scene: &Scene, keep: &Keep) -> Vec<u8> {
+    let mut raster = Rasterizer::default();
+    keep.images
+        .iter()
+        .map(|(f, image)| {
+            let want = exact_image(scene, *f, W, H, &mut raster).unwrap();
+            image
+                .as_bytes()
+                .iter()
+                .zip(want.as_bytes())
+                .map(|(a, b)| a.abs_diff(*b))
+                .max()
+                .unwrap_or(0)
+        })
+        .collect()
+}
+
+#[test]
+fn reprojection_with_overlapping_nodes_stays_within_its_bound_over_a_long_sequence() {
+    // The torus (1) pierces the cube (0) and the glass sphere (4); 36 frames turn the scene by
+    // 180°. Every frame must stay within tolerance + 1 steps (the +1 is the normal packing) of
+    // the exact render: no drift, and no misordering where the nodes' objects intersect.
+    let s = scene();
+    let (a, b) = (Node::start(&s, &[0, 3]), Node::start(&s, &[1, 2, 4]));
+    let mut keep = Keep::default();
+    let mut cfg = config(&s, &[&a, &b], Transfer::Reprojection, 36);
+    cfg.tolerance = 1;
+    let r = display::run(cfg, &mut keep).unwrap();
+    assert!(r.incidents.is_empty(), "{:?}", r.incidents);
+    assert_eq!(keep.images.len(), 36);
+    let errors = max_error(&s, &keep);
+    assert!(errors.iter().all(|&e| e <= 2), "{errors:?}");
+    let first = &r.per_frame[0];
+    assert_eq!(first.fragments_sent(), first.fragments_rendered());
+    for f in &r.per_frame[1..] {
+        assert!(
+            f.fragments_sent() < f.fragments_rendered(),
+            "frame {}: {} of {}",
+            f.frame,
+            f.fragments_sent(),
+            f.fragments_rendered()
+        );
+    }
+    assert!(
+        r.per_frame
+            .iter()
+            .any(|f| f.nodes.iter().any(|n| n.fixup_pixels > 0)),
+        "intersecting objects on two nodes need fixups"
+    );
+}
+
+#[test]
+fn reprojection_with_zero_tolerance_is_within_the_normal_packing() {
+    let s = scene();
+    let (a, b) = (Node::start(&s, &[0, 1]), Node::start(&s, &[2, 3, 4]));
+    let mut keep = Keep::default();
+    let r = display::run(config(&s, &[&a, &b], Transfer::Reprojection, 6), &mut keep).unwrap();
+    assert!(r.incidents.is_empty(), "{:?}", r.incidents);
+    let errors = max_error(&s, &keep);
+    assert!(errors.iter().all(|&e| e <= 1), "{errors:?}");
+}
+
+#[test]
+fn a_static_scene_sends_nothing_after_the_first_frame_under_reprojection() {
+    let mut s = open_scene("mixed", &SearchPath::new([])).unwrap();
+    s.animation = None;
+    let s = Arc::new(s);
+    let (a, b) = (Node::start(&s, &[0, 1]), Node::start(&s, &[2, 3, 4]));
+    let mut keep = Keep::default();
+    let mut cfg = config(&s, &[&a, &b], Transfer::Reprojection, 4);
+    cfg.tolerance = 1;
+    let r = display::run(cfg, &mut keep).unwrap();
+    assert!(r.per_frame[0].fragments_sent() > 0);
+    for f in &r.per_frame[1..] {
+        assert_eq!(f.fragments_sent(), 0, "frame {}", f.frame);
+    }
+    let errors = max_error(&s, &keep);
+    assert!(errors.iter().all(|&e| e <= 1), "{errors:?}");
+}
+
+#[test]
+fn a_node_whose_store_drops_fragments_refuses_reprojection() {
+    let s = scene();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let listener = runtime
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let config = NodeConfig {
+        scene: s.clone(),
+        objects: s.objects.iter().map(|o| o.id).collect(),
+        method: "kbuffer".into(),
+        method_options: MethodOptions::default(),
+        limits: DecodeOptions::default(),
+    };
+    runtime.spawn(serve(listener, config, |_| {}));
+    let mut cfg = config_for(&s, vec![addr], Transfer::Reprojection, 2);
+    cfg.timeout = Duration::from_secs(2);
+    let r = display::run(cfg, &mut ()).unwrap();
+    assert!(
+        r.incidents
+            .iter()
+            .any(|i| i.what.contains("needs every fragment") && i.what.contains("kbuffer")),
+        "{:?}",
+        r.incidents
+    );
+    runtime.shutdown_background();
+}
+
+fn config_for(
+    scene: &Arc<Scene>,
+    nodes: Vec<String>,
+    transfer: Transfer,
+    frames: u64,
+) -> DisplayConfig {
+    DisplayConfig {
+        nodes,
+        ..config(scene, &[], transfer, frames)
+    }
+}

@@ -15,9 +15,10 @@
 //!  21  flags              u8      bit 0: reset (difference: the display holds nothing of this node)
 //!  22  codec              u8      as in the frame header
 //!  23  codec_param        u8
-//!  24  transfer           u8      as in the frame header (fixup: 2)
+//!  24  transfer           u8      as in the frame header (fixup: 2 or 3)
 //!  25  transfer_flags     u8
-//!  26  tolerance          u8      difference: largest colour change (8-bit steps) not sent
+//!  26  tolerance          u8      difference, reprojection: largest colour error (8-bit steps)
+//!                                  a held fragment may keep; 0 for the other transfers
 //!  27  reserved           u8      0
 //!  28  layers             u32
 //!  32  opacity_threshold  f32
@@ -28,10 +29,12 @@
 //! ```
 //!
 //! A *render* request asks for frame `frame_number` seen through `view`/`projection`, chosen by
-//! `transfer`, encoded with `codec`. A *fixup* request (difference transfer) asks for exact copies
-//! of the node's runs at the masked pixels of an already-sent frame `frame_number`: pixels the
-//! display now shares with another node, where the depths it holds may be stale although the
-//! colour was not (see `strata-remote`'s difference module).
+//! `transfer`, encoded with `codec`. A *fixup* request (difference and reprojection transfers)
+//! asks for exact copies of the node's runs at the masked pixels of an already-sent frame
+//! `frame_number`: pixels the display shares with another node, where the depths it holds may be
+//! stale although the colour was not (difference), or are reprojected and too close to another
+//! node's to order (reprojection). The reply is a difference frame with the fixup flag, its runs
+//! as the node rendered them (normal fragments under reprojection); it changes no held state.
 //!
 //! # Error (type 4, either direction)
 //!
@@ -304,12 +307,15 @@ impl Request {
         let layers = r.u32("layers")?;
         let threshold = r.f32("opacity_threshold")?;
         let transfer = transfer_from_fields(transfer_kind, transfer_flags, layers, threshold)?;
-        if tolerance != 0 && transfer != TransferMethod::Difference {
+        if tolerance != 0
+            && transfer != TransferMethod::Difference
+            && transfer != TransferMethod::Reprojection
+        {
             return Err(WireError::invalid(
                 "tolerance",
                 tol_at,
                 tolerance,
-                "only the difference transfer has a tolerance",
+                "only the difference and reprojection transfers have a tolerance",
             ));
         }
         let mut view = [0f32; 16];
@@ -324,7 +330,10 @@ impl Request {
         let mask_len = r.u32("mask_len")? as usize;
         let kind = match (kind, rflags) {
             (0, f) if f <= 1 && mask_len == 0 => RequestKind::Render { reset: f == 1 },
-            (1, 0) if transfer == TransferMethod::Difference => {
+            (1, 0)
+                if transfer == TransferMethod::Difference
+                    || transfer == TransferMethod::Reprojection =>
+            {
                 let m = r.take(mask_len, "mask")?;
                 let pixels = u32::try_from(pixels).map_err(|_| {
                     WireError::invalid("width·height", w_at, pixels, "too many pixels")
@@ -336,7 +345,7 @@ impl Request {
                     "kind",
                     kind_at,
                     format!("kind {kind}, flags {rflags:#04x}, mask_len {mask_len}"),
-                    "a render request (0, flags ≤ 1, no mask) or a difference fixup (1, flags 0)",
+                    "a render request (0, flags ≤ 1, no mask) or a difference or reprojection fixup (1, flags 0)",
                 ));
             }
         };
@@ -579,7 +588,7 @@ mod tests {
     }
 
     #[test]
-    fn a_fixup_needs_the_difference_transfer() {
+    fn a_fixup_needs_the_difference_or_reprojection_transfer() {
         let r = request(
             RequestKind::Fixup(PixelMask::full(32)),
             TransferMethod::Full,

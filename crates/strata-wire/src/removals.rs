@@ -10,12 +10,15 @@
 //! the positions that pixel loses, strictly increasing. A touched pixel may lose nothing and only
 //! gain inserts. `checksum` is a digest of the state the sender holds after the frame is applied;
 //! a receiver whose own digest differs has diverged (a different floating-point platform, a lost
-//! message) and must ask for a reset.
+//! message) and must ask for a reset. `depth_error` bounds how far (in window depth) any fragment
+//! the receiver keeps lies from the depth the sender rendered at that pixel: a receiver merging
+//! several senders treats fragments of different senders closer than that as unordered.
 //!
 //! # Wire encoding (section tag 34)
 //!
 //! ```text
-//! checksum   u64
+//! checksum     u64
+//! depth_error  f32      finite, ≥ 0
 //! per touched pixel, in mask order:
 //!   count    varint        positions removed at this pixel (≤ 65 536)
 //!   first    varint        the first position
@@ -30,9 +33,10 @@ use crate::error::WireError;
 pub const MAX_REMOVALS_PER_PIXEL: u32 = 1 << 16;
 
 /// The positions each touched pixel loses, and the sender's state digest.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Removals {
     checksum: u64,
+    depth_error: f32,
     /// `offsets[k]..offsets[k + 1]` indexes `positions` for touched pixel `k`.
     offsets: Vec<u32>,
     positions: Vec<u32>,
@@ -43,6 +47,7 @@ impl Removals {
     pub fn new(checksum: u64) -> Self {
         Removals {
             checksum,
+            depth_error: 0.0,
             offsets: vec![0],
             positions: Vec::new(),
         }
@@ -59,6 +64,16 @@ impl Removals {
     /// Sets the state digest.
     pub fn set_checksum(&mut self, checksum: u64) {
         self.checksum = checksum;
+    }
+
+    /// Sets the bound on kept fragments' depth error (clamped to a finite value ≥ 0).
+    pub fn set_depth_error(&mut self, e: f32) {
+        self.depth_error = if e.is_finite() { e.max(0.0) } else { 1.0 };
+    }
+
+    /// The bound on kept fragments' depth error, in window depth.
+    pub fn depth_error(&self) -> f32 {
+        self.depth_error
     }
 
     /// Appends the next touched pixel's positions, which must be strictly increasing.
@@ -100,6 +115,7 @@ impl Removals {
     /// Appends the wire encoding.
     pub fn encode(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.checksum.to_le_bytes());
+        out.extend_from_slice(&self.depth_error.to_le_bytes());
         for k in 0..self.pixel_count() {
             let p = self.pixel(k);
             put_varint(out, p.len() as u32);
@@ -115,6 +131,16 @@ impl Removals {
     pub fn decode(bytes: &[u8], base: u64, touched: u32) -> Result<Self, WireError> {
         let mut r = Reader::new(bytes, base);
         let checksum = r.u64("removals checksum")?;
+        let at = r.offset();
+        let depth_error = r.f32("depth_error")?;
+        if !(depth_error.is_finite() && depth_error >= 0.0) {
+            return Err(WireError::invalid(
+                "depth_error",
+                at,
+                depth_error,
+                "a finite depth error ≥ 0",
+            ));
+        }
         // Every pixel costs at least one byte: the allocation is bounded by the input.
         if u64::from(touched) > r.remaining() as u64 {
             return Err(WireError::section(
@@ -127,6 +153,7 @@ impl Removals {
             ));
         }
         let mut out = Removals::new(checksum);
+        out.depth_error = depth_error;
         out.offsets.reserve(touched as usize);
         for _ in 0..touched {
             let at = r.offset();
@@ -173,13 +200,15 @@ mod tests {
     #[test]
     fn round_trip_and_layout() {
         let mut r = Removals::new(0x0102_0304_0506_0708);
+        r.set_depth_error(0.5);
         r.push_pixel([]);
         r.push_pixel([0, 1, 5]);
         r.push_pixel([300]);
         let mut bytes = Vec::new();
         r.encode(&mut bytes);
         assert_eq!(&bytes[..8], &0x0102_0304_0506_0708u64.to_le_bytes());
-        assert_eq!(&bytes[8..], &[0, 3, 0, 0, 3, 1, 0xAC, 0x02]);
+        assert_eq!(&bytes[8..12], &0.5f32.to_le_bytes());
+        assert_eq!(&bytes[12..], &[0, 3, 0, 0, 3, 1, 0xAC, 0x02]);
         assert_eq!(Removals::decode(&bytes, 0, 3).unwrap(), r);
         assert_eq!(r.pixel(1), &[0, 1, 5]);
         assert_eq!(r.total(), 4);
@@ -190,7 +219,9 @@ mod tests {
         let mut ok = Vec::new();
         Removals::new(7).encode(&mut ok);
         for (bytes, touched) in [
-            (vec![0u8; 7], 0),                      // short checksum
+            (vec![0u8; 11], 0), // short header
+            ([vec![0u8; 8], f32::NAN.to_le_bytes().to_vec()].concat(), 0),
+            ([vec![0u8; 8], (-1f32).to_le_bytes().to_vec()].concat(), 0),
             (ok.clone(), 1),                        // a pixel missing
             ([ok.clone(), vec![0, 0]].concat(), 1), // trailing bytes
             ([ok.clone(), vec![5, 1]].concat(), 1), // count beyond the bytes
@@ -210,6 +241,7 @@ mod tests {
         fn any_list_round_trips(pixels in proptest::collection::vec(
             proptest::collection::btree_set(0u32..5000, 0..20), 0..50), checksum in any::<u64>()) {
             let mut r = Removals::new(checksum);
+            r.set_depth_error(1e-4);
             for p in &pixels {
                 r.push_pixel(p.iter().copied());
             }

@@ -13,9 +13,9 @@ use proptest::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId, Rgba8};
 use strata_wire::{
     Codec, DecodeOptions, FrameHeader, FrameMessage, Hello, Message, NodeStats, PREFIX_LEN,
-    PixelMask, Request, RequestKind, TransferMethod, WireError, decode, decode_frame,
-    encode_delta_into, encode_error_into, encode_frame, encode_frame_into, inspect_frame,
-    parse_prefix,
+    PixelMask, Removals, Request, RequestKind, TransferMethod, WireError, decode, decode_frame,
+    encode_delta_into, encode_error_into, encode_frame, encode_frame_into,
+    encode_reprojection_into, inspect_frame, parse_prefix,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -98,12 +98,44 @@ fn delta_message(codec: Codec) -> Vec<u8> {
     out
 }
 
+/// The small frame as a reprojection frame: pixels 0 to 4 touched, removals at 1 and 3.
+fn reprojection_message(codec: Codec) -> Vec<u8> {
+    let header = FrameHeader {
+        frame_number: 44,
+        node_id: 6,
+        transfer: TransferMethod::Reprojection,
+        ..FrameHeader::default()
+    };
+    let touched = PixelMask::from_fn(6, |p| p < 5);
+    let mut removals = Removals::new(0xdead_beef);
+    removals.set_depth_error(1e-4);
+    for p in 0..5u32 {
+        match p {
+            1 => removals.push_pixel([0, 2, 9]),
+            3 => removals.push_pixel([4]),
+            _ => removals.push_pixel([]),
+        }
+    }
+    let mut out = Vec::new();
+    encode_reprojection_into(
+        &mut out,
+        &header,
+        &touched,
+        &removals,
+        &small_frame(),
+        codec,
+    )
+    .unwrap();
+    out
+}
+
 /// Which message of the small frame a test starts from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Kind {
     Full,
     Limited,
     Delta,
+    Reprojection,
 }
 
 fn message_of(codec: Codec, kind: Kind) -> Vec<u8> {
@@ -111,15 +143,19 @@ fn message_of(codec: Codec, kind: Kind) -> Vec<u8> {
         Kind::Full => message(codec, false),
         Kind::Limited => message(codec, true),
         Kind::Delta => delta_message(codec),
+        Kind::Reprojection => reprojection_message(codec),
     }
 }
 
 /// Encodes a decoded frame message again, as a relay would.
 fn reencode(m: &FrameMessage) -> Result<Vec<u8>, WireError> {
     let mut out = Vec::new();
-    match (&m.changed, &m.stale) {
-        (Some(changed), Some(stale)) => {
+    match (&m.changed, &m.stale, &m.removals) {
+        (Some(changed), Some(stale), _) => {
             encode_delta_into(&mut out, &m.header, changed, stale, &m.frame, m.codec)?
+        }
+        (Some(touched), None, Some(removals)) => {
+            encode_reprojection_into(&mut out, &m.header, touched, removals, &m.frame, m.codec)?
         }
         _ => encode_frame_into(&mut out, &m.header, &m.frame, m.codec)?,
     }
@@ -343,7 +379,7 @@ proptest! {
     #[test]
     fn edited_messages_are_rejected_or_consistent(
         codec in prop::sample::select(codecs()),
-        kind in prop::sample::select(vec![Kind::Full, Kind::Limited, Kind::Delta]),
+        kind in prop::sample::select(vec![Kind::Full, Kind::Limited, Kind::Delta, Kind::Reprojection]),
         edits in prop::collection::vec(edit(), 1..6),
         resealed in any::<bool>(),
     ) {
@@ -381,10 +417,13 @@ fn every_truncation_is_an_error_that_names_the_field() {
         (8, "body_len"),
         (16, "body_crc32"),
     ];
-    for (codec, kind) in codecs()
-        .into_iter()
-        .flat_map(|c| [(c, Kind::Limited), (c, Kind::Delta)])
-    {
+    for (codec, kind) in codecs().into_iter().flat_map(|c| {
+        [
+            (c, Kind::Limited),
+            (c, Kind::Delta),
+            (c, Kind::Reprojection),
+        ]
+    }) {
         let full = message_of(codec, kind);
         let table_end = FRAME_HEADER_LEN + SECTION_ENTRY_LEN * section_count(&full);
         for len in 0..full.len() {

@@ -14,9 +14,9 @@ use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::{MethodOptions, create, render_frame};
 use strata_wire::{
-    Codec, Compression, DecodeOptions, FrameHeader, Message, PREFIX_LEN, PixelMask, SectionTag,
-    TransferMethod, VERSION, WireError, decode, decode_frame, encode_delta_into, encode_frame,
-    encode_frame_into, inspect_frame, parse_prefix,
+    Codec, Compression, DecodeOptions, FrameHeader, Message, PREFIX_LEN, PixelMask, Removals,
+    SectionTag, TransferMethod, VERSION, WireError, decode, decode_frame, encode_delta_into,
+    encode_frame, encode_frame_into, encode_reprojection_into, inspect_frame, parse_prefix,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -118,19 +118,35 @@ fn encode_into(
     frame: &DeepFrame,
     codec: Codec,
 ) -> Result<(), WireError> {
-    if header.transfer == TransferMethod::Difference {
-        let (changed, stale) = full_delta(frame);
-        encode_delta_into(out, header, &changed, &stale, frame, codec)
-    } else {
-        encode_frame_into(out, header, frame, codec)
+    match header.transfer {
+        TransferMethod::Difference => {
+            let (changed, stale) = full_delta(frame);
+            encode_delta_into(out, header, &changed, &stale, frame, codec)
+        }
+        TransferMethod::Reprojection => {
+            let (touched, _) = full_delta(frame);
+            encode_reprojection_into(out, header, &touched, &no_removals(frame), frame, codec)
+        }
+        _ => encode_frame_into(out, header, frame, codec),
     }
+}
+
+/// The removals a reprojection frame of `frame` is sent with here: nothing removed anywhere.
+fn no_removals(frame: &DeepFrame) -> Removals {
+    let mut r = Removals::new(0xfeed);
+    for _ in 0..frame.width() * frame.height() {
+        r.push_pixel([]);
+    }
+    r
 }
 
 /// The sections a message of `header`'s transfer carries with `codec`.
 fn expected_sections(header: &FrameHeader, codec: Codec) -> Vec<SectionTag> {
     let mut tags = Vec::new();
-    if header.transfer == TransferMethod::Difference {
-        tags.extend([SectionTag::Mask, SectionTag::Stale]);
+    match header.transfer {
+        TransferMethod::Difference => tags.extend([SectionTag::Mask, SectionTag::Stale]),
+        TransferMethod::Reprojection => tags.extend([SectionTag::Mask, SectionTag::Removals]),
+        _ => {}
     }
     tags.extend_from_slice(codec.sections());
     tags
@@ -156,17 +172,26 @@ fn round_trip(header: &FrameHeader, frame: &DeepFrame, codec: Codec) -> Vec<u8> 
     assert_eq!(back.codec, codec, "{what}");
     assert_same_header(&back.header, header, &what);
     assert_same_frame(&back.frame, frame, &what);
-    let masks = (header.transfer == TransferMethod::Difference).then(|| full_delta(frame));
+    let (changed, stale) = full_delta(frame);
+    let masks = match header.transfer {
+        TransferMethod::Difference => (Some(changed), Some(stale), None),
+        TransferMethod::Reprojection => (Some(changed), None, Some(no_removals(frame))),
+        _ => (None, None, None),
+    };
     assert_eq!(
-        (back.changed.clone(), back.stale.clone()),
-        masks.clone().unzip(),
+        (
+            back.changed.clone(),
+            back.stale.clone(),
+            back.removals.clone()
+        ),
+        masks.clone(),
         "{what}"
     );
     match decode(&bytes, &options) {
         Ok(Message::Frame(m)) => {
             assert_same_frame(&m.frame, frame, &what);
             assert_same_header(&m.header, header, &what);
-            assert_eq!((m.changed, m.stale), masks.unzip(), "{what}");
+            assert_eq!((m.changed, m.stale, m.removals), masks, "{what}");
         }
         other => panic!("{what}: decode gave {other:?}"),
     }
@@ -204,7 +229,10 @@ fn round_trip(header: &FrameHeader, frame: &DeepFrame, codec: Codec) -> Vec<u8> 
         frame.fragment_count() as u64,
     );
     for s in &info.sections {
-        let (lo, hi) = s.tag.decoded_range(pixels, n);
+        let (lo, hi) = match s.tag {
+            SectionTag::Removals => s.tag.decoded_range(pixels, options.max_fragments),
+            tag => tag.decoded_range(pixels, n),
+        };
         assert!(
             (lo..=hi).contains(&s.decoded_len),
             "{what}: {s:?} outside {lo}..={hi}"
@@ -620,6 +648,78 @@ fn difference_frames_carry_their_masks() {
     // A difference frame cannot go through the plain encoder: it needs its masks.
     let e = encode_frame(&header, &frame, Codec::Raw).unwrap_err();
     assert!(e.to_string().contains("encode_delta_into"), "{e}");
+}
+
+#[test]
+fn reprojection_frames_carry_their_mask_and_removals() {
+    // A 4×3 frame of normal fragments at pixels 0 and 5; pixel 2 only loses positions 0 and 3,
+    // pixel 5 loses position 1 and gains two fragments, pixel 0 only gains one.
+    let mut lists = vec![Vec::new(); 12];
+    lists[0] = vec![frag(0.5, [1, 2, 3, 4], 1)];
+    lists[5] = vec![frag(0.25, [5, 6, 7, 8], 2), frag(0.75, [9; 4], 3)];
+    let frame = DeepFrame::from_pixel_lists(4, 3, &lists).unwrap();
+    let touched = PixelMask::from_fn(12, |p| [0, 2, 5].contains(&p));
+    let mut removals = Removals::new(0x0123_4567_89ab_cdef);
+    removals.set_depth_error(2.5e-5);
+    removals.push_pixel([]);
+    removals.push_pixel([0, 3]);
+    removals.push_pixel([1]);
+    let header = FrameHeader {
+        frame_number: 7,
+        node_id: 1,
+        transfer: TransferMethod::Reprojection,
+        ..FrameHeader::default()
+    };
+    for codec in codecs() {
+        let mut bytes = Vec::new();
+        encode_reprojection_into(&mut bytes, &header, &touched, &removals, &frame, codec).unwrap();
+        let back = decode_frame(&bytes, &DecodeOptions::default()).unwrap();
+        assert_eq!(back.header, header, "{codec}");
+        assert!(back.frame == frame, "{codec}");
+        assert_eq!(back.changed.as_ref(), Some(&touched), "{codec}");
+        assert_eq!(back.stale, None, "{codec}");
+        assert_eq!(back.removals.as_ref(), Some(&removals), "{codec}");
+        assert_eq!(bytes[44], 3);
+        let tags: Vec<SectionTag> = inspect_frame(&bytes, &DecodeOptions::default())
+            .unwrap()
+            .sections
+            .iter()
+            .map(|s| s.tag)
+            .collect();
+        assert_eq!(tags, expected_sections(&header, codec));
+    }
+
+    // What the encoder refuses.
+    let mut out = Vec::new();
+    let short = {
+        let mut r = Removals::new(0);
+        r.push_pixel([]);
+        r
+    };
+    let e = encode_reprojection_into(&mut out, &header, &touched, &short, &frame, Codec::Raw)
+        .unwrap_err();
+    assert!(e.to_string().contains("1 removal entries for 3"), "{e}");
+    let outside = PixelMask::from_fn(12, |p| p == 0);
+    let one = {
+        let mut r = Removals::new(0);
+        r.push_pixel([]);
+        r
+    };
+    let e = encode_reprojection_into(&mut out, &header, &outside, &one, &frame, Codec::Raw)
+        .unwrap_err();
+    assert!(e.to_string().contains("2 fragments lie outside"), "{e}");
+    let e = encode_reprojection_into(
+        &mut out,
+        &FrameHeader::default(),
+        &touched,
+        &removals,
+        &frame,
+        Codec::Raw,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("reprojection frames only"), "{e}");
+    let e = encode_frame(&header, &frame, Codec::Raw).unwrap_err();
+    assert!(e.to_string().contains("encode_reprojection_into"), "{e}");
 }
 
 // ---------------------------------------------------------------------------------------------

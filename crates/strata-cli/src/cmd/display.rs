@@ -36,7 +36,7 @@ pub(crate) struct Args {
     #[arg(long, value_delimiter = ',', required = true)]
     pub(crate) nodes: Vec<String>,
 
-    /// Transfer method: full, depth-limited (with --layers), difference.
+    /// Transfer method: full, depth-limited (with --layers), difference, reprojection.
     #[arg(long, default_value = "full")]
     pub(crate) transfer: String,
 
@@ -48,10 +48,13 @@ pub(crate) struct Args {
     #[arg(long)]
     pub(crate) opacity_threshold: Option<f32>,
 
-    /// difference: colour changes of at most this many 8-bit steps are not sent (0: exact; 2:
-    /// no bad pixels at the default --threshold, with fewer fragments).
-    #[arg(long, default_value_t = 0)]
-    pub(crate) tolerance: u8,
+    /// difference: colour changes of at most this many 8-bit steps are not sent (default 0:
+    /// exact; 2: no bad pixels at the default --threshold, with fewer fragments).
+    /// reprojection: a reprojected fragment is kept while it shades within this many steps of
+    /// the node's render (default 1: at most 2 steps off with the normal packing, so no bad
+    /// pixels at the default --threshold; 0: equal colours).
+    #[arg(long)]
+    pub(crate) tolerance: Option<u8>,
 
     /// Codec the nodes encode with: raw, lz4, zstd[:LEVEL], deep-lz4, deep-zstd[:LEVEL].
     #[arg(long, default_value = "deep-lz4")]
@@ -159,9 +162,14 @@ pub(crate) fn run(args: Args) -> Result<()> {
     if !(args.timeout > 0.0 && args.timeout <= 3600.0) {
         bail!("--timeout must be within (0, 3600] seconds");
     }
-    if args.tolerance != 0 && t != transfer::Transfer::Difference {
-        bail!("--tolerance applies to --transfer difference only");
-    }
+    let tolerance = match (t, args.tolerance) {
+        (transfer::Transfer::Difference, tol) => tol.unwrap_or(0),
+        (transfer::Transfer::Reprojection, tol) => tol.unwrap_or(1),
+        (_, None) => 0,
+        (_, Some(_)) => {
+            bail!("--tolerance applies to --transfer difference and reprojection only")
+        }
+    };
     if args.frames == 0 {
         bail!("--frames must be at least 1");
     }
@@ -175,7 +183,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         nodes: args.nodes.clone(),
         transfer: t,
         codec: args.codec,
-        tolerance: args.tolerance,
+        tolerance,
         first_frame: args.first_frame,
         frames: args.frames,
         width,
@@ -228,9 +236,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
         transfer::Transfer::DepthLimited { layers, .. } => {
             format!("depth-limited --layers {layers}")
         }
-        transfer::Transfer::Difference if args.tolerance > 0 => {
-            format!("difference --tolerance {}", args.tolerance)
+        transfer::Transfer::Difference if tolerance > 0 => {
+            format!("difference --tolerance {tolerance}")
         }
+        transfer::Transfer::Reprojection => format!("reprojection --tolerance {tolerance}"),
         other => transfer::name(other).to_string(),
     };
     let summary = Summary::new(

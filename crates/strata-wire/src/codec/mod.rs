@@ -285,11 +285,11 @@ impl SectionTag {
             // The checksum, a count per pixel, a varint per removed position; `fragments` is the
             // most the receiver holds (its `max_fragments`), not the message's count.
             SectionTag::Removals => (
-                8,
+                12,
                 pixels
                     .saturating_add(fragments)
                     .saturating_mul(5)
-                    .saturating_add(8),
+                    .saturating_add(12),
             ),
         }
     }
