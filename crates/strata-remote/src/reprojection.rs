@@ -153,8 +153,13 @@ impl View {
     /// projection it does not depend on the pixel).
     #[inline]
     fn eye_depth(&self, depth: f32) -> f32 {
-        let e = self.inverse_projection * Vec4::new(0.0, 0.0, depth * 2.0 - 1.0, 1.0);
-        (e.z / e.w).abs()
+        // The z and w rows of P⁻¹ · (0, 0, z_ndc, 1).
+        let (c, d) = (
+            self.inverse_projection.z_axis,
+            self.inverse_projection.w_axis,
+        );
+        let z = depth * 2.0 - 1.0;
+        ((c.z * z + d.z) / (c.w * z + d.w)).abs()
     }
 
     /// True if `object` is placed and seen exactly as in `other`: reprojecting it from `other`
@@ -380,6 +385,14 @@ impl Held {
     /// sorted front to back (stably: equal keys keep the order of this list). Objects whose
     /// matrices did not change keep their pixel and fragment bit for bit.
     pub fn reproject(&self, view: &View) -> Held {
+        let mut out = Held::empty(0, 0);
+        self.reproject_into(view, &mut out, &mut Scratch::default());
+        out
+    }
+
+    /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (no allocation once
+    /// they have grown to the scene's needs).
+    pub fn reproject_into(&self, view: &View, out: &mut Held, scratch: &mut Scratch) {
         let (width, height) = view.size();
         let pixels = width as usize * height as usize;
         let unchanged: Vec<bool> = match &self.view {
@@ -388,12 +401,14 @@ impl Held {
                 .collect(),
             None => Vec::new(),
         };
-        let mut moved = vec![(u32::MAX, Fragment::default()); self.entries.len()];
+        let moved = &mut scratch.moved;
+        moved.clear();
+        moved.resize(self.entries.len(), (u32::MAX, Fragment::default()));
         {
             let w = self.width as usize;
             let offsets = &self.offsets;
             let mut bands: Vec<(usize, &mut [(u32, Fragment)])> = Vec::new();
-            let mut rest: &mut [(u32, Fragment)] = &mut moved;
+            let mut rest: &mut [(u32, Fragment)] = moved;
             let mut row = 0;
             while row < self.height as usize {
                 let end = (row + BAND_ROWS).min(self.height as usize);
@@ -420,8 +435,10 @@ impl Held {
                 }
             });
         }
-        let mut offsets = vec![0u32; pixels + 1];
-        for &(p, _) in &moved {
+        let offsets = &mut out.offsets;
+        offsets.clear();
+        offsets.resize(pixels + 1, 0);
+        for &(p, _) in moved.iter() {
             if p != u32::MAX {
                 offsets[p as usize + 1] += 1;
             }
@@ -430,28 +447,35 @@ impl Held {
             offsets[p + 1] += offsets[p];
         }
         let total = offsets[pixels] as usize;
-        let mut entries = vec![Entry::default(); total];
-        let mut cursor: Vec<u32> = offsets[..pixels].to_vec();
-        for (e, &(p, f)) in self.entries.iter().zip(&moved) {
+        out.entries.clear();
+        out.entries.resize(total, Entry::default());
+        let cursor = &mut scratch.cursor;
+        cursor.clear();
+        cursor.extend_from_slice(&offsets[..pixels]);
+        for (e, &(p, f)) in self.entries.iter().zip(moved.iter()) {
             if p != u32::MAX {
                 let c = &mut cursor[p as usize];
-                entries[*c as usize] = Entry {
+                out.entries[*c as usize] = Entry {
                     fragment: f,
                     surfel: e.surfel,
                 };
                 *c += 1;
             }
         }
-        drop(cursor);
-        let mut held = Held {
-            width,
-            height,
-            offsets,
-            entries,
-            view: Some(view.clone()),
-        };
-        held.sort_runs();
-        held
+        out.width = width;
+        out.height = height;
+        out.view = Some(view.clone());
+        out.sort_runs();
+    }
+
+    /// Empties this list for a `width` × `height` frame, keeping its buffers.
+    fn clear_to(&mut self, width: u32, height: u32) {
+        self.width = width;
+        self.height = height;
+        self.offsets.clear();
+        self.offsets.resize(width as usize * height as usize + 1, 0);
+        self.entries.clear();
+        self.view = None;
     }
 
     /// Sorts every run front to back, stably, in parallel bands.
@@ -496,7 +520,7 @@ impl Held {
         .unwrap_or_else(|_| DeepFrame::empty(self.width, self.height))
     }
 
-    /// A 64-bit digest of everything held — run lengths, fragments and surfels, in order —
+    /// A 64-bit digest of what is held — run lengths, fragments and surfel positions, in order —
     /// computed over fixed bands, so it does not depend on the thread count.
     pub fn digest(&self) -> u64 {
         let width = self.width as usize;
@@ -510,22 +534,12 @@ impl Held {
                     let run = self.run(p);
                     h.word(run.len() as u64);
                     for e in run {
-                        let f = &e.fragment;
+                        // The fragment and the position say everything the next frames derive
+                        // from an entry (its normal only feeds the colour, which is in here).
+                        let (f, q) = (&e.fragment, &e.surfel.position);
                         h.word(u64::from(f.depth.to_bits()) << 32 | u64::from(f.color.to_bits()));
-                        h.word(u64::from(f.object.0));
-                        let s = &e.surfel;
-                        h.word(
-                            u64::from(s.position[0].to_bits()) << 32
-                                | u64::from(s.position[1].to_bits()),
-                        );
-                        h.word(
-                            u64::from(s.position[2].to_bits()) << 32
-                                | u64::from(s.normal[0].to_bits()),
-                        );
-                        h.word(
-                            u64::from(s.normal[1].to_bits()) << 32
-                                | u64::from(s.normal[2].to_bits()),
-                        );
+                        h.word(u64::from(f.object.0) << 32 | u64::from(q[0].to_bits()));
+                        h.word(u64::from(q[1].to_bits()) << 32 | u64::from(q[2].to_bits()));
                     }
                 }
                 h.finish()
@@ -537,6 +551,13 @@ impl Held {
         }
         h.finish()
     }
+}
+
+/// Buffers [`Held::reproject_into`] reuses from frame to frame.
+#[derive(Clone, Debug, Default)]
+pub struct Scratch {
+    moved: Vec<(u32, Fragment)>,
+    cursor: Vec<u32>,
 }
 
 /// A small multiply-rotate hash (not cryptographic: it detects divergence, not tampering).
@@ -623,15 +644,21 @@ pub struct ReprojDelta {
 pub struct ReprojEncoder {
     tolerance: u8,
     held: Option<Held>,
+    /// Buffers reused from frame to frame.
+    projected: Held,
+    scratch: Scratch,
+    bands: Vec<BandOut>,
 }
 
 /// One band's share of a node frame.
-#[derive(Default)]
+#[derive(Clone, Debug, Default)]
 struct BandOut {
     entries: Vec<Entry>,
     counts: Vec<u32>,
     touched: Vec<u32>,
-    removed: Vec<Vec<u32>>,
+    /// Per touched pixel, how many of `removed` are its.
+    removed_counts: Vec<u32>,
+    removed: Vec<u32>,
     /// Inserted normal fragments, per touched pixel in order.
     insert_counts: Vec<u32>,
     inserts: Vec<Fragment>,
@@ -645,6 +672,9 @@ impl ReprojEncoder {
         ReprojEncoder {
             tolerance,
             held: None,
+            projected: Held::empty(0, 0),
+            scratch: Scratch::default(),
+            bands: Vec::new(),
         }
     }
 
@@ -657,110 +687,121 @@ impl ReprojEncoder {
     /// fragments rendered at `view`), and the new state kept for the next frame.
     pub fn encode(&mut self, view: &View, rendered: &DeepFrame) -> ReprojDelta {
         let (width, height) = view.size();
-        let projected = match &self.held {
-            Some(h) => h.reproject(view),
-            None => Held::empty(width, height),
-        };
+        let old = self.held.take();
+        match &old {
+            Some(h) => h.reproject_into(view, &mut self.projected, &mut self.scratch),
+            None => self.projected.clear_to(width, height),
+        }
+        let projected = &self.projected;
         let w = width as usize;
         let bands = (height as usize).div_ceil(BAND_ROWS);
         let tolerance = self.tolerance;
-        let outs: Vec<BandOut> = (0..bands)
-            .into_par_iter()
-            .map(|b| {
-                let mut out = BandOut::default();
-                let mut truth: Vec<(Entry, Fragment)> = Vec::new();
-                let mut removed: Vec<u32> = Vec::new();
-                let mut inserts: Vec<Entry> = Vec::new();
-                let mut inserted_wire: Vec<Fragment> = Vec::new();
-                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-                for p in rows.start * w..rows.end * w {
-                    truth.clear();
-                    for f in rendered.run(p).iter() {
-                        if let Some(e) = view.entry(p as u32, f) {
-                            truth.push((e, f));
-                        }
+        self.bands.resize_with(bands, BandOut::default);
+        self.bands.par_iter_mut().enumerate().for_each(|(b, out)| {
+            out.entries.clear();
+            out.counts.clear();
+            out.touched.clear();
+            out.removed_counts.clear();
+            out.removed.clear();
+            out.insert_counts.clear();
+            out.inserts.clear();
+            out.depth_error = 0.0;
+            let mut truth: Vec<(Entry, Fragment)> = Vec::new();
+            let mut removed: Vec<u32> = Vec::new();
+            let mut inserts: Vec<Entry> = Vec::new();
+            let mut inserted_wire: Vec<Fragment> = Vec::new();
+            let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+            for p in rows.start * w..rows.end * w {
+                truth.clear();
+                for f in rendered.run(p).iter() {
+                    if let Some(e) = view.entry(p as u32, f) {
+                        truth.push((e, f));
                     }
-                    sort_truth(&mut truth);
-                    let held = projected.run(p);
-                    removed.clear();
-                    inserts.clear();
-                    inserted_wire.clear();
-                    let mut j = 0;
-                    for (n, f) in &truth {
-                        let z = view.eye_depth(n.fragment.depth);
-                        match held[j..].iter().position(|h| {
-                            close(&h.fragment, &n.fragment, tolerance)
-                                && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
-                        }) {
-                            Some(k) => {
-                                removed.extend(j as u32..(j + k) as u32);
-                                j += k + 1;
-                            }
-                            None => {
-                                inserts.push(*n);
-                                inserted_wire.push(*f);
-                            }
+                }
+                sort_truth(&mut truth);
+                let held = projected.run(p);
+                removed.clear();
+                inserts.clear();
+                inserted_wire.clear();
+                let mut j = 0;
+                for (n, f) in &truth {
+                    let z = view.eye_depth(n.fragment.depth);
+                    match held[j..].iter().position(|h| {
+                        close(&h.fragment, &n.fragment, tolerance)
+                            && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
+                    }) {
+                        Some(k) => {
+                            removed.extend(j as u32..(j + k) as u32);
+                            j += k + 1;
                         }
-                    }
-                    removed.extend(j as u32..held.len() as u32);
-                    let start = out.entries.len();
-                    merge_pixel(held, &removed, &inserts, &mut out.entries);
-                    let merged = &out.entries[start..];
-                    let ok = merged.len() == truth.len()
-                        && merged
-                            .iter()
-                            .zip(&truth)
-                            .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
-                    if ok {
-                        for (m, (n, _)) in merged.iter().zip(&truth) {
-                            let e = (m.fragment.depth - n.fragment.depth).abs();
-                            out.depth_error = out.depth_error.max(e);
-                        }
-                    } else {
-                        out.entries.truncate(start);
-                        removed.clear();
-                        removed.extend(0..held.len() as u32);
-                        inserts.clear();
-                        inserted_wire.clear();
-                        for (n, f) in &truth {
+                        None => {
                             inserts.push(*n);
                             inserted_wire.push(*f);
                         }
-                        merge_pixel(held, &removed, &inserts, &mut out.entries);
-                    }
-                    out.counts.push((out.entries.len() - start) as u32);
-                    if !removed.is_empty() || !inserts.is_empty() {
-                        out.touched.push(p as u32);
-                        out.removed.push(removed.clone());
-                        out.insert_counts.push(inserted_wire.len() as u32);
-                        out.inserts.extend_from_slice(&inserted_wire);
                     }
                 }
-                out
-            })
-            .collect();
+                removed.extend(j as u32..held.len() as u32);
+                let start = out.entries.len();
+                merge_pixel(held, &removed, &inserts, &mut out.entries);
+                let merged = &out.entries[start..];
+                let ok = merged.len() == truth.len()
+                    && merged
+                        .iter()
+                        .zip(&truth)
+                        .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
+                if ok {
+                    for (m, (n, _)) in merged.iter().zip(&truth) {
+                        let e = (m.fragment.depth - n.fragment.depth).abs();
+                        out.depth_error = out.depth_error.max(e);
+                    }
+                } else {
+                    out.entries.truncate(start);
+                    removed.clear();
+                    removed.extend(0..held.len() as u32);
+                    inserts.clear();
+                    inserted_wire.clear();
+                    for (n, f) in &truth {
+                        inserts.push(*n);
+                        inserted_wire.push(*f);
+                    }
+                    merge_pixel(held, &removed, &inserts, &mut out.entries);
+                }
+                out.counts.push((out.entries.len() - start) as u32);
+                if !removed.is_empty() || !inserts.is_empty() {
+                    out.touched.push(p as u32);
+                    out.removed_counts.push(removed.len() as u32);
+                    out.removed.extend_from_slice(&removed);
+                    out.insert_counts.push(inserted_wire.len() as u32);
+                    out.inserts.extend_from_slice(&inserted_wire);
+                }
+            }
+        });
 
-        // Assemble the new state, the mask, the removals and the inserts, band by band.
+        // Assemble the new state (in the old state's buffers), the mask, the removals and the
+        // inserts, band by band.
         let pixels = w * height as usize;
-        let mut offsets = Vec::with_capacity(pixels + 1);
+        let (mut offsets, mut entries) = old.map(|h| (h.offsets, h.entries)).unwrap_or_default();
+        offsets.clear();
         offsets.push(0u32);
-        let total: usize = outs.iter().map(|o| o.entries.len()).sum();
-        let mut entries = Vec::with_capacity(total);
+        entries.clear();
         let mut mask = MaskBuilder::new(pixels as u32);
         let mut removals = Removals::new(0);
         let mut insert_counts = vec![0u32; pixels];
         let mut insert_list: Vec<Fragment> = Vec::new();
         let mut depth_error = 0f32;
-        for o in outs {
+        for o in &self.bands {
             depth_error = depth_error.max(o.depth_error);
-            for c in o.counts {
+            for &c in &o.counts {
                 let last = *offsets.last().unwrap_or(&0);
                 offsets.push(last + c);
             }
             entries.extend_from_slice(&o.entries);
+            let mut at = 0;
             for (k, &p) in o.touched.iter().enumerate() {
                 mask.push(p);
-                removals.push_pixel(o.removed[k].iter().copied());
+                let n = o.removed_counts[k] as usize;
+                removals.push_pixel(o.removed[at..at + n].iter().copied());
+                at += n;
                 insert_counts[p as usize] = o.insert_counts[k];
             }
             insert_list.extend_from_slice(&o.inserts);
@@ -837,6 +878,12 @@ type BandRuns = (Vec<Entry>, Vec<u32>);
 #[derive(Clone, Debug)]
 pub struct ReprojCopy {
     held: Held,
+    /// Buffers reused from frame to frame: the reprojected list, the next state, bands.
+    projected: Held,
+    spare: Held,
+    scratch: Scratch,
+    slot: Vec<u32>,
+    bands: Vec<BandRuns>,
 }
 
 impl ReprojCopy {
@@ -844,6 +891,11 @@ impl ReprojCopy {
     pub fn empty(width: u32, height: u32) -> Self {
         ReprojCopy {
             held: Held::empty(width, height),
+            projected: Held::empty(0, 0),
+            spare: Held::empty(0, 0),
+            scratch: Scratch::default(),
+            slot: Vec::new(),
+            bands: Vec::new(),
         }
     }
 
@@ -874,20 +926,28 @@ impl ReprojCopy {
                 removals.pixel_count()
             )));
         }
-        let projected = self.held.reproject(view);
+        self.held
+            .reproject_into(view, &mut self.projected, &mut self.scratch);
+        let projected = &self.projected;
         let pixels = width as usize * height as usize;
         // Which removal entry each touched pixel owns.
-        let mut slot = vec![u32::MAX; pixels];
+        let slot = &mut self.slot;
+        slot.clear();
+        slot.resize(pixels, u32::MAX);
         for (k, p) in touched.iter().enumerate() {
             slot[p as usize] = k as u32;
         }
+        let slot = &*slot;
         let w = width as usize;
         let bands = (height as usize).div_ceil(BAND_ROWS);
-        let outs: Vec<Result<BandRuns, ApplyError>> = (0..bands)
-            .into_par_iter()
-            .map(|b| {
-                let mut entries = Vec::new();
-                let mut counts = Vec::new();
+        self.bands.resize_with(bands, BandRuns::default);
+        let results: Vec<Result<(), ApplyError>> = self
+            .bands
+            .par_iter_mut()
+            .enumerate()
+            .map(|(b, (entries, counts))| {
+                entries.clear();
+                counts.clear();
                 let mut ins: Vec<Entry> = Vec::new();
                 let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
                 let first = rows.start * w;
@@ -917,32 +977,29 @@ impl ReprojCopy {
                                 ins.push(e);
                             }
                             sort_entries(&mut ins);
-                            merge_pixel(held, removed, &ins, &mut entries);
+                            merge_pixel(held, removed, &ins, entries);
                         }
                     }
                     counts.push((entries.len() - start) as u32);
                 }
-                Ok((entries, counts))
+                Ok(())
             })
             .collect();
-        let mut offsets = Vec::with_capacity(pixels + 1);
-        offsets.push(0u32);
-        let mut entries = Vec::with_capacity(projected.len() + inserts.fragment_count());
-        for o in outs {
-            let (e, counts) = o?;
-            for c in counts {
-                let last = *offsets.last().unwrap_or(&0);
-                offsets.push(last + c);
+        results.into_iter().collect::<Result<(), ApplyError>>()?;
+        let held = &mut self.spare;
+        held.width = width;
+        held.height = height;
+        held.view = Some(view.clone());
+        held.offsets.clear();
+        held.offsets.push(0u32);
+        held.entries.clear();
+        for (e, counts) in &self.bands {
+            for &c in counts {
+                let last = *held.offsets.last().unwrap_or(&0);
+                held.offsets.push(last + c);
             }
-            entries.extend_from_slice(&e);
+            held.entries.extend_from_slice(e);
         }
-        let held = Held {
-            width,
-            height,
-            offsets,
-            entries,
-            view: Some(view.clone()),
-        };
         let ours = held.digest();
         if ours != removals.checksum() {
             return Err(ApplyError::Diverged {
@@ -950,7 +1007,7 @@ impl ReprojCopy {
                 theirs: removals.checksum(),
             });
         }
-        self.held = held;
+        std::mem::swap(&mut self.held, &mut self.spare);
         Ok(())
     }
 }
