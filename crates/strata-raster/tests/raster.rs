@@ -4,7 +4,7 @@
 //! rasterizer emits against values computed independently in f64 from the DESIGN §2 conventions.
 
 use glam::{DMat4, DVec3, DVec4, Mat4, Vec3};
-use strata_core::{Fragment, Material, ObjectId, Shading};
+use strata_core::{Fragment, Material, ObjectId, PackedNormal, Shading};
 use strata_raster::{DrawObject, FragmentOutput, FragmentVec, FrameInput, Rasterizer};
 use strata_scene::Mesh;
 
@@ -73,6 +73,15 @@ fn material(shading: Shading) -> Material {
 
 /// Rasterises meshes (with their model matrices) and returns fragments per pixel.
 fn render(cam: &Cam, objects: &[(&Mesh, Mat4, Shading)]) -> Vec<Vec<Fragment>> {
+    render_as(cam, objects, FragmentOutput::Shaded)
+}
+
+/// [`render`] with a choice of what the colour bytes hold.
+fn render_as(
+    cam: &Cam,
+    objects: &[(&Mesh, Mat4, Shading)],
+    output: FragmentOutput,
+) -> Vec<Vec<Fragment>> {
     let input = FrameInput {
         width: cam.width,
         height: cam.height,
@@ -91,7 +100,7 @@ fn render(cam: &Cam, objects: &[(&Mesh, Mat4, Shading)]) -> Vec<Vec<Fragment>> {
                 id: ObjectId(i as u32),
             })
             .collect(),
-        output: FragmentOutput::Shaded,
+        output,
     };
     let mut raster = Rasterizer::default();
     let prepared = raster.prepare(&input);
@@ -544,4 +553,39 @@ fn strip_height_and_chunk_size_do_not_change_any_pixel() {
             "strip {strip_height}, chunk {chunk_triangles}"
         );
     }
+}
+
+#[test]
+fn normal_fragments_carry_the_interpolated_normal_and_keep_depth_and_object() {
+    // A plane tilted 40° about x (lit: every vertex normal is the plane's) beside an unlit one.
+    let grid = jittered_grid(30, 1.0, 0.0, 0.3);
+    let tilt = Mat4::from_translation(Vec3::new(-0.8, 0.0, -3.0))
+        * Mat4::from_rotation_x(40f32.to_radians());
+    let flat = Mat4::from_translation(Vec3::new(0.8, 0.0, -3.5));
+    let cam = Cam::looking_down_z(64, 48);
+    let objects = [
+        (&grid, tilt, Shading::Headlight),
+        (&grid, flat, Shading::Unlit),
+    ];
+    let shaded = render(&cam, &objects);
+    let normals = render_as(&cam, &objects, FragmentOutput::PackedNormal);
+    let want = (cam.view() * tilt).transform_vector3(Vec3::Z).normalize();
+    let (mut lit, mut unlit) = (0, 0);
+    for (s, n) in shaded.iter().zip(&normals) {
+        assert_eq!(s.len(), n.len());
+        for (a, b) in s.iter().zip(n) {
+            assert_eq!((a.depth, a.object), (b.depth, b.object));
+            let packed = PackedNormal::from_bits(b.color.to_bits());
+            if b.object == ObjectId(0) {
+                let u = Vec3::from(packed.unpack().expect("a lit fragment has a normal"));
+                // Either side of the plane: headlight shading is two-sided.
+                assert!(u.dot(want).abs() > 1.0 - 1e-7, "{u} vs {want}");
+                lit += 1;
+            } else {
+                assert_eq!(packed, PackedNormal::NONE);
+                unlit += 1;
+            }
+        }
+    }
+    assert!(lit > 100 && unlit > 100, "{lit} {unlit}");
 }
