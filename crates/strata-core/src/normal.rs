@@ -42,9 +42,10 @@ impl PackedNormal {
         if !(len2 > 1e-30 && len2.is_finite()) {
             return PackedNormal::NONE;
         }
-        let inv = 1.0 / len2.sqrt();
-        let (x, y, z) = (n[0] * inv, n[1] * inv, (n[2] * inv).clamp(-1.0, 1.0));
-        let phi = quantise(z.acos() / std::f32::consts::PI);
+        // φ = atan2(√(x² + y²), z) rather than acos(z): acos cannot resolve angles below ~3·10⁻⁴
+        // from an f32 z near ±1, which is where normals facing the camera are. Scale cancels.
+        let (x, y, z) = (n[0], n[1], n[2]);
+        let phi = quantise((x * x + y * y).sqrt().atan2(z) / std::f32::consts::PI);
         let theta = if phi == 0 || phi == 0xFFFF {
             0
         } else {
@@ -124,6 +125,10 @@ mod tests {
             PackedNormal::pack([0.0, 1e-9, 1.0])
         );
         assert_ne!(PackedNormal::pack([0.0, 0.0, -1.0]), PackedNormal::NONE);
+        // Near a pole, where acos(z) of an f32 z cannot tell φ = 1.4·10⁻⁴ from 0 (found by
+        // proptest: code φ = 3 came back as the pole).
+        let near = PackedNormal(3 << 16).unpack().expect("a normal");
+        assert_eq!(PackedNormal::pack(near).0 >> 16, 3);
     }
 
     #[test]
