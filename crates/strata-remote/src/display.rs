@@ -320,18 +320,11 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
                 Err(_) => {
                     for (i, n) in nodes.iter_mut().enumerate() {
                         if wanted(n) && !buffer.contains_key(&(i, t, false)) {
-                            let inc = NodeIncident {
-                                frame: t,
-                                node: n.addr.clone(),
-                                what: format!(
-                                    "no frame within {:.1} s: stalled; reconnecting",
-                                    config.timeout.as_secs_f64()
-                                ),
-                            };
-                            observer.incident(&inc);
-                            incidents.push(inc);
-                            n.up = false;
-                            n.cmd.send(LinkCmd::Reconnect).await.ok();
+                            let what = format!(
+                                "no frame within {:.1} s: stalled; reconnecting",
+                                config.timeout.as_secs_f64()
+                            );
+                            fault(n, t, what, observer, &mut incidents).await;
                         }
                     }
                     break;
@@ -385,35 +378,21 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
                                 }
                                 Err(e) => {
                                     // Both ends start over from an empty state.
-                                    let inc = NodeIncident {
-                                        frame: t,
-                                        node: n.addr.clone(),
-                                        what: format!("{e}; reconnecting"),
-                                    };
-                                    observer.incident(&inc);
-                                    incidents.push(inc);
+                                    let what = format!("{e}; reconnecting");
+                                    fault(n, t, what, observer, &mut incidents).await;
                                     s.status = "held";
-                                    n.up = false;
-                                    n.cmd.send(LinkCmd::Reconnect).await.ok();
                                     continue;
                                 }
                             }
                         }
                         (None, None, None, None) => n.copy.replace(msg.frame),
                         _ => {
-                            let inc = NodeIncident {
-                                frame: t,
-                                node: n.addr.clone(),
-                                what: format!(
-                                    "sent a frame of another transfer than {}; reconnecting",
-                                    crate::transfer::name(config.transfer)
-                                ),
-                            };
-                            observer.incident(&inc);
-                            incidents.push(inc);
+                            let what = format!(
+                                "sent a frame of another transfer than {}; reconnecting",
+                                crate::transfer::name(config.transfer)
+                            );
+                            fault(n, t, what, observer, &mut incidents).await;
                             s.status = "held";
-                            n.up = false;
-                            n.cmd.send(LinkCmd::Reconnect).await.ok();
                             continue;
                         }
                     }
@@ -483,15 +462,9 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
                     _ => {
                         for &i in &asked {
                             if !buffer.contains_key(&(i, t, true)) {
-                                let inc = NodeIncident {
-                                    frame: t,
-                                    node: nodes[i].addr.clone(),
-                                    what: "no fixup reply within the timeout; reconnecting".into(),
-                                };
-                                observer.incident(&inc);
-                                incidents.push(inc);
-                                nodes[i].up = false;
-                                nodes[i].cmd.send(LinkCmd::Reconnect).await.ok();
+                                let what = "no fixup reply within the timeout; reconnecting";
+                                fault(&mut nodes[i], t, what.into(), observer, &mut incidents)
+                                    .await;
                             }
                         }
                         break;
@@ -560,6 +533,37 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
     }
 }
 
+/// Reports `what` about node `n` at frame `t` and drops its connection: the link reconnects
+/// and the node starts over from a reset.
+async fn fault(
+    n: &mut NodeState,
+    t: u64,
+    what: String,
+    observer: &mut dyn Observer,
+    incidents: &mut Vec<NodeIncident>,
+) {
+    report(&n.addr, t, what, observer, incidents);
+    n.up = false;
+    n.cmd.send(LinkCmd::Reconnect).await.ok();
+}
+
+/// Tells the observer and keeps the incident for the summary.
+fn report(
+    node: &str,
+    t: u64,
+    what: String,
+    observer: &mut dyn Observer,
+    incidents: &mut Vec<NodeIncident>,
+) {
+    let inc = NodeIncident {
+        frame: t,
+        node: node.to_string(),
+        what,
+    };
+    observer.incident(&inc);
+    incidents.push(inc);
+}
+
 fn record(s: &mut NodeFrame, a: &Arrival) {
     let ms = |us: u64| us as f64 / 1e3;
     s.bytes += a.bytes;
@@ -583,15 +587,8 @@ fn on_event(
     incidents: &mut Vec<NodeIncident>,
     observer: &mut dyn Observer,
 ) {
-    let mut note = |node: &NodeState, what: String| {
-        let inc = NodeIncident {
-            frame: t,
-            node: node.addr.clone(),
-            what,
-        };
-        observer.incident(&inc);
-        incidents.push(inc);
-    };
+    let mut note =
+        |node: &NodeState, what: String| report(&node.addr, t, what, observer, incidents);
     match e {
         LinkEvent::Up(i, generation, hello) => {
             let n = &mut nodes[i];

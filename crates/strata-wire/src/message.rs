@@ -361,7 +361,7 @@ pub fn encode_delta_into(
     for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
         let mut mask = Vec::new();
         m.encode(&mut mask);
-        sections.push(compressed_section(tag, &mask, codec)?);
+        sections.push(codec::compressed_section(tag, &mask, codec)?);
     }
     sections.extend(codec::encode_sections(frame, codec)?);
     write_frame(out, header, frame, codec, &sections);
@@ -406,32 +406,17 @@ pub fn encode_reprojection_into(
     }
     let mut bytes = Vec::new();
     touched.encode(&mut bytes);
-    let mut sections = vec![compressed_section(SectionTag::Mask, &bytes, codec)?];
+    let mut sections = vec![codec::compressed_section(SectionTag::Mask, &bytes, codec)?];
     bytes.clear();
     removals.encode(&mut bytes);
-    sections.push(compressed_section(SectionTag::Removals, &bytes, codec)?);
+    sections.push(codec::compressed_section(
+        SectionTag::Removals,
+        &bytes,
+        codec,
+    )?);
     sections.extend(codec::encode_sections(inserts, codec)?);
     write_frame(out, header, inserts, codec, &sections);
     Ok(())
-}
-
-/// A section outside the codec's own, compressed with the codec's compressor.
-fn compressed_section(
-    tag: SectionTag,
-    bytes: &[u8],
-    codec: Codec,
-) -> Result<EncodedSection, WireError> {
-    let (compression, payload) =
-        codec::compress::compress(bytes, codec.compression(), codec.level())?;
-    Ok(EncodedSection {
-        info: SectionInfo {
-            tag,
-            compression,
-            encoded_len: payload.len() as u64,
-            decoded_len: bytes.len() as u64,
-        },
-        payload,
-    })
 }
 
 /// Fragments of `frame` at pixels outside `mask`.

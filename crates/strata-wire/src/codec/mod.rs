@@ -327,21 +327,27 @@ pub(crate) fn encode_sections(
         }
         Codec::DeepLz4 | Codec::DeepZstd { .. } => deep::encode(frame),
     };
-    let (method, level) = (codec.compression(), codec.level());
     raw.into_par_iter()
-        .map(|(tag, bytes)| {
-            let (compression, payload) = compress::compress(&bytes, method, level)?;
-            Ok(EncodedSection {
-                info: SectionInfo {
-                    tag,
-                    compression,
-                    encoded_len: payload.len() as u64,
-                    decoded_len: bytes.len() as u64,
-                },
-                payload,
-            })
-        })
+        .map(|(tag, bytes)| compressed_section(tag, &bytes, codec))
         .collect()
+}
+
+/// One section of `bytes`, compressed with `codec`'s compressor (or stored, if that is smaller).
+pub(crate) fn compressed_section(
+    tag: SectionTag,
+    bytes: &[u8],
+    codec: Codec,
+) -> Result<EncodedSection, WireError> {
+    let (compression, payload) = compress::compress(bytes, codec.compression(), codec.level())?;
+    Ok(EncodedSection {
+        info: SectionInfo {
+            tag,
+            compression,
+            encoded_len: payload.len() as u64,
+            decoded_len: bytes.len() as u64,
+        },
+        payload,
+    })
 }
 
 /// A section as found in a message: its table entry, payload, and where the payload starts.

@@ -1,0 +1,217 @@
+//! The display's side of the reprojection transfer: one node's held fragments, moved to each new
+//! view and updated with the node's removals and inserts; and the pixels whose order against
+//! another node's fragments needs the node's exact runs (the fixup round).
+
+use rayon::prelude::*;
+use strata_core::DeepFrame;
+use strata_wire::{MaskBuilder, PixelMask, Removals};
+
+use super::held::{Entry, Held, Scratch};
+use super::view::View;
+use super::{BAND_ROWS, merge_pixel, sort_entries};
+
+/// Why a display could not apply a reprojection frame.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ApplyError {
+    /// The frame does not fit the held state (a removal beyond a run, a size change mid-stream).
+    #[error("the reprojection frame does not fit the held fragments: {0}")]
+    Mismatch(String),
+    /// The states differ after applying: the two ends computed differently.
+    #[error(
+        "the reprojected state diverged from the node's (digest {ours:016x}, node {theirs:016x})"
+    )]
+    Diverged {
+        /// The display's digest.
+        ours: u64,
+        /// The node's.
+        theirs: u64,
+    },
+}
+
+/// One band's new runs: the entries and each pixel's count.
+type BandRuns = (Vec<Entry>, Vec<u32>);
+
+/// The display's side: one node's held fragments.
+#[derive(Clone, Debug)]
+pub struct ReprojCopy {
+    held: Held,
+    /// Buffers reused from frame to frame: the reprojected list, the next state, bands.
+    projected: Held,
+    spare: Held,
+    scratch: Scratch,
+    slot: Vec<u32>,
+    bands: Vec<BandRuns>,
+}
+
+impl ReprojCopy {
+    /// Nothing held (the first frame of a connection is sent whole).
+    pub fn empty(width: u32, height: u32) -> Self {
+        ReprojCopy {
+            held: Held::empty(width, height),
+            projected: Held::empty(0, 0),
+            spare: Held::empty(0, 0),
+            scratch: Scratch::default(),
+            slot: Vec::new(),
+            bands: Vec::new(),
+        }
+    }
+
+    /// What is held.
+    pub fn held(&self) -> &Held {
+        &self.held
+    }
+
+    /// Moves the held fragments to `view`, applies the node's removals and inserts, and checks
+    /// the digest. On error the copy is left as it was.
+    pub fn apply(
+        &mut self,
+        view: &View,
+        touched: &PixelMask,
+        removals: &Removals,
+        inserts: &DeepFrame,
+    ) -> Result<(), ApplyError> {
+        let (width, height) = view.size();
+        if (inserts.width(), inserts.height()) != (width, height)
+            || touched.frame_pixels() as usize != width as usize * height as usize
+            || removals.pixel_count() != touched.len() as usize
+        {
+            return Err(ApplyError::Mismatch(format!(
+                "a {}x{} frame with {} touched pixels and {} removal entries for a {width}x{height} view",
+                inserts.width(),
+                inserts.height(),
+                touched.len(),
+                removals.pixel_count()
+            )));
+        }
+        self.held
+            .reproject_into(view, &mut self.projected, &mut self.scratch);
+        let projected = &self.projected;
+        let pixels = width as usize * height as usize;
+        // Which removal entry each touched pixel owns.
+        let slot = &mut self.slot;
+        slot.clear();
+        slot.resize(pixels, u32::MAX);
+        for (k, p) in touched.iter().enumerate() {
+            slot[p as usize] = k as u32;
+        }
+        let slot = &*slot;
+        let w = width as usize;
+        let bands = (height as usize).div_ceil(BAND_ROWS);
+        self.bands.resize_with(bands, BandRuns::default);
+        let results: Vec<Result<(), ApplyError>> = self
+            .bands
+            .par_iter_mut()
+            .enumerate()
+            .map(|(b, (entries, counts))| {
+                entries.clear();
+                counts.clear();
+                let mut ins: Vec<Entry> = Vec::new();
+                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+                let first = rows.start * w;
+                for (p, &k) in (first..).zip(&slot[first..rows.end * w]) {
+                    let start = entries.len();
+                    let held = projected.run(p);
+                    match k {
+                        u32::MAX => entries.extend_from_slice(held),
+                        k => {
+                            let removed = removals.pixel(k as usize);
+                            if let Some(&last) = removed.last()
+                                && last as usize >= held.len()
+                            {
+                                return Err(ApplyError::Mismatch(format!(
+                                    "pixel {p} holds {} fragments, the node removes position {last}",
+                                    held.len()
+                                )));
+                            }
+                            ins.clear();
+                            for f in inserts.run(p).iter() {
+                                let e = view.entry(p as u32, f).ok_or_else(|| {
+                                    ApplyError::Mismatch(format!(
+                                        "pixel {p}: object {} is not in the scene",
+                                        f.object.0
+                                    ))
+                                })?;
+                                ins.push(e);
+                            }
+                            sort_entries(&mut ins);
+                            merge_pixel(held, removed, &ins, entries);
+                        }
+                    }
+                    counts.push((entries.len() - start) as u32);
+                }
+                Ok(())
+            })
+            .collect();
+        results.into_iter().collect::<Result<(), ApplyError>>()?;
+        let held = &mut self.spare;
+        held.assemble(
+            view,
+            self.bands.iter().map(|(e, c)| (e.as_slice(), c.as_slice())),
+        );
+        let ours = held.digest();
+        if ours != removals.checksum() {
+            return Err(ApplyError::Diverged {
+                ours,
+                theirs: removals.checksum(),
+            });
+        }
+        std::mem::swap(&mut self.held, &mut self.spare);
+        Ok(())
+    }
+}
+
+/// For each node, the pixels whose order against another node's fragments the display cannot
+/// trust: where fragments of two nodes lie within `2 · max(depth_error)` of each other (the bound
+/// each node sent with its frame). Every node with fragments at such a pixel is asked for its
+/// exact run there (nodes not taking part this frame are asked for nothing).
+pub fn ambiguous(
+    frames: &[&DeepFrame],
+    depth_error: &[f32],
+    taking_part: &[bool],
+) -> Vec<PixelMask> {
+    assert_eq!(frames.len(), taking_part.len());
+    assert_eq!(frames.len(), depth_error.len());
+    let Some(first) = frames.first() else {
+        return Vec::new();
+    };
+    let pixels = first.offsets().len() - 1;
+    let slack = 2.0
+        * depth_error
+            .iter()
+            .zip(taking_part)
+            .filter(|&(_, &t)| t)
+            .map(|(&e, _)| e)
+            .fold(0f32, f32::max);
+    let flags: Vec<bool> = (0..pixels)
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|p| {
+            let mut depths: Vec<(f32, usize)> = Vec::new();
+            for (i, f) in frames.iter().enumerate() {
+                depths.extend(f.run(p).iter().map(|x| (x.depth, i)));
+            }
+            if depths.len() < 2 || slack <= 0.0 {
+                return false;
+            }
+            depths.sort_by(|a, b| a.0.total_cmp(&b.0));
+            depths
+                .windows(2)
+                .any(|w| w[0].1 != w[1].1 && w[1].0 - w[0].0 <= slack)
+        })
+        .collect();
+    frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let mut b = MaskBuilder::new(pixels as u32);
+            if taking_part[i] {
+                for (p, &flag) in flags.iter().enumerate() {
+                    if flag && !f.run(p).is_empty() {
+                        b.push(p as u32);
+                    }
+                }
+            }
+            b.finish()
+        })
+        .collect()
+}

@@ -1,0 +1,229 @@
+//! The node's side of the reprojection transfer: match each pixel's rendered run against the
+//! reprojected one, keep what shades within the tolerance, remove the rest by position, insert
+//! what is missing, and check the merged run (see the module docs of `reprojection`).
+
+use rayon::prelude::*;
+use strata_core::{DeepFrame, Fragment};
+use strata_wire::{MaskBuilder, PixelMask, Removals};
+
+use super::held::{Entry, Held, Scratch};
+use super::view::View;
+use super::{BAND_ROWS, DEPTH_SLACK, close, merge_pixel};
+
+/// What a node sends for one frame.
+#[derive(Clone, Debug)]
+pub struct ReprojDelta {
+    /// Pixels with removals or inserts.
+    pub touched: PixelMask,
+    /// Per touched pixel, the projected positions removed; with the digest of the new state.
+    pub removals: Removals,
+    /// The inserted normal fragments (none outside `touched`).
+    pub inserts: DeepFrame,
+    /// Fragments the display will hold after applying it.
+    pub held: u64,
+}
+
+/// The node's side: its copy of what the display holds, and the matching.
+#[derive(Clone, Debug)]
+pub struct ReprojEncoder {
+    tolerance: u8,
+    held: Option<Held>,
+    /// Buffers reused from frame to frame.
+    projected: Held,
+    scratch: Scratch,
+    bands: Vec<BandOut>,
+}
+
+/// One band's share of a node frame.
+#[derive(Clone, Debug, Default)]
+struct BandOut {
+    entries: Vec<Entry>,
+    counts: Vec<u32>,
+    touched: Vec<u32>,
+    /// Per touched pixel, how many of `removed` are its.
+    removed_counts: Vec<u32>,
+    removed: Vec<u32>,
+    /// Inserted normal fragments, per touched pixel in order.
+    insert_counts: Vec<u32>,
+    inserts: Vec<Fragment>,
+    /// Largest |kept depth − rendered depth|.
+    depth_error: f32,
+}
+
+impl ReprojEncoder {
+    /// A node-side state that lets colours differ by at most `tolerance` 8-bit steps.
+    pub fn new(tolerance: u8) -> Self {
+        ReprojEncoder {
+            tolerance,
+            held: None,
+            projected: Held::empty(0, 0),
+            scratch: Scratch::default(),
+            bands: Vec::new(),
+        }
+    }
+
+    /// Forgets the display's state (a reset request): the next frame is sent whole.
+    pub fn reset(&mut self) {
+        self.held = None;
+    }
+
+    /// The delta that takes the display from the previous frame's state to `rendered` (normal
+    /// fragments rendered at `view`), and the new state kept for the next frame.
+    pub fn encode(&mut self, view: &View, rendered: &DeepFrame) -> ReprojDelta {
+        let (width, height) = view.size();
+        let old = self.held.take();
+        match &old {
+            Some(h) => h.reproject_into(view, &mut self.projected, &mut self.scratch),
+            None => self.projected.clear_to(width, height),
+        }
+        let projected = &self.projected;
+        let w = width as usize;
+        let bands = (height as usize).div_ceil(BAND_ROWS);
+        let tolerance = self.tolerance;
+        self.bands.resize_with(bands, BandOut::default);
+        self.bands.par_iter_mut().enumerate().for_each(|(b, out)| {
+            out.entries.clear();
+            out.counts.clear();
+            out.touched.clear();
+            out.removed_counts.clear();
+            out.removed.clear();
+            out.insert_counts.clear();
+            out.inserts.clear();
+            out.depth_error = 0.0;
+            let mut truth: Vec<(Entry, Fragment)> = Vec::new();
+            let mut removed: Vec<u32> = Vec::new();
+            let mut inserts: Vec<Entry> = Vec::new();
+            let mut inserted_wire: Vec<Fragment> = Vec::new();
+            let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+            for p in rows.start * w..rows.end * w {
+                truth.clear();
+                for f in rendered.run(p).iter() {
+                    if let Some(e) = view.entry(p as u32, f) {
+                        truth.push((e, f));
+                    }
+                }
+                sort_truth(&mut truth);
+                let held = projected.run(p);
+                removed.clear();
+                inserts.clear();
+                inserted_wire.clear();
+                let mut j = 0;
+                for (n, f) in &truth {
+                    let z = view.eye_depth(n.fragment.depth);
+                    match held[j..].iter().position(|h| {
+                        close(&h.fragment, &n.fragment, tolerance)
+                            && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
+                    }) {
+                        Some(k) => {
+                            removed.extend(j as u32..(j + k) as u32);
+                            j += k + 1;
+                        }
+                        None => {
+                            inserts.push(*n);
+                            inserted_wire.push(*f);
+                        }
+                    }
+                }
+                removed.extend(j as u32..held.len() as u32);
+                let start = out.entries.len();
+                merge_pixel(held, &removed, &inserts, &mut out.entries);
+                let merged = &out.entries[start..];
+                let ok = merged.len() == truth.len()
+                    && merged
+                        .iter()
+                        .zip(&truth)
+                        .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
+                if ok {
+                    for (m, (n, _)) in merged.iter().zip(&truth) {
+                        let e = (m.fragment.depth - n.fragment.depth).abs();
+                        out.depth_error = out.depth_error.max(e);
+                    }
+                } else {
+                    out.entries.truncate(start);
+                    removed.clear();
+                    removed.extend(0..held.len() as u32);
+                    inserts.clear();
+                    inserted_wire.clear();
+                    for (n, f) in &truth {
+                        inserts.push(*n);
+                        inserted_wire.push(*f);
+                    }
+                    merge_pixel(held, &removed, &inserts, &mut out.entries);
+                }
+                out.counts.push((out.entries.len() - start) as u32);
+                if !removed.is_empty() || !inserts.is_empty() {
+                    out.touched.push(p as u32);
+                    out.removed_counts.push(removed.len() as u32);
+                    out.removed.extend_from_slice(&removed);
+                    out.insert_counts.push(inserted_wire.len() as u32);
+                    out.inserts.extend_from_slice(&inserted_wire);
+                }
+            }
+        });
+
+        // Assemble the new state (in the old state's buffers), the mask, the removals and the
+        // inserts, band by band.
+        let pixels = w * height as usize;
+        let mut held = old.unwrap_or_else(|| Held::empty(0, 0));
+        held.assemble(
+            view,
+            self.bands
+                .iter()
+                .map(|o| (o.entries.as_slice(), o.counts.as_slice())),
+        );
+        let mut mask = MaskBuilder::new(pixels as u32);
+        let mut removals = Removals::new(0);
+        let mut insert_counts = vec![0u32; pixels];
+        let mut insert_list: Vec<Fragment> = Vec::new();
+        let mut depth_error = 0f32;
+        for o in &self.bands {
+            depth_error = depth_error.max(o.depth_error);
+            let mut at = 0;
+            for (k, &p) in o.touched.iter().enumerate() {
+                mask.push(p);
+                let n = o.removed_counts[k] as usize;
+                removals.push_pixel(o.removed[at..at + n].iter().copied());
+                at += n;
+                insert_counts[p as usize] = o.insert_counts[k];
+            }
+            insert_list.extend_from_slice(&o.inserts);
+        }
+        removals.set_checksum(held.digest());
+        removals.set_depth_error(depth_error);
+        let mut starts = Vec::with_capacity(pixels + 1);
+        let mut acc = 0u32;
+        for &c in &insert_counts {
+            starts.push(acc);
+            acc += c;
+        }
+        starts.push(acc);
+        // The inserts were rendered fragments: every run is at most a pixel's depth complexity,
+        // and the total fits the rendered frame, so building cannot fail.
+        let inserts = DeepFrame::build(width, height, &insert_counts, |p, out| {
+            out.extend_from_slice(&insert_list[starts[p] as usize..starts[p + 1] as usize]);
+        })
+        .unwrap_or_else(|_| DeepFrame::empty(width, height));
+        let count = held.len() as u64;
+        self.held = Some(held);
+        ReprojDelta {
+            touched: mask.finish(),
+            removals,
+            inserts,
+            held: count,
+        }
+    }
+}
+
+/// Sorts (entry, wire fragment) pairs by the entry's order, stably.
+fn sort_truth(run: &mut [(Entry, Fragment)]) {
+    for i in 1..run.len() {
+        let item = run[i];
+        let key = item.0.fragment.order_key();
+        let mut j = i;
+        while j > 0 && run[j - 1].0.fragment.order_key() > key {
+            run[j] = run[j - 1];
+            j -= 1;
+        }
+        run[j] = item;
+    }
+}

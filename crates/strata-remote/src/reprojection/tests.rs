@@ -1,0 +1,179 @@
+//! Node and display side by side, without sockets.
+
+use super::*;
+use strata_core::{DeepFrame, ObjectId, Rgb8Image, Rgba8};
+use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
+use strata_scene::Scene;
+use strata_scene::{Animation, SearchPath, open_scene};
+use strata_stores::{MethodOptions, create};
+use strata_wire::{PixelMask, Removals};
+
+const W: u32 = 128;
+const H: u32 = 96;
+
+/// `scene` turning `deg` degrees per frame about y.
+fn scene(name: &str, deg: f32) -> Scene {
+    let mut s = open_scene(name, &SearchPath::new([])).expect("built-in scene");
+    s.animation = Some(Animation {
+        frames: 72,
+        rotate_deg_per_frame: glam::Vec3::new(0.0, deg, 0.0),
+    });
+    s
+}
+
+/// Renders `objects` of `scene` at `frame` as normal or shaded fragments, `W` × `H`.
+fn render(scene: &Scene, objects: &[ObjectId], frame: u64, output: FragmentOutput) -> DeepFrame {
+    let mut input = FrameInput::from_scene(scene, frame as u32);
+    input.objects.retain(|o| objects.contains(&o.id));
+    input.output = output;
+    input.width = W;
+    input.height = H;
+    input.projection = scene.camera.projection(W, H);
+    let mut store = create("abuffer", &MethodOptions::default()).expect("the A-buffer");
+    store.clear(W, H).expect("clear");
+    store
+        .capture(&mut Rasterizer::default(), &input, &mut Default::default())
+        .expect("capture");
+    store.deep_frame().expect("exports").expect("a DeepFrame")
+}
+
+fn view(scene: &Scene, objects: &[ObjectId], frame: u64) -> View {
+    View::new(
+        scene,
+        objects,
+        frame,
+        (W, H),
+        scene.camera.view(),
+        scene.camera.projection(W, H),
+    )
+}
+
+fn max_channel_diff(a: &Rgb8Image, b: &Rgb8Image) -> u8 {
+    a.as_bytes()
+        .iter()
+        .zip(b.as_bytes())
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap_or(0)
+}
+
+/// Runs node and display side by side for `frames` frames; returns the fragments inserted per
+/// frame and checks every displayed image against the exact render.
+fn run(scene: &Scene, frames: u64, tolerance: u8) -> Vec<usize> {
+    let ids: Vec<ObjectId> = scene.objects.iter().map(|o| o.id).collect();
+    let mut enc = ReprojEncoder::new(tolerance);
+    let mut copy = ReprojCopy::empty(W, H);
+    let mut sent = Vec::new();
+    for t in 0..frames {
+        let v = view(scene, &ids, t);
+        let rendered = render(scene, &ids, t, FragmentOutput::PackedNormal);
+        let d = enc.encode(&v, &rendered);
+        copy.apply(&v, &d.touched, &d.removals, &d.inserts)
+            .expect("the display follows the node");
+        assert_eq!(copy.held().len() as u64, d.held);
+        assert_eq!(copy.held().len(), rendered.fragment_count());
+        let image = copy.held().to_frame().resolve(scene.background);
+        let exact = render(scene, &ids, t, FragmentOutput::Shaded).resolve(scene.background);
+        let diff = max_channel_diff(&image, &exact);
+        assert!(
+            diff <= tolerance + 1,
+            "frame {t}: a channel differs by {diff} (tolerance {tolerance})"
+        );
+        sent.push(d.inserts.fragment_count());
+    }
+    sent
+}
+
+#[test]
+fn static_view_sends_nothing_after_the_first_frame() {
+    let sent = run(&scene("spheres", 0.0), 4, 1);
+    assert!(sent[0] > 1000, "{sent:?}");
+    assert!(sent[1..].iter().all(|&n| n == 0), "{sent:?}");
+}
+
+#[test]
+fn turning_scene_stays_within_the_tolerance_and_sends_less_than_everything() {
+    let sent = run(&scene("spheres", 2.0), 6, 2);
+    assert!(sent[1..].iter().all(|&n| n < sent[0]), "{sent:?}");
+}
+
+#[test]
+fn zero_tolerance_is_exact_colour_for_colour() {
+    run(&scene("mixed", 5.0), 4, 0);
+}
+
+#[test]
+fn a_removal_beyond_a_run_or_a_wrong_digest_is_an_error_and_keeps_the_copy() {
+    let s = scene("spheres", 0.0);
+    let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
+    let v = view(&s, &ids, 0);
+    let mut enc = ReprojEncoder::new(1);
+    let d = enc.encode(&v, &render(&s, &ids, 0, FragmentOutput::PackedNormal));
+    let mut copy = ReprojCopy::empty(W, H);
+    let mut bad = d.removals.clone();
+    bad.set_checksum(d.removals.checksum() ^ 1);
+    assert!(matches!(
+        copy.apply(&v, &d.touched, &bad, &d.inserts),
+        Err(ApplyError::Diverged { .. })
+    ));
+    assert!(copy.held().is_empty());
+    copy.apply(&v, &d.touched, &d.removals, &d.inserts).unwrap();
+    // A removal at a position the pixel does not hold.
+    let p = d.touched.iter().next().unwrap();
+    let touched = PixelMask::from_fn(W * H, |q| q == p);
+    let mut r = Removals::new(0);
+    r.push_pixel([1000]);
+    let before = copy.held().clone();
+    assert!(matches!(
+        copy.apply(&v, &touched, &r, &DeepFrame::empty(W, H)),
+        Err(ApplyError::Mismatch(_))
+    ));
+    assert_eq!(copy.held(), &before);
+}
+
+#[test]
+fn digest_and_reprojection_do_not_depend_on_the_thread_count() {
+    let s = scene("mixed", 5.0);
+    let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
+    let go = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut enc = ReprojEncoder::new(1);
+                let mut digests = Vec::new();
+                for t in 0..3 {
+                    let d = enc.encode(
+                        &view(&s, &ids, t),
+                        &render(&s, &ids, t, FragmentOutput::PackedNormal),
+                    );
+                    digests.push((d.removals.checksum(), d.inserts.fragment_count()));
+                }
+                digests
+            })
+    };
+    assert_eq!(go(1), go(3));
+}
+
+#[test]
+fn merge_pixel_keeps_projected_first_on_ties() {
+    let e = |d: f32, o: u32| Entry {
+        fragment: Fragment {
+            depth: d,
+            color: Rgba8([1, 2, 3, 4]),
+            object: ObjectId(o),
+        },
+        surfel: Surfel::default(),
+    };
+    let mut tie = e(0.5, 1);
+    tie.surfel.position[0] = 9.0;
+    let mut out = Vec::new();
+    merge_pixel(
+        &[e(0.1, 0), e(0.5, 1), e(0.9, 2)],
+        &[0],
+        &[tie, e(0.95, 3)],
+        &mut out,
+    );
+    assert_eq!(out, [e(0.5, 1), tie, e(0.9, 2), e(0.95, 3)]);
+}
