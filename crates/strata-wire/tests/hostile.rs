@@ -1159,17 +1159,35 @@ fn fuzz_seed_corpus_decodes() {
                 transfer: TransferMethod::Difference,
                 ..FrameHeader::default()
             };
+            let reprojection = FrameHeader {
+                transfer: TransferMethod::Reprojection,
+                ..FrameHeader::default()
+            };
             for (kind, header) in [
                 ("full", FrameHeader::default()),
                 ("limited", limited_header()),
                 ("delta", delta),
+                ("reprojection", reprojection),
             ] {
                 let mut bytes = Vec::new();
-                if header.transfer == TransferMethod::Difference {
-                    let (changed, stale) = (PixelMask::full(pixels), PixelMask::empty(pixels));
-                    encode_delta_into(&mut bytes, &header, &changed, &stale, frame, codec).unwrap();
-                } else {
-                    encode_frame_into(&mut bytes, &header, frame, codec).unwrap();
+                match header.transfer {
+                    TransferMethod::Difference => {
+                        let (changed, stale) = (PixelMask::full(pixels), PixelMask::empty(pixels));
+                        encode_delta_into(&mut bytes, &header, &changed, &stale, frame, codec)
+                            .unwrap();
+                    }
+                    TransferMethod::Reprojection => {
+                        let mut removals = Removals::new(7);
+                        for p in 0..pixels {
+                            removals.push_pixel((0..p % 3).map(|i| i * 2));
+                        }
+                        let touched = PixelMask::full(pixels);
+                        encode_reprojection_into(
+                            &mut bytes, &header, &touched, &removals, frame, codec,
+                        )
+                        .unwrap();
+                    }
+                    _ => encode_frame_into(&mut bytes, &header, frame, codec).unwrap(),
                 }
                 let back = decode_frame(&bytes, &options(true)).unwrap();
                 assert!(back.frame == *frame);
