@@ -46,6 +46,18 @@ enum Command {
     /// seed's LZ4, encode and decode times, bit-exact round trips.
     Codecs(cmd::codecs::Args),
     /// Serve a display as a render node: render some objects of a scene, stream the fragments.
+    ///
+    /// The node listens on ADDR and serves one display connection at a time, for as long as it
+    /// runs (stop it with Ctrl-C). For each frame the display asks for, it poses the scene at that
+    /// animation frame, renders its objects with the chosen fragment store at the display's camera
+    /// and size, selects fragments with the display's transfer method, encodes them with the
+    /// display's codec and sends them. Several nodes can hold different objects of one scene; the
+    /// display merges them per pixel. The first line on stdout is `listening on HOST:PORT`.
+    ///
+    /// For the depth-limited transfer, `--method kbuffer -k N` keeps exactly the N nearest
+    /// fragments while capturing, which saves the node the selection pass. The reprojection
+    /// transfer renders normal fragments and needs a store that keeps every fragment: abuffer,
+    /// abuffer-array or sbuffer.
     Node(cmd::node::Args),
     /// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
     Display(cmd::display::Args),

@@ -8,14 +8,7 @@ use strata_wire::DecodeOptions;
 
 use crate::options::{RenderOptions, open_scene};
 
-/// Serve a display: render some objects of a scene at the camera it sends, stream the fragments.
-///
-/// The node listens on ADDR and serves one display connection at a time, for as long as it runs
-/// (stop it with Ctrl-C). For each frame the display asks for, it poses the scene at that
-/// animation frame, renders its objects with the chosen fragment store at the display's camera
-/// and size, selects fragments with the display's transfer method, encodes them with the
-/// display's codec and sends them. Several nodes can hold different objects of one scene; the
-/// display merges them per pixel. The first line on stdout is `listening on HOST:PORT`.
+/// The arguments of `strata node` (its help text is on the subcommand in `main.rs`).
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Address to listen on, e.g. 0.0.0.0:7400 (port 0: any free port).
