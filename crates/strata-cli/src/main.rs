@@ -56,8 +56,8 @@ enum Command {
     ///
     /// For the depth-limited transfer, `--method kbuffer -k N` keeps exactly the N nearest
     /// fragments while capturing, which saves the node the selection pass. The reprojection
-    /// transfer renders normal fragments and needs a store that keeps every fragment: abuffer,
-    /// abuffer-array or sbuffer.
+    /// transfer renders normal fragments and needs a store that keeps every fragment: abuffer
+    /// (with a growing pool) or sbuffer.
     Node(cmd::node::Args),
     /// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
     Display(cmd::display::Args),

@@ -10,7 +10,8 @@
 //!
 //! ```text
 //! bits  0..16   θ (azimuth, atan2(y, x)) as unorm16 over [-π, π]
-//! bits 16..32   φ (inclination, acos(z))  as unorm16 over [0, π]
+//! bits 16..32   φ (inclination, acos(z))  as unorm16 over [0, π], computed as
+//!               atan2(√(x² + y²), z), which stays accurate next to the poles
 //! ```
 //!
 //! The seed stores the two angles as half floats (`packHalf2x16`), whose 10-bit mantissa leaves
@@ -62,8 +63,10 @@ impl PackedNormal {
         }
         let theta = f32::from(self.0 as u16) / SCALE * std::f32::consts::TAU - std::f32::consts::PI;
         let phi = f32::from((self.0 >> 16) as u16) / SCALE * std::f32::consts::PI;
-        let (st, ct) = theta.sin_cos();
-        let (sp, cp) = phi.sin_cos();
+        // `libm`, not the platform's maths library: both ends of a reprojection link must unpack
+        // to the same bits whatever machine they run on.
+        let (st, ct) = (libm::sinf(theta), libm::cosf(theta));
+        let (sp, cp) = (libm::sinf(phi), libm::cosf(phi));
         Some([sp * ct, sp * st, cp])
     }
 

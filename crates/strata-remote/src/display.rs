@@ -354,7 +354,8 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
         });
         for (i, n) in nodes.iter_mut().enumerate() {
             let s = &mut stats[i];
-            match buffer.remove(&(i, t, false)) {
+            // A node that faulted keeps nothing it sent before: its next frame is a reset.
+            match buffer.remove(&(i, t, false)).filter(|_| n.up) {
                 Some(a) => {
                     if t == n.first_request {
                         n.copy = NodeCopy::empty(config.width, config.height);
@@ -366,6 +367,17 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
                     match (msg.changed, msg.stale, msg.removals, &reproj_view) {
                         (Some(changed), Some(stale), None, None) => {
                             n.copy.apply_delta(&changed, &stale, &msg.frame)
+                        }
+                        (Some(_), None, Some(_), Some(_))
+                            if msg.header.view != view || msg.header.projection != projection =>
+                        {
+                            let what = format!(
+                                "rendered frame {t} with other matrices than the display sent; \
+                                 reconnecting"
+                            );
+                            fault(n, t, what, observer, &mut incidents).await;
+                            s.status = "held";
+                            continue;
                         }
                         (Some(touched), None, Some(removals), Some(v)) => {
                             let applied = tokio::task::block_in_place(|| {
@@ -473,7 +485,7 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             }
             let fix_start = Instant::now();
             for &i in &asked {
-                if let Some(a) = buffer.remove(&(i, t, true)) {
+                if let Some(a) = buffer.remove(&(i, t, true)).filter(|_| nodes[i].up) {
                     record(&mut stats[i], &a);
                     if let Some(mask) = &a.msg.changed {
                         match &reproj_view {
@@ -608,6 +620,9 @@ fn on_event(
             }
             n.up = true;
             n.generation = generation;
+            // Whatever the old connection left in the buffer belongs to a chain of deltas that
+            // has ended.
+            buffer.retain(|&(j, _, _), _| j != i);
             // It joins with the next frame not yet composed, from a clean state.
             n.next_request = join_at;
             n.first_request = join_at;

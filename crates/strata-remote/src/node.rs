@@ -31,7 +31,7 @@ use strata_scene::Scene;
 use strata_stores::{Method, MethodOptions};
 use strata_wire::{
     DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
-    TransferMethod, encode_delta_into, encode_error_into, encode_frame_into,
+    TransferMethod, WireError, encode_delta_into, encode_error_into, encode_frame_into,
     encode_reprojection_into, seed_layout_bytes,
 };
 use tokio::io::AsyncWriteExt;
@@ -44,8 +44,9 @@ use crate::select::{depth_limit, restrict};
 use crate::stream::{ReadError, read_message};
 
 /// Stores that keep every fragment whatever its colour bytes hold: the ones a node can render
-/// normal fragments with (the others read alpha, which a packed normal does not have).
-pub const EXACT_STORES: &[&str] = &["abuffer", "abuffer-array", "sbuffer"];
+/// normal fragments with (the others read alpha, which a packed normal does not have, or drop
+/// fragments beyond a fixed size, as `abuffer-array` does).
+pub const EXACT_STORES: &[&str] = &["abuffer", "sbuffer"];
 
 /// Frames kept for fixup requests.
 const RECENT_FRAMES: usize = 8;
@@ -347,7 +348,18 @@ fn render_thread(
             .clear(input.width, input.height)
             .and_then(|()| method.capture(&mut raster, &input, &mut PassTimings::new()))
             .map_err(|e| e.to_string())
-            .and_then(|_| match method.deep_frame() {
+            .and_then(|report| {
+                // Reprojection: the display must be able to hold exactly what was rendered.
+                if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
+                    return Err(format!(
+                        "the store dropped {} fragments; the reprojection transfer needs every \
+                         one (use a growing pool: --pool auto)",
+                        report.dropped
+                    ));
+                }
+                Ok(())
+            })
+            .and_then(|()| match method.deep_frame() {
                 Some(Ok(f)) => Ok(f),
                 Some(Err(e)) => Err(e.to_string()),
                 None => Err(format!("method '{}' exports no DeepFrame", config.method)),
@@ -450,23 +462,28 @@ fn encode_thread(
                     glam::Mat4::from_cols_array(&request.view),
                     glam::Mat4::from_cols_array(&request.projection),
                 );
-                let d = reproj.encode(&view, &frame);
-                let select_us = select_start.elapsed().as_micros() as u64;
+                let select_us;
                 let t = Instant::now();
-                let r = encode_reprojection_into(
-                    &mut bytes,
-                    &header,
-                    &d.touched,
-                    &d.removals,
-                    &d.inserts,
-                    request.codec,
-                );
-                (
-                    d.inserts.fragment_count() as u64,
-                    select_us,
-                    t.elapsed().as_micros() as u64,
-                    r,
-                )
+                match reproj.encode(&view, &frame) {
+                    Ok(d) => {
+                        select_us = select_start.elapsed().as_micros() as u64;
+                        let r = encode_reprojection_into(
+                            &mut bytes,
+                            &header,
+                            &d.touched,
+                            &d.removals,
+                            &d.inserts,
+                            request.codec,
+                        );
+                        (
+                            d.inserts.fragment_count() as u64,
+                            select_us,
+                            t.elapsed().as_micros() as u64,
+                            r,
+                        )
+                    }
+                    Err(e) => (0, 0, 0, Err(WireError::Encode(e.to_string()))),
+                }
             }
             TransferMethod::Full => {
                 let t = Instant::now();

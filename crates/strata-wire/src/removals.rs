@@ -18,7 +18,7 @@
 //!
 //! ```text
 //! checksum     u64
-//! depth_error  f32      finite, ≥ 0
+//! depth_error  f32      in [0, 1]
 //! per touched pixel, in mask order:
 //!   count    varint        positions removed at this pixel (≤ 65 536)
 //!   first    varint        the first position
@@ -66,9 +66,9 @@ impl Removals {
         self.checksum = checksum;
     }
 
-    /// Sets the bound on kept fragments' depth error (clamped to a finite value ≥ 0).
+    /// Sets the bound on kept fragments' depth error (window depth, so clamped to `[0, 1]`).
     pub fn set_depth_error(&mut self, e: f32) {
-        self.depth_error = if e.is_finite() { e.max(0.0) } else { 1.0 };
+        self.depth_error = if e.is_nan() { 1.0 } else { e.clamp(0.0, 1.0) };
     }
 
     /// The bound on kept fragments' depth error, in window depth.
@@ -133,12 +133,12 @@ impl Removals {
         let checksum = r.u64("removals checksum")?;
         let at = r.offset();
         let depth_error = r.f32("depth_error")?;
-        if !(depth_error.is_finite() && depth_error >= 0.0) {
+        if !(0.0..=1.0).contains(&depth_error) {
             return Err(WireError::invalid(
                 "depth_error",
                 at,
                 depth_error,
-                "a finite depth error ≥ 0",
+                "a window-depth error in [0, 1]",
             ));
         }
         // Every pixel costs at least one byte: the allocation is bounded by the input.
@@ -222,6 +222,7 @@ mod tests {
             (vec![0u8; 11], 0), // short header
             ([vec![0u8; 8], f32::NAN.to_le_bytes().to_vec()].concat(), 0),
             ([vec![0u8; 8], (-1f32).to_le_bytes().to_vec()].concat(), 0),
+            ([vec![0u8; 8], f32::MAX.to_le_bytes().to_vec()].concat(), 0),
             (ok.clone(), 1),                        // a pixel missing
             ([ok.clone(), vec![0, 0]].concat(), 1), // trailing bytes
             ([ok.clone(), vec![5, 1]].concat(), 1), // count beyond the bytes

@@ -4,11 +4,12 @@
 
 use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment};
+use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
 use super::held::{Entry, Held, Scratch};
 use super::view::View;
-use super::{BAND_ROWS, DEPTH_SLACK, close, merge_pixel};
+use super::{BAND_ROWS, DEPTH_SLACK, close, merge_pixel, sort_stably_by_key};
 
 /// What a node sends for one frame.
 #[derive(Clone, Debug)]
@@ -21,6 +22,17 @@ pub struct ReprojDelta {
     pub inserts: DeepFrame,
     /// Fragments the display will hold after applying it.
     pub held: u64,
+}
+
+/// A pixel would lose more fragments in one frame than a removal list can name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "a pixel would lose {removals} fragments in one frame; a reprojection frame can remove at most \
+     {MAX_REMOVALS_PER_PIXEL} per pixel"
+)]
+pub struct TooDeep {
+    /// The removals the pixel needed.
+    pub removals: u32,
 }
 
 /// The node's side: its copy of what the display holds, and the matching.
@@ -69,7 +81,10 @@ impl ReprojEncoder {
 
     /// The delta that takes the display from the previous frame's state to `rendered` (normal
     /// fragments rendered at `view`), and the new state kept for the next frame.
-    pub fn encode(&mut self, view: &View, rendered: &DeepFrame) -> ReprojDelta {
+    ///
+    /// Fails (leaving the state as after a reset) if a pixel would lose more than
+    /// [`MAX_REMOVALS_PER_PIXEL`] fragments in one frame, which the wire cannot say.
+    pub fn encode(&mut self, view: &View, rendered: &DeepFrame) -> Result<ReprojDelta, TooDeep> {
         let (width, height) = view.size();
         let old = self.held.take();
         match &old {
@@ -176,6 +191,12 @@ impl ReprojEncoder {
         let mut insert_counts = vec![0u32; pixels];
         let mut insert_list: Vec<Fragment> = Vec::new();
         let mut depth_error = 0f32;
+        if let Some(&n) = self.bands.iter().flat_map(|o| &o.removed_counts).max()
+            && n > MAX_REMOVALS_PER_PIXEL
+        {
+            self.held = None;
+            return Err(TooDeep { removals: n });
+        }
         for o in &self.bands {
             depth_error = depth_error.max(o.depth_error);
             let mut at = 0;
@@ -205,25 +226,16 @@ impl ReprojEncoder {
         .unwrap_or_else(|_| DeepFrame::empty(width, height));
         let count = held.len() as u64;
         self.held = Some(held);
-        ReprojDelta {
+        Ok(ReprojDelta {
             touched: mask.finish(),
             removals,
             inserts,
             held: count,
-        }
+        })
     }
 }
 
 /// Sorts (entry, wire fragment) pairs by the entry's order, stably.
 fn sort_truth(run: &mut [(Entry, Fragment)]) {
-    for i in 1..run.len() {
-        let item = run[i];
-        let key = item.0.fragment.order_key();
-        let mut j = i;
-        while j > 0 && run[j - 1].0.fragment.order_key() > key {
-            run[j] = run[j - 1];
-            j -= 1;
-        }
-        run[j] = item;
-    }
+    sort_stably_by_key(run, |(e, _)| e.fragment.order_key());
 }

@@ -225,8 +225,9 @@ impl Held {
                     let run = self.run(p);
                     h.word(run.len() as u64);
                     for e in run {
-                        // The fragment and the position say everything the next frames derive
-                        // from an entry (its normal only feeds the colour, which is in here).
+                        // The fragment and the position: two ends that differ anywhere upstream
+                        // (matrices, trigonometry) differ here. Normals are left out to keep the
+                        // digest cheap; a difference in one shows once it changes a colour.
                         let (f, q) = (&e.fragment, &e.surfel.position);
                         h.word(u64::from(f.depth.to_bits()) << 32 | u64::from(f.color.to_bits()));
                         h.word(u64::from(f.object.0) << 32 | u64::from(q[0].to_bits()));

@@ -59,7 +59,7 @@ mod held;
 mod view;
 
 pub use copy::{ApplyError, ReprojCopy, ambiguous};
-pub use encoder::{ReprojDelta, ReprojEncoder};
+pub use encoder::{ReprojDelta, ReprojEncoder, TooDeep};
 pub use held::{Entry, Held, Scratch, Surfel};
 pub use view::View;
 
@@ -74,13 +74,24 @@ pub(crate) const BAND_ROWS: usize = 16;
 /// between them).
 pub(crate) const DEPTH_SLACK: f32 = 0.01;
 
-/// Stable insertion sort of a run by the fragments' order (runs are a pixel's depth complexity).
+/// Sorts a run by the fragments' order, stably.
 pub(crate) fn sort_entries(run: &mut [Entry]) {
+    sort_stably_by_key(run, |e| e.fragment.order_key());
+}
+
+/// Stable sort by `key`: insertion sort for a pixel's usual handful, the standard library's
+/// stable sort beyond 32 (a hostile node could otherwise make a display sort quadratically).
+/// Stable either way, so the result is the same and both ends of a link agree.
+pub(crate) fn sort_stably_by_key<T: Copy, K: Ord>(run: &mut [T], key: impl Fn(&T) -> K) {
+    if run.len() > 32 {
+        run.sort_by_key(key);
+        return;
+    }
     for i in 1..run.len() {
         let item = run[i];
-        let key = item.fragment.order_key();
+        let k = key(&item);
         let mut j = i;
-        while j > 0 && run[j - 1].fragment.order_key() > key {
+        while j > 0 && key(&run[j - 1]) > k {
             run[j] = run[j - 1];
             j -= 1;
         }

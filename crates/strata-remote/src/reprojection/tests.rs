@@ -1,7 +1,7 @@
 //! Node and display side by side, without sockets.
 
 use super::*;
-use strata_core::{DeepFrame, ObjectId, Rgb8Image, Rgba8};
+use strata_core::{DeepFrame, Fragment, ObjectId, PackedNormal, Rgb8Image, Rgba8};
 use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
 use strata_scene::{Animation, SearchPath, open_scene};
@@ -67,7 +67,7 @@ fn run(scene: &Scene, frames: u64, tolerance: u8) -> Vec<usize> {
     for t in 0..frames {
         let v = view(scene, &ids, t);
         let rendered = render(scene, &ids, t, FragmentOutput::PackedNormal);
-        let d = enc.encode(&v, &rendered);
+        let d = enc.encode(&v, &rendered).expect("encodes");
         copy.apply(&v, &d.touched, &d.removals, &d.inserts)
             .expect("the display follows the node");
         assert_eq!(copy.held().len() as u64, d.held);
@@ -108,7 +108,9 @@ fn a_removal_beyond_a_run_or_a_wrong_digest_is_an_error_and_keeps_the_copy() {
     let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
     let v = view(&s, &ids, 0);
     let mut enc = ReprojEncoder::new(1);
-    let d = enc.encode(&v, &render(&s, &ids, 0, FragmentOutput::PackedNormal));
+    let d = enc
+        .encode(&v, &render(&s, &ids, 0, FragmentOutput::PackedNormal))
+        .expect("encodes");
     let mut copy = ReprojCopy::empty(W, H);
     let mut bad = d.removals.clone();
     bad.set_checksum(d.removals.checksum() ^ 1);
@@ -144,10 +146,12 @@ fn digest_and_reprojection_do_not_depend_on_the_thread_count() {
                 let mut enc = ReprojEncoder::new(1);
                 let mut digests = Vec::new();
                 for t in 0..3 {
-                    let d = enc.encode(
-                        &view(&s, &ids, t),
-                        &render(&s, &ids, t, FragmentOutput::PackedNormal),
-                    );
+                    let d = enc
+                        .encode(
+                            &view(&s, &ids, t),
+                            &render(&s, &ids, t, FragmentOutput::PackedNormal),
+                        )
+                        .expect("encodes");
                     digests.push((d.removals.checksum(), d.inserts.fragment_count()));
                 }
                 digests
@@ -176,4 +180,51 @@ fn merge_pixel_keeps_projected_first_on_ties() {
         &mut out,
     );
     assert_eq!(out, [e(0.5, 1), tie, e(0.9, 2), e(0.95, 3)]);
+}
+
+#[test]
+fn long_runs_sort_stably_like_short_ones() {
+    // Keys with many ties, in runs on both sides of the insertion-sort cut-off.
+    for n in [5usize, 32, 33, 200] {
+        let run: Vec<(u32, usize)> = (0..n).map(|i| ((i * 7 % 5) as u32, i)).collect();
+        let mut sorted = run.clone();
+        sort_stably_by_key(&mut sorted, |&(k, _)| k);
+        let mut want = run.clone();
+        want.sort_by_key(|&(k, _)| k); // the standard library's sort is stable
+        assert_eq!(sorted, want, "{n}");
+    }
+}
+
+#[test]
+fn a_pixel_losing_more_than_a_removal_list_can_name_is_an_error_not_a_panic() {
+    let s = scene("spheres", 0.0);
+    let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
+    let v = View::new(
+        &s,
+        &ids,
+        0,
+        (1, 1),
+        s.camera.view(),
+        s.camera.projection(1, 1),
+    );
+    let deep: Vec<Fragment> = (0..70_000u32)
+        .map(|i| Fragment {
+            depth: 0.5 + i as f32 * 1e-6,
+            color: Rgba8::from_bits(PackedNormal::pack([0.0, 0.0, 1.0]).to_bits()),
+            object: ids[0],
+        })
+        .collect();
+    let mut enc = ReprojEncoder::new(0);
+    let first = DeepFrame::from_pixel_lists(1, 1, &[deep]).unwrap();
+    assert_eq!(
+        enc.encode(&v, &first).unwrap().inserts.fragment_count(),
+        70_000
+    );
+    let e = enc.encode(&v, &DeepFrame::empty(1, 1)).unwrap_err();
+    assert_eq!(e.removals, 70_000);
+    // The encoder starts over: the next frame is sent whole.
+    assert_eq!(
+        enc.encode(&v, &first).unwrap().inserts.fragment_count(),
+        70_000
+    );
 }

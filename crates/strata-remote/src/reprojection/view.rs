@@ -101,9 +101,11 @@ impl View {
     /// True if `object` is placed and seen exactly as in `other`: reprojecting it from `other`
     /// to `self` is the identity, and is done as one (f32 arithmetic would move it by an ulp).
     pub(super) fn unchanged(&self, other: &View, object: usize) -> bool {
-        self.size() == other.size()
-            && self.projection == other.projection
-            && self.objects.get(object) == other.objects.get(object)
+        let (Some(Some(a)), Some(Some(b))) = (self.objects.get(object), other.objects.get(object))
+        else {
+            return false;
+        };
+        self.size() == other.size() && self.projection == other.projection && a == b
     }
 
     #[inline]

@@ -26,7 +26,7 @@ pub mod file;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec3, Vec4};
 use strata_core::{Material, ObjectId};
 
 use crate::camera::Camera;
@@ -85,10 +85,38 @@ pub struct Animation {
 }
 
 /// `Rz(z) · Ry(y) · Rx(x)` with angles in degrees.
+///
+/// The sines and cosines come from the `libm` crate, not the platform's maths library, so every
+/// machine computes the same matrices bit for bit: remote nodes and displays rebuild the same
+/// object placements independently (the reprojection transfer depends on it).
 pub fn rotation_zyx_deg(deg: Vec3) -> Mat4 {
-    Mat4::from_rotation_z(deg.z.to_radians())
-        * Mat4::from_rotation_y(deg.y.to_radians())
-        * Mat4::from_rotation_x(deg.x.to_radians())
+    let sin_cos = |d: f32| {
+        let r = d.to_radians();
+        (libm::sinf(r), libm::cosf(r))
+    };
+    let (sx, cx) = sin_cos(deg.x);
+    let (sy, cy) = sin_cos(deg.y);
+    let (sz, cz) = sin_cos(deg.z);
+    // The matrices of glam's from_rotation_{z,y,x}, with portable trigonometry.
+    let rz = Mat4::from_cols(
+        Vec4::new(cz, sz, 0.0, 0.0),
+        Vec4::new(-sz, cz, 0.0, 0.0),
+        Vec4::Z,
+        Vec4::W,
+    );
+    let ry = Mat4::from_cols(
+        Vec4::new(cy, 0.0, -sy, 0.0),
+        Vec4::Y,
+        Vec4::new(sy, 0.0, cy, 0.0),
+        Vec4::W,
+    );
+    let rx = Mat4::from_cols(
+        Vec4::X,
+        Vec4::new(0.0, cx, sx, 0.0),
+        Vec4::new(0.0, -sx, cx, 0.0),
+        Vec4::W,
+    );
+    rz * ry * rx
 }
 
 impl SceneObject {
