@@ -462,11 +462,10 @@ fn encode_thread(
                     glam::Mat4::from_cols_array(&request.view),
                     glam::Mat4::from_cols_array(&request.projection),
                 );
-                let select_us;
-                let t = Instant::now();
                 match reproj.encode(&view, &frame) {
                     Ok(d) => {
-                        select_us = select_start.elapsed().as_micros() as u64;
+                        let select_us = select_start.elapsed().as_micros() as u64;
+                        let t = Instant::now();
                         let r = encode_reprojection_into(
                             &mut bytes,
                             &header,
