@@ -9,9 +9,13 @@ use std::time::{Duration, Instant};
 use strata_remote::Transfer;
 use strata_remote::display::{self, DisplayConfig, OnFault};
 use strata_remote::node::{NodeConfig, serve};
-use strata_scene::{Scene, SearchPath, open_scene};
+use strata_remote::reference::exact_image;
+use strata_scene::{Animation, Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
-use strata_wire::{Codec, DecodeOptions, Hello};
+use strata_wire::{
+    Codec, DecodeOptions, Hello, MessageType, PREFIX_LEN, decode_frame, encode_reprojection_into,
+    parse_prefix,
+};
 
 fn scene() -> Arc<Scene> {
     Arc::new(open_scene("mixed", &SearchPath::new([])).expect("built-in scene"))
@@ -19,6 +23,11 @@ fn scene() -> Arc<Scene> {
 
 /// A real node for objects 0 and 1 on a loopback port.
 fn real_node(scene: &Arc<Scene>) -> (String, tokio::runtime::Runtime) {
+    real_node_for(scene, &[0, 1])
+}
+
+/// A real node for `objects` (indices) of `scene` on a loopback port.
+fn real_node_for(scene: &Arc<Scene>, objects: &[usize]) -> (String, tokio::runtime::Runtime) {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
@@ -33,7 +42,7 @@ fn real_node(scene: &Arc<Scene>) -> (String, tokio::runtime::Runtime) {
     };
     let config = NodeConfig {
         scene: scene.clone(),
-        objects: vec![scene.objects[0].id, scene.objects[1].id],
+        objects: objects.iter().map(|&i| scene.objects[i].id).collect(),
         method: "abuffer".into(),
         method_options: MethodOptions::default(),
         limits: DecodeOptions::default(),
@@ -215,4 +224,128 @@ fn bad_configurations_are_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("glass torus"), "lists the objects: {e}");
+}
+
+/// A proxy in front of `node` that, on the first connection only, rewrites the reprojection frame
+/// numbered `bad` with a wrong state digest; everything else passes through untouched.
+fn digest_corrupting_proxy(node: String, bad: u64) -> String {
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        let mut first = true;
+        for display in l.incoming() {
+            let Ok(display) = display else { return };
+            let Ok(upstream) = std::net::TcpStream::connect(&node) else {
+                return;
+            };
+            let (mut from_display, mut to_node) =
+                (display.try_clone().unwrap(), upstream.try_clone().unwrap());
+            std::thread::spawn(move || {
+                std::io::copy(&mut from_display, &mut to_node).ok();
+                to_node.shutdown(std::net::Shutdown::Both).ok();
+            });
+            let corrupt = std::mem::take(&mut first);
+            let (mut from_node, mut to_display) = (upstream, display);
+            std::thread::spawn(move || {
+                let limits = DecodeOptions::default();
+                loop {
+                    let mut msg = vec![0u8; PREFIX_LEN];
+                    if from_node.read_exact(&mut msg).is_err() {
+                        break;
+                    }
+                    let Ok(prefix) = parse_prefix(&msg, &limits) else {
+                        break;
+                    };
+                    let mut body = vec![0u8; prefix.body_len as usize];
+                    if from_node.read_exact(&mut body).is_err() {
+                        break;
+                    }
+                    msg.extend_from_slice(&body);
+                    if corrupt
+                        && prefix.kind == MessageType::Frame
+                        && let Ok(m) = decode_frame(&msg, &limits)
+                        && m.header.frame_number == bad
+                        && let (Some(touched), Some(removals)) = (&m.changed, &m.removals)
+                    {
+                        let mut wrong = removals.clone();
+                        wrong.set_checksum(removals.checksum() ^ 1);
+                        encode_reprojection_into(
+                            &mut msg, &m.header, touched, &wrong, &m.frame, m.codec,
+                        )
+                        .unwrap();
+                    }
+                    if to_display.write_all(&msg).is_err() {
+                        break;
+                    }
+                }
+                to_display.shutdown(std::net::Shutdown::Both).ok();
+            });
+        }
+    });
+    addr
+}
+
+#[test]
+fn a_diverged_reprojection_state_is_reported_and_the_node_starts_over_cleanly() {
+    let mut s = open_scene("mixed", &SearchPath::new([])).unwrap();
+    s.animation = Some(Animation {
+        frames: 72,
+        rotate_deg_per_frame: glam::Vec3::new(0.0, 5.0, 0.0),
+    });
+    let s = Arc::new(s);
+    // The proxied node draws the cube and the torus; a second, honest node draws the rest and
+    // keeps the display's pace while the first reconnects.
+    let (node, _rt) = real_node_for(&s, &[0, 1]);
+    let (other, _rt2) = real_node_for(&s, &[2, 3, 4]);
+    let proxy = digest_corrupting_proxy(node, 3);
+    let mut c = config(&s, vec![proxy, other], OnFault::Hold);
+    c.transfer = Transfer::Reprojection;
+    c.tolerance = 1;
+    c.frames = 48;
+    (c.width, c.height) = (320, 180);
+    // Frames 4 and 5 are already on their way when frame 3 turns out wrong: what the old
+    // connection sent must not be applied to the new one's state.
+    c.in_flight = 3;
+    c.timeout = Duration::from_secs(10);
+    struct Keep(Vec<(u64, strata_core::Rgb8Image)>);
+    impl display::Observer for Keep {
+        fn frame(&mut self, f: &strata_remote::report::FrameStats, i: &strata_core::Rgb8Image) {
+            self.0.push((f.frame, i.clone()));
+        }
+    }
+    let mut keep = Keep(Vec::new());
+    let r = display::run(c.clone(), &mut keep).unwrap();
+    let whats: Vec<&str> = r.incidents.iter().map(|i| i.what.as_str()).collect();
+    // The divergence, the link dropping the connection, the node coming back — and nothing
+    // after: no stale frame of the old connection is applied to the new state.
+    assert!(whats[0].contains("diverged"), "{whats:?}");
+    assert!(
+        whats.last().unwrap().starts_with("reconnected"),
+        "{whats:?}"
+    );
+    assert!(
+        whats[1..whats.len() - 1]
+            .iter()
+            .all(|w| w.starts_with("down: disconnected by the display")),
+        "{whats:?}"
+    );
+    let back = r
+        .per_frame
+        .iter()
+        .rposition(|f| f.nodes[0].status != "ok")
+        .expect("frame 3 was held")
+        + 1;
+    assert!(back < 48, "the node came back");
+    let mut raster = strata_raster::Rasterizer::default();
+    for (f, image) in &keep.0[back..] {
+        let want = exact_image(&s, *f, c.width, c.height, &mut raster).unwrap();
+        let worst = image
+            .as_bytes()
+            .iter()
+            .zip(want.as_bytes())
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap_or(0);
+        assert!(worst <= 2, "frame {f}: off by {worst}");
+    }
 }
