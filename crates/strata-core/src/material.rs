@@ -1,5 +1,7 @@
 //! What an object looks like: its straight-alpha colour and how it is shaded (DESIGN §2).
 
+use crate::fragment::{Rgba8, unorm8};
+
 /// How a fragment's colour is computed from the object's colour.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Shading {
@@ -56,6 +58,21 @@ pub fn headlight_factor(n: [f32; 3], p: [f32; 3]) -> f32 {
         0.0
     };
     0.25 + 0.75 * cos
+}
+
+/// The headlight colour of an object of colour `rgb` and quantised alpha `alpha` at headlight
+/// factor `factor` ([`headlight_factor`]): `rgb · factor` quantised as GLSL `packUnorm4x8`.
+///
+/// The rasterizer shades with it and the reprojection transfer re-shades with it, so the two
+/// agree by construction.
+#[inline]
+pub fn headlight_rgba(rgb: [f32; 3], alpha: u8, factor: f32) -> Rgba8 {
+    Rgba8([
+        unorm8(rgb[0] * factor),
+        unorm8(rgb[1] * factor),
+        unorm8(rgb[2] * factor),
+        alpha,
+    ])
 }
 
 #[cfg(test)]

@@ -14,7 +14,7 @@
 //! pieces; larger ones are scanned span by span by [`scan_triangle`].
 
 use glam::Vec3A;
-use strata_core::fragment::unorm8;
+use strata_core::material::headlight_rgba;
 use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
 use crate::coverage::{Edges, Micro, SMALL, Triangle};
@@ -86,13 +86,7 @@ impl Interp {
         } else if LIT {
             let n = self.n[0] * l[0] + self.n[1] * l[1] + self.n[2] * l[2];
             let p = self.p[0] * l[0] + self.p[1] * l[1] + self.p[2] * l[2];
-            let f = headlight(n, p);
-            Rgba8([
-                unorm8(shade.rgb[0] * f),
-                unorm8(shade.rgb[1] * f),
-                unorm8(shade.rgb[2] * f),
-                shade.alpha,
-            ])
+            headlight_rgba(shade.rgb, shade.alpha, headlight(n, p))
         } else {
             shade.flat
         };

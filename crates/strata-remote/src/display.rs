@@ -380,6 +380,7 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
                             continue;
                         }
                         (Some(touched), None, Some(removals), Some(v)) => {
+                            s.removals = removals.total() as u64;
                             let applied = tokio::task::block_in_place(|| {
                                 n.reproj.apply(v, &touched, &removals, &msg.frame)
                             });

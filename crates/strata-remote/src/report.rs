@@ -22,6 +22,10 @@ pub struct NodeFrame {
     pub fragments_rendered: u64,
     /// Fragments the node sent.
     pub fragments_sent: u64,
+    /// Reprojection: held fragments the node removed by position (not counted in
+    /// `fragments_sent`: a removal is a position of a byte or two, not a fragment — the seed sent
+    /// each as a flagged fragment).
+    pub removals: u64,
     /// Node: clear + capture + DeepFrame export.
     pub render_ms: f64,
     /// Node: the transfer method's choice.
@@ -69,6 +73,11 @@ impl FrameStats {
     /// Fragments sent over all nodes.
     pub fn fragments_sent(&self) -> u64 {
         self.nodes.iter().map(|n| n.fragments_sent).sum()
+    }
+
+    /// Removals over all nodes.
+    pub fn removals(&self) -> u64 {
+        self.nodes.iter().map(|n| n.removals).sum()
     }
 
     /// Fragments rendered over all nodes.
@@ -128,6 +137,9 @@ pub struct Summary {
     pub fragments_sent_share: f64,
     /// Same, without the first frame (what the difference transfer saves in steady state).
     pub fragments_sent_share_after_first: f64,
+    /// Reprojection: removals over fragments rendered, without the first frame (the seed's
+    /// difference lists counted each removal as a fragment).
+    pub removals_share_after_first: f64,
     /// Medians per node-frame, ms.
     pub render_ms: f64,
     /// Median.
@@ -215,6 +227,10 @@ impl Summary {
                 sum(&|f| f.fragments_sent(), 1),
                 sum(&|f| f.fragments_rendered(), 1),
             ),
+            removals_share_after_first: ratio(
+                sum(&|f| f.removals(), 1),
+                sum(&|f| f.fragments_rendered(), 1),
+            ),
             render_ms: median(node_frames().map(|n| n.render_ms).collect()),
             select_ms: median(node_frames().map(|n| n.select_ms).collect()),
             encode_ms: median(node_frames().map(|n| n.encode_ms).collect()),
@@ -276,6 +292,13 @@ impl Summary {
             100.0 * self.fragments_sent_share,
             100.0 * self.fragments_sent_share_after_first
         );
+        if self.removals_share_after_first > 0.0 {
+            let _ = writeln!(
+                s,
+                "  removals          {:8.1}% of rendered after the first frame (positions, not fragments)",
+                100.0 * self.removals_share_after_first
+            );
+        }
         let _ = writeln!(
             s,
             "  node ms (median)  render {:.1}, select {:.1}, encode {:.1}",

@@ -351,12 +351,7 @@ pub fn encode_delta_into(
             stale.frame_pixels()
         )));
     }
-    let outside = outside_mask(frame, changed);
-    if outside > 0 {
-        return Err(WireError::Encode(format!(
-            "{outside} fragments lie outside the pixel mask"
-        )));
-    }
+    all_inside(frame, changed)?;
     let mut sections = Vec::with_capacity(6);
     for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
         let mut mask = Vec::new();
@@ -398,12 +393,7 @@ pub fn encode_reprojection_into(
             touched.len()
         )));
     }
-    let outside = outside_mask(inserts, touched);
-    if outside > 0 {
-        return Err(WireError::Encode(format!(
-            "{outside} fragments lie outside the pixel mask"
-        )));
-    }
+    all_inside(inserts, touched)?;
     let mut bytes = Vec::new();
     touched.encode(&mut bytes);
     let mut sections = vec![codec::compressed_section(SectionTag::Mask, &bytes, codec)?];
@@ -417,6 +407,16 @@ pub fn encode_reprojection_into(
     sections.extend(codec::encode_sections(inserts, codec)?);
     write_frame(out, header, inserts, codec, &sections);
     Ok(())
+}
+
+/// An encoder's check that `frame` holds fragments only at pixels of `mask`.
+fn all_inside(frame: &DeepFrame, mask: &PixelMask) -> Result<(), WireError> {
+    match outside_mask(frame, mask) {
+        0 => Ok(()),
+        outside => Err(WireError::Encode(format!(
+            "{outside} fragments lie outside the pixel mask"
+        ))),
+    }
 }
 
 /// Fragments of `frame` at pixels outside `mask`.

@@ -182,18 +182,26 @@ pub fn ambiguous(
             .filter(|&(_, &t)| t)
             .map(|(&e, _)| e)
             .fold(0f32, f32::max);
+    if slack <= 0.0 {
+        // Every node's depths are exact: the merge orders them as the exact render does.
+        return frames
+            .iter()
+            .map(|_| PixelMask::empty(pixels as u32))
+            .collect();
+    }
     let flags: Vec<bool> = (0..pixels)
         .into_par_iter()
         .with_min_len(4096)
-        .map(|p| {
-            let mut depths: Vec<(f32, usize)> = Vec::new();
+        .map_init(Vec::new, |depths: &mut Vec<(f32, usize)>, p| {
+            // Most pixels are covered by one node or none: nothing to order.
+            if frames.iter().filter(|f| !f.run(p).is_empty()).count() < 2 {
+                return false;
+            }
+            depths.clear();
             for (i, f) in frames.iter().enumerate() {
                 depths.extend(f.run(p).iter().map(|x| (x.depth, i)));
             }
-            if depths.len() < 2 || slack <= 0.0 {
-                return false;
-            }
-            depths.sort_by(|a, b| a.0.total_cmp(&b.0));
+            depths.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             depths
                 .windows(2)
                 .any(|w| w[0].1 != w[1].1 && w[1].0 - w[0].0 <= slack)

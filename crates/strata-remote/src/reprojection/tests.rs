@@ -228,3 +228,42 @@ fn a_pixel_losing_more_than_a_removal_list_can_name_is_an_error_not_a_panic() {
         70_000
     );
 }
+
+#[test]
+fn ambiguous_pixels_are_where_two_nodes_come_closer_than_the_error_bound() {
+    let f = |depth: f32, o: u32| Fragment {
+        depth,
+        color: Rgba8([9, 9, 9, 128]),
+        object: ObjectId(o),
+    };
+    // Pixel 0: the nodes 1e-4 apart; 1: one node only; 2: 0.1 apart; 3: a node's own two
+    // fragments close together; 4: empty.
+    let a = DeepFrame::from_pixel_lists(
+        5,
+        1,
+        &[
+            vec![f(0.5, 0)],
+            vec![f(0.5, 0)],
+            vec![f(0.2, 0)],
+            vec![f(0.3, 0), f(0.30001, 0)],
+            vec![],
+        ],
+    )
+    .unwrap();
+    let b = DeepFrame::from_pixel_lists(
+        5,
+        1,
+        &[vec![f(0.5001, 1)], vec![], vec![f(0.3, 1)], vec![], vec![]],
+    )
+    .unwrap();
+    let masks = ambiguous(&[&a, &b], &[1e-3, 0.0], &[true, true]);
+    let pixels = |m: &PixelMask| m.iter().collect::<Vec<u32>>();
+    assert_eq!(pixels(&masks[0]), [0]);
+    assert_eq!(pixels(&masks[1]), [0]);
+    // Exact depths on both sides: nothing to fix up.
+    let masks = ambiguous(&[&a, &b], &[0.0, 0.0], &[true, true]);
+    assert!(masks.iter().all(PixelMask::is_empty));
+    // A node not taking part this frame is asked for nothing.
+    let masks = ambiguous(&[&a, &b], &[1e-3, 0.0], &[true, false]);
+    assert_eq!((pixels(&masks[0]), pixels(&masks[1])), (vec![0], vec![]));
+}

@@ -5,7 +5,7 @@
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 use strata_core::fragment::unorm8;
-use strata_core::material::headlight_factor;
+use strata_core::material::{headlight_factor, headlight_rgba};
 use strata_core::{DeepFrame, Fragment, ObjectId, PackedNormal, Rgba8, Shading};
 use strata_scene::Scene;
 
@@ -120,13 +120,11 @@ impl View {
             return o.flat;
         }
         let n = o.normal * Vec3::from(surfel.normal);
-        let f = headlight_factor(n.to_array(), eye.to_array());
-        Rgba8([
-            unorm8(o.rgb[0] * f),
-            unorm8(o.rgb[1] * f),
-            unorm8(o.rgb[2] * f),
+        headlight_rgba(
+            o.rgb,
             o.alpha,
-        ])
+            headlight_factor(n.to_array(), eye.to_array()),
+        )
     }
 
     /// Eq. 5.9 and the viewport: the pixel `surfel` of `object` lands in and the fragment it
