@@ -35,6 +35,7 @@ pub mod material;
 pub mod metrics;
 pub mod normal;
 pub mod npy;
+pub mod rgba_image;
 pub mod stats;
 pub mod timings;
 
@@ -43,5 +44,6 @@ pub use fragment::{Fragment, ObjectId, Rgba8};
 pub use image::{ImageError, Rgb8Image};
 pub use material::{Material, Shading};
 pub use normal::PackedNormal;
+pub use rgba_image::{PngAlpha, PngDepth, RgbaF32Image};
 pub use stats::DepthStats;
 pub use timings::PassTimings;
