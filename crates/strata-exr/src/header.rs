@@ -100,10 +100,6 @@ impl<'a> Cursor<'a> {
         Ok(a)
     }
 
-    pub(crate) fn u8(&mut self, what: &str) -> Result<u8> {
-        Ok(self.array::<1>(what)?[0])
-    }
-
     pub(crate) fn i32(&mut self, what: &str) -> Result<i32> {
         Ok(i32::from_le_bytes(self.array(what)?))
     }
