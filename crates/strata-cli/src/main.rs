@@ -3,6 +3,7 @@
 #[macro_use]
 mod out;
 mod cmd;
+mod images;
 mod options;
 mod report;
 
@@ -61,6 +62,10 @@ enum Command {
     Node(cmd::node::Args),
     /// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
     Display(cmd::display::Args),
+    /// Deep-merge deep OpenEXR images (strata's or any tool's) and flatten them to EXR or PNG.
+    Composite(cmd::composite::Args),
+    /// Show what an OpenEXR file holds: header, sample statistics, one pixel's samples.
+    Inspect(cmd::inspect::Args),
 }
 
 fn main() -> ExitCode {
@@ -92,6 +97,8 @@ fn main() -> ExitCode {
         Command::Codecs(a) => cmd::codecs::run(a),
         Command::Node(a) => cmd::node::run(a),
         Command::Display(a) => cmd::display::run(a),
+        Command::Composite(a) => cmd::composite::run(a),
+        Command::Inspect(a) => cmd::inspect::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

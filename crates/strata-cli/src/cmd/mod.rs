@@ -3,8 +3,10 @@
 pub(crate) mod bench;
 pub(crate) mod codecs;
 pub(crate) mod compare;
+pub(crate) mod composite;
 pub(crate) mod demo;
 pub(crate) mod display;
+pub(crate) mod inspect;
 pub(crate) mod methods;
 pub(crate) mod node;
 pub(crate) mod render;
