@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use serde_json::json;
-use strata_exr::{Attribute, Box2i, DeepImage, FileInfo, FlatImage, Limits, LineOrder};
+use strata_exr::{Attribute, Box2i, Column, DeepImage, FileInfo, FlatImage, Limits, LineOrder};
 
 /// Print what an OpenEXR file (deep or flat scanline) holds.
 ///
@@ -104,19 +104,24 @@ fn attribute_value(a: &Attribute) -> String {
     if let Some(v) = a.as_float() {
         return format!("{v}");
     }
+    let f32s = |b: &[u8]| -> Vec<String> {
+        b.chunks_exact(4)
+            .map(|b| format!("{}", f32::from_le_bytes([b[0], b[1], b[2], b[3]])))
+            .collect()
+    };
+    let i32s = |b: &[u8]| -> Vec<String> {
+        b.chunks_exact(4)
+            .map(|b| format!("{}", i32::from_le_bytes([b[0], b[1], b[2], b[3]])))
+            .collect()
+    };
     match (a.type_name.as_str(), a.value.len()) {
+        ("v2f", 8) | ("v3f", 12) => format!("({})", f32s(&a.value).join(", ")),
+        ("v2i", 8) | ("v3i", 12) | ("box2i", 16) => format!("({})", i32s(&a.value).join(", ")),
         ("int", 4) => {
             let v = i32::from_le_bytes([a.value[0], a.value[1], a.value[2], a.value[3]]);
             format!("{v}")
         }
-        ("m44f", 64) => {
-            let v: Vec<String> = a
-                .value
-                .chunks_exact(4)
-                .map(|b| format!("{}", f32::from_le_bytes([b[0], b[1], b[2], b[3]])))
-                .collect();
-            format!("[{}]", v.join(", "))
-        }
+        ("m44f", 64) | ("m33f", 36) => format!("[{}]", f32s(&a.value).join(", ")),
         (_, n) => format!("({n} bytes)"),
     }
 }
@@ -174,14 +179,24 @@ fn report_text(args: &Args, info: &FileInfo, pixels: &Pixels) -> String {
             if let Some((x, y)) = args.pixel {
                 let p = flat_index(image, x, y);
                 let _ = writeln!(s, "pixel ({x},{y}):");
-                for c in image.channels() {
-                    let v = image.value(&c.name, p).unwrap_or(f64::NAN);
-                    let _ = writeln!(s, "  {} = {v}", c.name);
+                for (k, c) in image.channels().iter().enumerate() {
+                    let _ = writeln!(s, "  {} = {}", c.name, value_text(image.column(k), p));
                 }
             }
         }
     }
     s
+}
+
+/// Value `i` of a column as the file stores it: shortest `f32` text, or the integer.
+fn value_text(column: &Column, i: usize) -> String {
+    if let Some(v) = column.as_f32().and_then(|v| v.get(i)) {
+        format!("{v}")
+    } else if let Some(v) = column.as_u32().and_then(|v| v.get(i)) {
+        format!("{v}")
+    } else {
+        "?".to_owned()
+    }
 }
 
 fn per_covered(samples: u64, covered: u64) -> f64 {
@@ -214,7 +229,12 @@ fn flat_index(image: &FlatImage, x: i64, y: i64) -> usize {
 
 fn deep_pixel_text(s: &mut String, image: &DeepImage, x: i64, y: i64) {
     let range = image.pixel_at(x, y).unwrap_or(0..0);
-    let _ = writeln!(s, "pixel ({x},{y}): {} samples", range.len());
+    let n = range.len();
+    let _ = writeln!(
+        s,
+        "pixel ({x},{y}): {n} sample{}",
+        if n == 1 { "" } else { "s" }
+    );
     if range.is_empty() {
         return;
     }
@@ -222,10 +242,7 @@ fn deep_pixel_text(s: &mut String, image: &DeepImage, x: i64, y: i64) {
     let _ = writeln!(s, "  {:>4}  {}", "#", names.join("  "));
     for (k, i) in range.enumerate() {
         let values: Vec<String> = (0..names.len())
-            .map(|c| {
-                let v = image.column(c).get_f64(i).unwrap_or(f64::NAN);
-                format!("{v}")
-            })
+            .map(|c| value_text(image.column(c), i))
             .collect();
         let _ = writeln!(s, "  {k:>4}  {}", values.join("  "));
     }
