@@ -44,15 +44,15 @@ pub fn synthetic(window: Box2i, colour: SampleType, max_samples: u64, seed: u64)
         offsets.push(offsets[p] + n);
     }
     let total = offsets[pixels] as usize;
-    let mut cols: Vec<Vec<f32>> = vec![Vec::with_capacity(total); 6];
+    let mut cols: Vec<Vec<f32>> = (0..6).map(|_| Vec::with_capacity(total)).collect();
     let mut ids = Vec::with_capacity(total);
     for p in 0..pixels {
         let mut z = 0.5f32;
         for _ in offsets[p]..offsets[p + 1] {
             let a = (1 + rng.below(64)) as f32 / 64.0;
             cols[0].push(a);
-            for c in 1..4 {
-                cols[c].push(a * rng.below(33) as f32 / 32.0);
+            for col in &mut cols[1..4] {
+                col.push(a * rng.below(33) as f32 / 32.0);
             }
             z += (1 + rng.below(100)) as f32 / 8.0;
             cols[4].push(z);
