@@ -25,7 +25,10 @@
 use crate::error::{ExrError, Result};
 use crate::image::{Box2i, Channel, Column, DeepImage, FlatImage, SampleType};
 
-/// Alpha-like value of a pixel that holds no sample in `Z`/`ZBack` after flattening.
+/// The largest data window a merge produces (the union of its inputs' windows).
+const MAX_MERGED_PIXELS: u64 = 1 << 28;
+
+/// `Z`/`ZBack` of a pixel without samples after flattening (OIIO's value).
 const EMPTY_DEPTH: f32 = 1.0e30;
 
 fn is_or_ends_with_dot(name: &str, suffix: &str) -> bool {
@@ -252,7 +255,8 @@ fn empty_like(image: &DeepImage, window: Box2i, capacity: usize) -> DeepImage {
 /// attributes are the first image's.
 ///
 /// # Errors
-/// [`ExrError::Mismatch`] if there is no image or the channels differ;
+/// [`ExrError::Mismatch`] if there is no image, the channels differ or the union of the data
+/// windows exceeds 2^28 pixels;
 /// [`ExrError::InvalidImage`] if the result would exceed 2^32 − 1 samples.
 pub fn merge(images: &[DeepImage]) -> Result<DeepImage> {
     let first = images
@@ -262,6 +266,12 @@ pub fn merge(images: &[DeepImage]) -> Result<DeepImage> {
     let window = images
         .iter()
         .fold(first.data_window, |w, i| w.union(&i.data_window));
+    if window.pixel_count() > MAX_MERGED_PIXELS {
+        return Err(ExrError::Mismatch(format!(
+            "the data windows are far apart: together they span {} pixels (at most {MAX_MERGED_PIXELS})",
+            window.pixel_count()
+        )));
+    }
     let display = images
         .iter()
         .fold(first.display_window, |w, i| w.union(&i.display_window));

@@ -280,6 +280,30 @@ fn huge_windows_and_chunk_counts_hit_the_limits_first() {
     );
 }
 
+/// A tiny flat file whose header claims one scanline of 2^26 pixels: refused as truncated, after
+/// reading its one small chunk, without reserving the pixels first.
+#[test]
+fn a_tiny_flat_file_cannot_claim_a_huge_scanline() {
+    let flat = flatten(&known()).unwrap();
+    let bytes = write_flat(
+        &flat,
+        &WriteOptions {
+            compression: Compression::None,
+            ..WriteOptions::default()
+        },
+    )
+    .unwrap();
+    let mut b = bytes.clone();
+    let at = attribute_size_at(&bytes, "dataWindow") + 4;
+    put_i32(&mut b, at + 8, (1 << 26) - 1); // x_max
+    put_i32(&mut b, at + 12, 0); // y_max: one scanline, one chunk
+    let err = read_flat(&b, &Limits::default()).unwrap_err();
+    assert!(
+        matches!(err, ExrError::Truncated { .. } | ExrError::BadChunk { .. }),
+        "{err}"
+    );
+}
+
 #[test]
 fn offset_tables_and_chunk_headers_are_checked() {
     let bytes = known_bytes();

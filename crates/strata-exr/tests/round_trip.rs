@@ -340,6 +340,20 @@ fn merge_covers_the_union_of_windows_and_checks_channels() {
     let err = merge(&[a, c]).unwrap_err();
     assert!(matches!(err, ExrError::Mismatch(_)), "{err:?}");
     assert!(matches!(merge(&[]).unwrap_err(), ExrError::Mismatch(_)));
+    let far = synthetic(
+        Box2i::from_origin(1 << 30, 1 << 29, 2, 2).unwrap(),
+        SampleType::Float,
+        1,
+        3,
+    );
+    let near = synthetic(
+        Box2i::from_origin(-(1 << 30), 0, 2, 2).unwrap(),
+        SampleType::Float,
+        1,
+        4,
+    );
+    let err = merge(&[near, far]).unwrap_err();
+    assert!(err.to_string().contains("far apart"), "{err}");
 }
 
 #[test]
