@@ -74,7 +74,8 @@ pub struct FileInfo {
     pub data_window: Box2i,
     /// The rectangle of the whole picture.
     pub display_window: Box2i,
-    /// Every other attribute, raw.
+    /// Every attribute in the file (the ones above included), raw, in file order; format a
+    /// value for people with `Display` (`attribute.to_string()`).
     pub attributes: Vec<Attribute>,
 }
 
@@ -91,7 +92,7 @@ pub fn read_info(bytes: &[u8]) -> Result<FileInfo> {
         line_order: h.line_order,
         data_window: h.data_window,
         display_window: h.display_window,
-        attributes: h.attributes,
+        attributes: h.all_attributes,
     })
 }
 

@@ -394,3 +394,70 @@ proptest! {
         assert_same_pixels(&back, &image, "proptest");
     }
 }
+
+#[test]
+fn read_info_lists_every_attribute_readably() {
+    let mut image = synthetic(
+        Box2i::from_origin(1, 2, 4, 3).unwrap(),
+        SampleType::Half,
+        2,
+        5,
+    );
+    image.set_attribute(Attribute::double("strata.near", 0.25));
+    image.set_attribute(Attribute::m44f(
+        "worldToCamera",
+        std::array::from_fn(|i| i as f32),
+    ));
+    let bytes = write_deep(&image, &WriteOptions::default()).unwrap();
+    let info = read_info(&bytes).unwrap();
+    let shown = |name: &str| {
+        info.attributes
+            .iter()
+            .find(|a| a.name == name)
+            .map(|a| a.to_string())
+            .unwrap_or_else(|| panic!("no {name}"))
+    };
+    assert_eq!(shown("compression"), "zips");
+    assert_eq!(shown("dataWindow"), "(1 2) - (4 4)");
+    assert_eq!(shown("type"), "\"deepscanline\"");
+    assert_eq!(
+        shown("maxSamplesPerPixel"),
+        image.max_samples_per_pixel().to_string()
+    );
+    assert_eq!(shown("lineOrder"), "increasing y");
+    assert_eq!(shown("strata.near"), "0.25");
+    assert!(
+        shown("worldToCamera").starts_with("[0 1 2 3] [4 5 6 7]"),
+        "{}",
+        shown("worldToCamera")
+    );
+    assert_eq!(
+        shown("channels"),
+        "A (half), B (half), G (half), R (half), Z (float), ZBack (float), objectid (uint)"
+    );
+}
+
+#[test]
+fn flat_rgba_fills_missing_channels() {
+    let w = Box2i::from_origin(0, 0, 2, 1).unwrap();
+    let flat = FlatImage::new(
+        w,
+        vec![
+            Channel::new("G", SampleType::Float),
+            Channel::new("R", SampleType::Half),
+        ],
+        vec![Column::F32(vec![0.5, 0.25]), Column::F32(vec![1.0, 0.0])],
+    )
+    .unwrap();
+    assert_eq!(
+        flat.rgba(),
+        vec![[1.0, 0.5, 0.0, 1.0], [0.0, 0.25, 0.0, 1.0]]
+    );
+    let rgba = [[0.1, 0.2, 0.3, 0.5], [0.0, 0.0, 0.0, 0.0]];
+    assert_eq!(
+        FlatImage::from_rgba(2, 1, &rgba, SampleType::Float)
+            .unwrap()
+            .rgba(),
+        rgba.to_vec()
+    );
+}
