@@ -38,7 +38,7 @@ fn rendered_frames_round_trip_bit_exactly() {
         for colour in [SampleType::Float, SampleType::Half] {
             for compression in [Compression::None, Compression::Rle, Compression::Zips] {
                 let options = FrameOptions {
-                    colour,
+                    color: colour,
                     camera: Some(r.camera),
                     ..FrameOptions::default()
                 };
@@ -154,7 +154,7 @@ fn half_colour_is_exact_for_every_8_bit_colour() {
         .collect();
     let frame = DeepFrame::from_pixel_lists(16, 16, &lists).unwrap();
     let options = FrameOptions {
-        colour: SampleType::Half,
+        color: SampleType::Half,
         ..FrameOptions::default()
     };
     assert_same_frame(
@@ -282,7 +282,7 @@ proptest! {
         let frame = DeepFrame::from_pixel_lists(4, 3, &lists).unwrap();
         let m = DepthMapping::new(near, near * span).unwrap();
         let colour = if half { SampleType::Half } else { SampleType::Float };
-        let options = FrameOptions { colour, ..FrameOptions::default() };
+        let options = FrameOptions { color: colour, ..FrameOptions::default() };
         assert_same_frame(&through_file(&frame, m, &options, Compression::Zips), &frame, "proptest");
     }
 

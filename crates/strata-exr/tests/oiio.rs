@@ -232,7 +232,7 @@ fn oiiotool_flatten_matches_ours() {
     let dir = tempfile::tempdir().expect("temp dir");
     let rendered = render("spheres", 96, 54);
     let half = FrameOptions {
-        colour: SampleType::Half,
+        color: SampleType::Half,
         ..FrameOptions::default()
     };
     let images = [

@@ -31,7 +31,7 @@ impl Rng {
 /// A deep image over `window` with channels A, B, G, R (of `colour` type), Z (float), ZBack
 /// (float) and objectid (uint); 0 to `max_samples` samples per pixel (about a third empty),
 /// sorted by Z, values exactly representable in half so any colour type round-trips exactly.
-pub fn synthetic(window: Box2i, colour: SampleType, max_samples: u64, seed: u64) -> DeepImage {
+pub fn synthetic(window: Box2i, color: SampleType, max_samples: u64, seed: u64) -> DeepImage {
     let mut rng = Rng(seed.wrapping_mul(2).wrapping_add(1));
     let pixels = window.pixel_count() as usize;
     let mut offsets = vec![0u32];
@@ -61,10 +61,10 @@ pub fn synthetic(window: Box2i, colour: SampleType, max_samples: u64, seed: u64)
         }
     }
     let channels = vec![
-        Channel::new("A", colour),
-        Channel::new("B", colour),
-        Channel::new("G", colour),
-        Channel::new("R", colour),
+        Channel::new("A", color),
+        Channel::new("B", color),
+        Channel::new("G", color),
+        Channel::new("R", color),
         Channel::new("Z", SampleType::Float),
         Channel::new("ZBack", SampleType::Float),
         Channel::new("objectid", SampleType::Uint),
