@@ -136,7 +136,7 @@ pub struct CameraMatrices {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameOptions {
     /// Type of `R`, `G`, `B`, `A`: `Float` (default) or `Half`. `Z` is always `FLOAT`.
-    pub colour: SampleType,
+    pub color: SampleType,
     /// Also write `ZBack` (= `Z`); off by default, since absent `ZBack` means point samples.
     pub z_back: bool,
     /// Also write the exact window depth as `strata.depth` (default on; see the module docs).
@@ -148,7 +148,7 @@ pub struct FrameOptions {
 impl Default for FrameOptions {
     fn default() -> Self {
         FrameOptions {
-            colour: SampleType::Float,
+            color: SampleType::Float,
             z_back: false,
             exact_depth: true,
             camera: None,
@@ -166,7 +166,7 @@ pub fn deep_from_frame(
     depth: DepthMapping,
     options: &FrameOptions,
 ) -> Result<DeepImage> {
-    if options.colour == SampleType::Uint {
+    if options.color == SampleType::Uint {
         return Err(ExrError::InvalidImage(
             "colour channels must be HALF or FLOAT".into(),
         ));
@@ -175,17 +175,17 @@ pub fn deep_from_frame(
     let colors = frame.colors();
     let colour = |f: fn(&Rgba8) -> f32| Column::F32(colors.iter().map(f).collect());
     let mut named: Vec<(Channel, Column)> = vec![
-        (Channel::new("A", options.colour), colour(|c| unorm(c.0[3]))),
+        (Channel::new("A", options.color), colour(|c| unorm(c.0[3]))),
         (
-            Channel::new("B", options.colour),
+            Channel::new("B", options.color),
             colour(|c| premultiplied(c, 2)),
         ),
         (
-            Channel::new("G", options.colour),
+            Channel::new("G", options.color),
             colour(|c| premultiplied(c, 1)),
         ),
         (
-            Channel::new("R", options.colour),
+            Channel::new("R", options.color),
             colour(|c| premultiplied(c, 0)),
         ),
         (

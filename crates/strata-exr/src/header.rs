@@ -49,7 +49,10 @@ pub(crate) struct Header {
     pub(crate) display_window: Box2i,
     pub(crate) line_order: LineOrder,
     pub(crate) chunk_count: Option<i32>,
+    /// The attributes strata does not interpret.
     pub(crate) attributes: Vec<Attribute>,
+    /// Every attribute, in file order (for `read_info`).
+    pub(crate) all_attributes: Vec<Attribute>,
 }
 
 /// Attributes the writer generates from the image; never copied from [`Header::attributes`].
@@ -243,7 +246,7 @@ fn parse_int(a: &Attribute) -> Result<i32> {
     Ok(le_i32(&a.value, 0))
 }
 
-fn parse_channels(a: &Attribute) -> Result<Vec<Channel>> {
+pub(crate) fn parse_channels(a: &Attribute) -> Result<Vec<Channel>> {
     if a.type_name != "chlist" {
         return Err(bad(
             &a.name,
@@ -373,9 +376,11 @@ fn interpret(version: u32, raw: Vec<Attribute>) -> Result<Header> {
             .unwrap_or_default(),
         chunk_count,
         attributes: raw
-            .into_iter()
+            .iter()
             .filter(|a| !INTERPRETED.contains(&a.name.as_str()))
+            .cloned()
             .collect(),
+        all_attributes: raw,
     };
     Ok(header)
 }

@@ -302,6 +302,78 @@ impl Attribute {
     }
 }
 
+impl std::fmt::Display for Attribute {
+    /// The value as `exrheader` would show it for common types (`string`, `int`, `float`,
+    /// `double`, `v2f`, `v2i`, `box2i`, `box2f`, `m44f`, `compression`, `lineOrder`, `chlist`), else
+    /// its type and size.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = &self.value;
+        let i32s = || {
+            v.chunks_exact(4)
+                .map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        };
+        let f32s = || {
+            v.chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        };
+        let list = |items: Vec<String>| items.join(" ");
+        match (self.type_name.as_str(), v.len()) {
+            ("string", _) => write!(f, "{:?}", String::from_utf8_lossy(v)),
+            ("int", 4) => write!(f, "{}", list(i32s().map(|x| x.to_string()).collect())),
+            ("float", 4) | ("v2f", 8) => {
+                write!(f, "{}", list(f32s().map(|x| x.to_string()).collect()))
+            }
+            ("v2i", 8) => write!(f, "{}", list(i32s().map(|x| x.to_string()).collect())),
+            ("double", 8) => write!(f, "{}", self.as_double().unwrap_or(f64::NAN)),
+            ("box2i", 16) => {
+                let b: Vec<i32> = i32s().collect();
+                write!(f, "({} {}) - ({} {})", b[0], b[1], b[2], b[3])
+            }
+            ("box2f", 16) => {
+                let b: Vec<f32> = f32s().collect();
+                write!(f, "({} {}) - ({} {})", b[0], b[1], b[2], b[3])
+            }
+            ("m44f", 64) => {
+                let rows: Vec<String> = f32s()
+                    .collect::<Vec<_>>()
+                    .chunks(4)
+                    .map(|r| format!("[{}]", list(r.iter().map(|x| x.to_string()).collect())))
+                    .collect();
+                write!(f, "{}", rows.join(" "))
+            }
+            ("compression", 1) => write!(
+                f,
+                "{}",
+                crate::compress::Compression::ALL
+                    .iter()
+                    .find(|c| c.code() == v[0])
+                    .map_or_else(|| crate::compress::unsupported_name(v[0]), |c| c.name())
+            ),
+            ("lineOrder", 1) => write!(
+                f,
+                "{}",
+                match v[0] {
+                    0 => "increasing y",
+                    1 => "decreasing y",
+                    2 => "random y",
+                    _ => "unknown",
+                }
+            ),
+            ("chlist", _) => match crate::header::parse_channels(self) {
+                Ok(channels) => {
+                    let items: Vec<String> = channels
+                        .iter()
+                        .map(|c| format!("{} ({})", c.name, c.sample_type.name()))
+                        .collect();
+                    write!(f, "{}", items.join(", "))
+                }
+                Err(e) => write!(f, "<invalid channel list: {e}>"),
+            },
+            (t, n) => write!(f, "<{t}, {n} bytes>"),
+        }
+    }
+}
+
 /// Checks channel names: non-empty, at most 255 bytes, no NUL, strictly ascending (unique).
 pub(crate) fn check_channels(channels: &[Channel]) -> Result<()> {
     for c in channels {
@@ -626,5 +698,25 @@ impl FlatImage {
     pub fn set_attribute(&mut self, attribute: Attribute) {
         self.attributes.retain(|a| a.name != attribute.name);
         self.attributes.push(attribute);
+    }
+
+    /// Premultiplied `[R, G, B, A]` per pixel, row-major from the top: a missing colour channel
+    /// reads as 0 and a missing `A` as 1 (opaque), integer channels are converted.
+    pub fn rgba(&self) -> Vec<[f32; 4]> {
+        let pixels = self.width() * self.height();
+        let channel = |name: &str, default: f32| -> Vec<f32> {
+            match self.channel_index(name).map(|c| &self.columns[c]) {
+                Some(Column::F32(v)) => v.clone(),
+                Some(Column::U32(v)) => v.iter().map(|&x| x as f32).collect(),
+                None => vec![default; pixels],
+            }
+        };
+        let (r, g, b, a) = (
+            channel("R", 0.0),
+            channel("G", 0.0),
+            channel("B", 0.0),
+            channel("A", 1.0),
+        );
+        (0..pixels).map(|p| [r[p], g[p], b[p], a[p]]).collect()
     }
 }

@@ -10,18 +10,25 @@
 //!   samples merged into one keep the front one's id.
 //! - [`sort`]: per pixel, a stable sort by `Z`, then `ZBack`.
 //! - [`merge`]: images are merged pairwise, left to right, as `A B --deepmerge C --deepmerge …`:
-//!   per pixel the samples are concatenated and sorted, every volumetric sample (`Z < ZBack`) is
+//!   per pixel the samples are concatenated and sorted by `Z`, every volumetric sample (`Z < ZBack`) is
 //!   split at every other sample's `Z` and `ZBack` (colour and alpha divided with the
 //!   exponential-absorption formulas), samples covering exactly the same depth range are
 //!   combined, and everything behind the first opaque (`A ≥ 1`) sample is dropped. A pixel only
-//!   one image covers is copied unchanged.
+//!   one image covers is copied unchanged. Like every released OpenImageIO (2.4 to 3.1), the
+//!   merge orders by `Z` alone and keeps samples at equal `Z` in the order they arrived (earlier
+//!   image first, a split sample's front part before its back part); OIIO's development branch
+//!   (mid-2026) also orders them by `ZBack`, as [`sort`] does. The two agree unless samples start
+//!   at the same `Z` with different `ZBack`, which point samples (strata's) never do.
 //! - [`flatten`]: front-to-back OVER of the samples in stored order, stopping once the
 //!   accumulated alpha reaches 1; `Z`/`ZBack` accumulate as OIIO does, and are 1e30 in empty pixels.
 
 use crate::error::{ExrError, Result};
 use crate::image::{Box2i, Channel, Column, DeepImage, FlatImage, SampleType};
 
-/// Alpha-like value of a pixel that holds no sample in `Z`/`ZBack` after flattening.
+/// The largest data window a merge produces (the union of its inputs' windows).
+const MAX_MERGED_PIXELS: u64 = 1 << 28;
+
+/// `Z`/`ZBack` of a pixel without samples after flattening (OIIO's value).
 const EMPTY_DEPTH: f32 = 1.0e30;
 
 fn is_or_ends_with_dot(name: &str, suffix: &str) -> bool {
@@ -45,6 +52,9 @@ struct Roles {
     ab: Option<usize>,
     /// For each channel: the alpha channel it is premultiplied by (itself for alphas), or none.
     alpha_of: Vec<Option<usize>>,
+    /// For each channel: stored as `HALF`, so computed values are rounded to half precision (as
+    /// OIIO, which keeps deep values in their file types, does).
+    half: Vec<bool>,
 }
 
 impl Roles {
@@ -92,6 +102,10 @@ impl Roles {
             ag,
             ab,
             alpha_of,
+            half: channels
+                .iter()
+                .map(|c| c.sample_type == SampleType::Half)
+                .collect(),
         }
     }
 }
@@ -114,6 +128,16 @@ impl Pixel {
 
     fn set_f(&mut self, s: usize, c: usize, v: f32) {
         self.data[s * self.stride + c] = v.to_bits();
+    }
+
+    /// Sets a computed value, rounded to the channel's stored precision.
+    fn set_value(&mut self, roles: &Roles, s: usize, c: usize, v: f32) {
+        let v = if roles.half[c] {
+            half::f16::from_f32(v).to_f32()
+        } else {
+            v
+        };
+        self.set_f(s, c, v);
     }
 
     fn row(&self, s: usize) -> &[u32] {
@@ -149,10 +173,14 @@ impl Pixel {
         }
     }
 
-    /// OIIO's comparator: `Z`, then `ZBack` (stable, NaN last so the order stays total).
-    fn sort(&mut self, roles: &Roles) {
+    /// A stable sort by `Z`, then (if `by_zback`) `ZBack`; NaN last so the order stays total.
+    fn sort(&mut self, roles: &Roles, by_zback: bool) {
         let Some(z) = roles.z else { return };
-        let zb = roles.zback.unwrap_or(z);
+        let zb = if by_zback {
+            roles.zback.unwrap_or(z)
+        } else {
+            z
+        };
         if self.len() < 2 {
             return;
         }
@@ -194,7 +222,7 @@ pub fn sort(image: &DeepImage) -> DeepImage {
     let mut pixel = Pixel::default();
     for p in 0..image.offsets.len() - 1 {
         pixel.load(image, image.pixel_range(p));
-        pixel.sort(&roles);
+        pixel.sort(&roles, true);
         pixel.store(&mut out.columns);
         out.offsets.push(out.columns[0].len() as u32);
     }
@@ -227,7 +255,8 @@ fn empty_like(image: &DeepImage, window: Box2i, capacity: usize) -> DeepImage {
 /// attributes are the first image's.
 ///
 /// # Errors
-/// [`ExrError::Mismatch`] if there is no image or the channels differ;
+/// [`ExrError::Mismatch`] if there is no image, the channels differ or the union of the data
+/// windows exceeds 2^28 pixels;
 /// [`ExrError::InvalidImage`] if the result would exceed 2^32 − 1 samples.
 pub fn merge(images: &[DeepImage]) -> Result<DeepImage> {
     let first = images
@@ -237,6 +266,12 @@ pub fn merge(images: &[DeepImage]) -> Result<DeepImage> {
     let window = images
         .iter()
         .fold(first.data_window, |w, i| w.union(&i.data_window));
+    if window.pixel_count() > MAX_MERGED_PIXELS {
+        return Err(ExrError::Mismatch(format!(
+            "the data windows are far apart: together they span {} pixels (at most {MAX_MERGED_PIXELS})",
+            window.pixel_count()
+        )));
+    }
     let display = images
         .iter()
         .fold(first.display_window, |w, i| w.union(&i.display_window));
@@ -323,7 +358,7 @@ fn merge_pixels(dst: &mut Pixel, src: &Pixel, roles: &Roles) {
         return;
     }
     dst.data.extend_from_slice(&src.data);
-    dst.sort(roles);
+    dst.sort(roles, false);
     if let (Some(z), Some(zb)) = (roles.z, roles.zback) {
         let mut s = 0;
         while s < dst.len() {
@@ -332,7 +367,7 @@ fn merge_pixels(dst: &mut Pixel, src: &Pixel, roles: &Roles) {
             split(dst, roles, z, zb, back);
             s += 1;
         }
-        dst.sort(roles);
+        dst.sort(roles, false);
     }
     merge_overlaps(dst, roles);
 }
@@ -344,8 +379,8 @@ fn split(px: &mut Pixel, roles: &Roles, z: usize, zb: usize, depth: f32) {
         let (zf, zbk) = (px.f(s, z), px.f(s, zb));
         if zf < depth && zbk > depth {
             px.insert_copy(s);
-            px.set_f(s, zb, depth);
-            px.set_f(s + 1, z, depth);
+            px.set_value(roles, s, zb, depth);
+            px.set_value(roles, s + 1, z, depth);
             let xf = (depth - zf) / (zbk - zf);
             let xb = (zbk - depth) / (zbk - zf);
             // Colours first: they read their alpha before it is split.
@@ -373,8 +408,8 @@ fn split(px: &mut Pixel, roles: &Roles, z: usize, zb: usize, depth: f32) {
                     } else {
                         (v * xf, v * xb)
                     };
-                    px.set_f(s, c, front);
-                    px.set_f(s + 1, c, back);
+                    px.set_value(roles, s, c, front);
+                    px.set_value(roles, s + 1, c, back);
                 }
             }
         }
@@ -409,7 +444,7 @@ fn merge_overlaps(px: &mut Pixel, roles: &Roles) {
                 } else {
                     merged_colour(px.f(s - 1, c), px.f(s, c), a1, a2, am)
                 };
-                px.set_f(s - 1, c, merged);
+                px.set_value(roles, s - 1, c, merged);
             }
         }
         px.erase(s);

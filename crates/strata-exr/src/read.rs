@@ -74,7 +74,8 @@ pub struct FileInfo {
     pub data_window: Box2i,
     /// The rectangle of the whole picture.
     pub display_window: Box2i,
-    /// Every other attribute, raw.
+    /// Every attribute in the file (the ones above included), raw, in file order; format a
+    /// value for people with `Display` (`attribute.to_string()`).
     pub attributes: Vec<Attribute>,
 }
 
@@ -91,7 +92,7 @@ pub fn read_info(bytes: &[u8]) -> Result<FileInfo> {
         line_order: h.line_order,
         data_window: h.data_window,
         display_window: h.display_window,
-        attributes: h.attributes,
+        attributes: h.all_attributes,
     })
 }
 
@@ -188,10 +189,11 @@ pub fn read_flat(bytes: &[u8], limits: &Limits) -> Result<FlatImage> {
         .sum();
     let decoded = (layout.pixels as u64).saturating_mul(bytes_per_pixel);
     limits.check("the decoded pixel data (bytes)", decoded, limits.max_bytes)?;
+    // Grown chunk by chunk (see `read_sample_counts`).
     let mut columns: Vec<Column> = h
         .channels
         .iter()
-        .map(|c| Column::with_capacity(c.sample_type, layout.pixels))
+        .map(|c| Column::with_capacity(c.sample_type, 0))
         .collect();
     for index in 0..layout.chunk_count {
         decode_flat_chunk(&h, &layout, bytes, index, bytes_per_pixel, &mut columns)?;
@@ -380,10 +382,11 @@ fn read_sample_counts(
         .iter()
         .map(|c| c.sample_type.bytes() as u64)
         .sum();
-    let mut offsets = Vec::with_capacity(layout.pixels + 1);
-    offsets.push(0u32);
+    // Grown chunk by chunk rather than reserved from the header's claim: each chunk's count
+    // table has to be in the file before its pixels are allocated.
+    let mut offsets = vec![0u32];
     let mut total: u64 = 0;
-    let mut chunks = Vec::with_capacity(layout.chunk_count);
+    let mut chunks = Vec::new();
     for i in 0..layout.chunk_count {
         let mut cur = layout.chunk_start(h, bytes, i)?;
         let packed_table = cur.u64("a chunk's packed sample-count table size")?;

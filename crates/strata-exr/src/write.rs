@@ -66,6 +66,7 @@ pub(crate) fn write_deep_unchecked(image: &DeepImage, options: &WriteOptions) ->
         line_order: options.line_order,
         chunk_count: None,
         attributes: image.attributes.clone(),
+        all_attributes: Vec::new(),
     };
     let chunks = chunk_rows(image.height(), options.compression);
     let mut out = Vec::new();
@@ -95,6 +96,7 @@ pub fn write_flat(image: &FlatImage, options: &WriteOptions) -> Result<Vec<u8>> 
         line_order: options.line_order,
         chunk_count: None,
         attributes: image.attributes.clone(),
+        all_attributes: Vec::new(),
     };
     let chunks = chunk_rows(image.height(), options.compression);
     let mut out = Vec::new();
