@@ -224,7 +224,7 @@ impl ImageOptions {
         self.check_deep(path)?;
         let mapping = DepthMapping::new(f64::from(camera.near), f64::from(camera.far))?;
         let options = FrameOptions {
-            colour: self.colour_type(),
+            color: self.colour_type(),
             camera: Some(CameraMatrices {
                 view: camera.view().to_cols_array(),
                 projection: camera

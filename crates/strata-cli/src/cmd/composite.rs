@@ -149,20 +149,10 @@ fn read_inputs(paths: &[PathBuf]) -> Result<Vec<DeepImage>> {
 
 /// The premultiplied RGBA of a flattened image (missing colour channels are 0).
 fn rgba_of(flat: &FlatImage) -> Result<RgbaF32Image> {
-    let Some(a) = flat.channel_index("A") else {
+    if flat.channel_index("A").is_none() {
         bail!("the flattened image has no A channel, so it cannot be written as a PNG");
-    };
-    let column = |name: &str| flat.channel_index(name);
-    let (r, g, b) = (column("R"), column("G"), column("B"));
-    let n = flat.width() * flat.height();
-    let mut data = Vec::with_capacity(n * 4);
-    let value = |c: Option<usize>, p: usize| {
-        c.and_then(|c| flat.column(c).get_f64(p))
-            .map_or(0.0, |v| v as f32)
-    };
-    for p in 0..n {
-        data.extend_from_slice(&[value(r, p), value(g, p), value(b, p), value(Some(a), p)]);
     }
+    let data: Vec<f32> = flat.rgba().into_iter().flatten().collect();
     let width = u32::try_from(flat.width()).context("image too wide")?;
     let height = u32::try_from(flat.height()).context("image too high")?;
     RgbaF32Image::from_raw(width, height, data).context("inconsistent flattened image")

@@ -93,37 +93,18 @@ fn line_order_name(order: LineOrder) -> &'static str {
     }
 }
 
-/// An attribute's value as text: strings, numbers and matrices decoded, the rest by size.
-fn attribute_value(a: &Attribute) -> String {
-    if let Some(s) = a.as_string() {
-        return format!("\"{s}\"");
-    }
-    if let Some(v) = a.as_double() {
-        return format!("{v}");
-    }
-    if let Some(v) = a.as_float() {
-        return format!("{v}");
-    }
-    let f32s = |b: &[u8]| -> Vec<String> {
-        b.chunks_exact(4)
-            .map(|b| format!("{}", f32::from_le_bytes([b[0], b[1], b[2], b[3]])))
-            .collect()
-    };
-    let i32s = |b: &[u8]| -> Vec<String> {
-        b.chunks_exact(4)
-            .map(|b| format!("{}", i32::from_le_bytes([b[0], b[1], b[2], b[3]])))
-            .collect()
-    };
-    match (a.type_name.as_str(), a.value.len()) {
-        ("v2f", 8) | ("v3f", 12) => format!("({})", f32s(&a.value).join(", ")),
-        ("v2i", 8) | ("v3i", 12) | ("box2i", 16) => format!("({})", i32s(&a.value).join(", ")),
-        ("int", 4) => {
-            let v = i32::from_le_bytes([a.value[0], a.value[1], a.value[2], a.value[3]]);
-            format!("{v}")
-        }
-        ("m44f", 64) | ("m33f", 36) => format!("[{}]", f32s(&a.value).join(", ")),
-        (_, n) => format!("({n} bytes)"),
-    }
+/// The attributes not already shown as windows, channels, compression or line order.
+fn other_attributes(info: &FileInfo) -> impl Iterator<Item = &Attribute> {
+    const SHOWN: [&str; 5] = [
+        "channels",
+        "compression",
+        "dataWindow",
+        "displayWindow",
+        "lineOrder",
+    ];
+    info.attributes
+        .iter()
+        .filter(|a| !SHOWN.contains(&a.name.as_str()))
 }
 
 fn report_text(args: &Args, info: &FileInfo, pixels: &Pixels) -> String {
@@ -148,10 +129,11 @@ fn report_text(args: &Args, info: &FileInfo, pixels: &Pixels) -> String {
         .map(|c| format!("{} ({})", c.name, c.sample_type.name()))
         .collect();
     let _ = writeln!(s, "channels ({}): {}", channels.len(), channels.join(", "));
-    if !info.attributes.is_empty() {
+    let others: Vec<&Attribute> = other_attributes(info).collect();
+    if !others.is_empty() {
         let _ = writeln!(s, "attributes:");
-        for a in &info.attributes {
-            let _ = writeln!(s, "  {} ({}) = {}", a.name, a.type_name, attribute_value(a));
+        for a in others {
+            let _ = writeln!(s, "  {} ({}) = {}", a.name, a.type_name, a);
         }
     }
     match pixels {
@@ -259,7 +241,7 @@ fn report_json(args: &Args, info: &FileInfo, pixels: &Pixels) -> serde_json::Val
         "compression": info.compression.name(),
         "line_order": line_order_name(info.line_order),
         "channels": info.channels.iter().map(|c| json!({"name": c.name, "type": c.sample_type.name()})).collect::<Vec<_>>(),
-        "attributes": info.attributes.iter().map(|a| json!({"name": a.name, "type": a.type_name, "value": attribute_value(a)})).collect::<Vec<_>>(),
+        "attributes": other_attributes(info).map(|a| json!({"name": a.name, "type": a.type_name, "value": a.to_string()})).collect::<Vec<_>>(),
     });
     match pixels {
         Pixels::Deep(image) => {
