@@ -131,6 +131,34 @@ fn glb() -> Vec<u8> {
     glb_from(json("").as_bytes(), &bin())
 }
 
+/// A unit square and a triangle above it, as STL stores them (corners repeated).
+const STL_TRIANGLES: [[[f32; 3]; 3]; 3] = [
+    [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]],
+    [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+    [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]],
+];
+
+/// A binary STL whose header starts with `solid`, as many exporters write it.
+fn stl_binary() -> Vec<u8> {
+    let mut out = b"solid square".to_vec();
+    out.resize(80, b' ');
+    out.extend_from_slice(&(STL_TRIANGLES.len() as u32).to_le_bytes());
+    for t in STL_TRIANGLES {
+        let normal = [0.0f32, 0.0, 1.0];
+        for v in normal.iter().chain(t.iter().flatten()) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&0u16.to_le_bytes());
+    }
+    out
+}
+
+const STL_ASCII: &str = "solid square\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n\
+    vertex 1 1 0\nendloop\nendfacet\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n\
+    vertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid square\n\
+    solid again\nfacet normal 0 0 1 outer loop vertex 0 0 1 vertex 1 0 1 vertex 1 1 1\n\
+    endloop endfacet\nendsolid\n";
+
 /// Every sample, its format, and a file name.
 fn samples() -> Vec<(Format, Vec<u8>)> {
     vec![
@@ -141,8 +169,13 @@ fn samples() -> Vec<(Format, Vec<u8>)> {
         (Format::Off, OFF.as_bytes().to_vec()),
         (Format::Gltf, gltf_text().into_bytes()),
         (Format::Glb, glb()),
+        (Format::Stl, stl_binary()),
+        (Format::Stl, STL_ASCII.as_bytes().to_vec()),
     ]
 }
+
+/// How many [`samples`] there are (proptest ranges need a constant).
+const SAMPLES: usize = 9;
 
 /// Parses and checks the outcome is quick; panics propagate and fail the property.
 fn survive(format: Format, bytes: &[u8]) {
@@ -160,6 +193,7 @@ fn survive(format: Format, bytes: &[u8]) {
 
 #[test]
 fn samples_are_valid() {
+    assert_eq!(samples().len(), SAMPLES);
     for (format, bytes) in samples() {
         let m = parse_model(&bytes, format, Path::new("fuzz.bin"))
             .unwrap_or_else(|e| panic!("{format}: {e}"));
@@ -221,7 +255,7 @@ proptest! {
     #![proptest_config(config())]
 
     #[test]
-    fn truncation_at_any_offset(sample in 0..7usize, cut in any::<Index>()) {
+    fn truncation_at_any_offset(sample in 0..SAMPLES, cut in any::<Index>()) {
         let (format, bytes) = &samples()[sample];
         let at = cut.index(bytes.len() + 1);
         survive(*format, &bytes[..at]);
@@ -229,7 +263,7 @@ proptest! {
 
     #[test]
     fn random_byte_flips(
-        sample in 0..7usize,
+        sample in 0..SAMPLES,
         flips in prop::collection::vec((any::<Index>(), 1..=255u8), 1..8),
     ) {
         let (format, mut bytes) = samples().swap_remove(sample);
@@ -242,7 +276,7 @@ proptest! {
 
     #[test]
     fn random_insertions(
-        sample in 0..7usize,
+        sample in 0..SAMPLES,
         inserts in prop::collection::vec(
             (any::<Index>(), prop::collection::vec(prop_oneof![
                 any::<u8>(),
@@ -267,7 +301,7 @@ proptest! {
     /// Any number in a text sample (counts, indices, offsets, lengths) replaced by an odd one.
     #[test]
     fn odd_numbers_in_text(
-        sample in prop::sample::select(vec![0usize, 3, 4, 5]),
+        sample in prop::sample::select(vec![0usize, 3, 4, 5, 8]),
         which in any::<Index>(),
         number in prop::sample::select(ODD_NUMBERS.to_vec()),
     ) {
@@ -312,5 +346,8 @@ proptest! {
         survive(Format::Off, format!("OFF\n{n} {m} 0\n0 0 0\n1 0 0\n{list} 0 1\n").as_bytes());
         let gltf = gltf_text().replace(r#""count":4"#, &format!(r#""count":{n}"#));
         survive(Format::Gltf, gltf.as_bytes());
+        let mut stl = stl_binary();
+        stl[80..84].copy_from_slice(&(n as u32).to_le_bytes());
+        survive(Format::Stl, &stl);
     }
 }
