@@ -1,9 +1,12 @@
 //! Property tests: for a valid sample of every format, truncation at any offset, random byte
 //! flips, random insertions and absurd numbers give `Ok` or `Err` from `parse_model`, never a
-//! panic, and never take long (huge claimed counts fail fast).
+//! panic, and every error names the file.
+//!
+//! Nothing here measures time: a loader that trusted a huge claimed count would abort on the
+//! allocation or run the suite into its time limit, and the exact refusals of huge counts (before
+//! anything is reserved) are asserted by each format's own tests.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
 
 use base64::Engine as _;
 use proptest::prelude::*;
@@ -177,15 +180,9 @@ fn samples() -> Vec<(Format, Vec<u8>)> {
 /// How many [`samples`] there are (proptest ranges need a constant).
 const SAMPLES: usize = 9;
 
-/// Parses and checks the outcome is quick; panics propagate and fail the property.
+/// Parses `bytes`; an error must name the file. Panics propagate and fail the property.
 fn survive(format: Format, bytes: &[u8]) {
-    let t0 = Instant::now();
     let r = parse_model(bytes, format, Path::new("fuzz.bin"));
-    let elapsed = t0.elapsed();
-    assert!(
-        elapsed < Duration::from_secs(1),
-        "{format} took {elapsed:?}"
-    );
     if let Err(e) = r {
         assert!(e.to_string().starts_with("fuzz.bin: "), "{e}");
     }
@@ -325,9 +322,9 @@ proptest! {
         survive(Format::Glb, &glb_from(&json, &b));
     }
 
-    /// Headers claiming up to 2^64 - 1 items in a tiny file fail fast.
+    /// Headers claiming up to 2^64 - 1 items in a tiny file are survived.
     #[test]
-    fn huge_claimed_counts_fail_fast(
+    fn huge_claimed_counts(
         n in prop_oneof![any::<u64>(), 1_000_000u64..u64::from(u32::MAX) + 2],
         m in any::<u64>(),
         list in any::<u32>(),
