@@ -684,7 +684,11 @@ fn an_unknown_key_is_an_error_not_a_default() {
 #[test]
 fn a_wrong_type_is_an_error() {
     toml_error(&format!("width = \"wide\"\n{QUAD}"), 1, &["invalid type"]);
-    toml_error(&format!("width = -5\n{QUAD}"), 1, &[]);
+    invalid(
+        &format!("width = -5\n{QUAD}"),
+        "width",
+        "-5 is outside 1..=16384 pixels",
+    );
     toml_error(&format!("background = [1.0, 1.0]\n{QUAD}"), 1, &[]);
     toml_error(&format!("{QUAD}color = \"red\"\n"), 3, &["invalid type"]);
     toml_error(&format!("{QUAD}fit = 1\n"), 3, &["invalid type"]);
@@ -701,7 +705,22 @@ fn a_wrong_type_is_an_error() {
         3,
         &["frames"],
     );
-    toml_error(&format!("{QUAD}[animation]\nframes = -1\n"), 4, &[]);
+    invalid(
+        &format!("{QUAD}[animation]\nframes = -1\n"),
+        "animation.frames",
+        "-1 is outside 1..=4294967295",
+    );
+    invalid(
+        &format!("{QUAD}[animation]\nframes = 4294967296\n"),
+        "animation.frames",
+        "4294967296 is outside",
+    );
+    toml_error(
+        &format!("{QUAD}[animation]\nframes = 2.5\n"),
+        4,
+        &["invalid type"],
+    );
+    toml_error(&format!("height = 7.5\n{QUAD}"), 1, &["invalid type"]);
     toml_error("objects = 3\n", 1, &["invalid type"]);
 }
 
@@ -923,7 +942,7 @@ fn the_animation_is_checked() {
     invalid(
         &format!("{QUAD}[animation]\nframes = 0\n"),
         "animation.frames",
-        "at least 1",
+        "0 is outside 1..=4294967295",
     );
     invalid(
         &format!("{QUAD}[animation]\nframes = 2\nrotate_deg_per_frame = [0.0, inf, 0.0]\n"),

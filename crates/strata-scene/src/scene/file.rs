@@ -128,8 +128,9 @@ fn toml_error(label: &str, text: &str, e: &toml::de::Error) -> SceneError {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFile {
-    width: Option<u32>,
-    height: Option<u32>,
+    // Signed, so that `width = -5` is refused with the allowed range rather than a type name.
+    width: Option<i64>,
+    height: Option<i64>,
     background: Option<Numbers<3>>,
     camera: Option<CameraFile>,
     #[serde(default)]
@@ -202,7 +203,7 @@ impl<'de> Deserialize<'de> for ScaleFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct AnimationFile {
-    frames: u32,
+    frames: i64,
     #[serde(default)]
     rotate_deg_per_frame: Numbers<3>,
 }
@@ -292,15 +293,8 @@ impl Resolver<'_> {
     }
 
     fn resolve(mut self, file: SceneFile) -> Result<Scene, SceneError> {
-        let width = file.width.unwrap_or(1280);
-        let height = file.height.unwrap_or(720);
-        for (key, v) in [("width", width), ("height", height)] {
-            if v == 0 || v > MAX_IMAGE_SIDE {
-                return Err(
-                    self.invalid(key, format!("{v} is outside 1..={MAX_IMAGE_SIDE} pixels"))
-                );
-            }
-        }
+        let width = self.image_side("width", file.width.unwrap_or(1280))?;
+        let height = self.image_side("height", file.height.unwrap_or(720))?;
         let background = file.background.map_or([1.0; 3], |b| b.0);
         self.unit_range("background", &background)?;
         let camera = self.camera(file.camera)?;
@@ -315,12 +309,18 @@ impl Resolver<'_> {
         let animation = match file.animation {
             None => None,
             Some(a) => {
-                if a.frames == 0 {
-                    return Err(self.invalid("animation.frames", "must be at least 1"));
-                }
+                let frames = u32::try_from(a.frames)
+                    .ok()
+                    .filter(|&f| f >= 1)
+                    .ok_or_else(|| {
+                        self.invalid(
+                            "animation.frames",
+                            format!("{} is outside 1..={}", a.frames, u32::MAX),
+                        )
+                    })?;
                 self.finite("animation.rotate_deg_per_frame", &a.rotate_deg_per_frame.0)?;
                 Some(Animation {
-                    frames: a.frames,
+                    frames,
                     rotate_deg_per_frame: Vec3::from(a.rotate_deg_per_frame.0),
                 })
             }
@@ -335,6 +335,14 @@ impl Resolver<'_> {
             objects,
             animation,
         })
+    }
+
+    /// `width` or `height`, in 1..=[`MAX_IMAGE_SIDE`].
+    fn image_side(&self, key: &str, v: i64) -> Result<u32, SceneError> {
+        u32::try_from(v)
+            .ok()
+            .filter(|s| (1..=MAX_IMAGE_SIDE).contains(s))
+            .ok_or_else(|| self.invalid(key, format!("{v} is outside 1..={MAX_IMAGE_SIDE} pixels")))
     }
 
     fn finite(&self, key: &str, v: &[f32]) -> Result<(), SceneError> {
