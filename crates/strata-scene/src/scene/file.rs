@@ -3,9 +3,9 @@
 //! Every key of DESIGN §2 is accepted; unknown keys are errors (a typo must not silently fall back
 //! to a default), and so are arrays of the wrong length (serde's own `[f32; 3]` stops reading
 //! after three elements and the TOML deserializer ignores the rest, so `[r, g, b, a]` would pass
-//! as `[r, g, b]`: [`Numbers`] counts them all). Every error names the key (`objects[2].color`)
-//! and its line, found by [`KeyIndex`](super::keys::KeyIndex); syntax and type errors also give
-//! the column. Object names must be unique, non-empty and not plain numbers: remote nodes select
+//! as `[r, g, b]`: `Numbers` counts them all). Every error names the key (`objects[2].color`)
+//! and its line, found by a second, spanned parse (module `keys`) when an error is reported;
+//! syntax and type errors also give the column. Object names must be unique, non-empty and not plain numbers: remote nodes select
 //! objects by name or by position. Defaults for keys left out:
 //!
 //! | key | default |
