@@ -37,8 +37,9 @@ use glam::Mat4;
 
 use crate::mesh::{Mesh, MeshError};
 
-/// A mesh file format.
+/// A mesh file format. More may be added, so matches need a wildcard arm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub enum Format {
     /// Stanford PLY (ascii, binary little or big endian).
     Ply,
