@@ -5,7 +5,7 @@
 //! ```text
 //! byte 0    header      80 bytes of free text (which may itself begin with "solid")
 //! byte 80   n           u32, the number of triangles
-//! byte 84   triangle 0  50 bytes: normal f32×3, corners f32×3 ×3, attribute u16
+//! byte 84   triangle 0  50 bytes: normal f32×3, corners f32×3 ×3, attribute u16 (ignored)
 //! …         triangle n-1
 //! ```
 //!
