@@ -21,7 +21,7 @@ use std::path::Path;
 
 pub use camera::Camera;
 pub use mesh::{Aabb, Mesh, MeshError};
-pub use scene::{Animation, Scene, SceneError, SceneErrorKind, SceneObject};
+pub use scene::{Animation, Scene, SceneError, SceneErrorKind, SceneObject, TextPosition};
 pub use search_path::SearchPath;
 
 /// Opens `spec` as a scene file if a file of that name exists, else as a built-in scene name.

@@ -26,7 +26,9 @@ fn format_from_path() {
         ("a.Off", Some(Format::Off)),
         ("scene.gltf", Some(Format::Gltf)),
         ("engine.GLB", Some(Format::Glb)),
-        ("mesh.stl", None),
+        ("mesh.stl", Some(Format::Stl)),
+        ("mesh.xyz", None),
+        ("mesh.", None),
         ("mesh", None),
         ("mesh.gz", None),
         (".ply", Some(Format::Ply)),
@@ -70,22 +72,17 @@ fn load_model_gunzips_detects_and_names_parts() {
         ("tri.ply", PLY.into()),
         ("tri.ply.gz", gzip(PLY.as_bytes())),
         ("tri.OFF.GZ", gzip(OFF.as_bytes())),
-        // Unknown extensions: sniffed, after gunzipping.
-        ("tri.mesh", PLY.into()),
-        ("tri.dat.gz", gzip(OFF.as_bytes())),
+        // No extension: sniffed, after gunzipping.
+        ("tri.gz", gzip(OFF.as_bytes())),
         ("tri", OBJ.into()),
+        ("tri.", PLY.into()),
     ];
     for (name, bytes) in files {
         let path = dir.path().join(name);
         std::fs::write(&path, bytes).unwrap();
         let m = load_model(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(m.parts.len(), 1);
-        let stem = if name == "tri.dat.gz" {
-            "tri"
-        } else {
-            name.split('.').next().unwrap()
-        };
-        let stem = if name == "tri.mesh" { "tri" } else { stem };
+        let stem = name.split('.').next().unwrap();
         assert_eq!(m.parts[0].name, stem, "{name}");
         assert_eq!(m.parts[0].mesh.triangles(), &[[0, 1, 2]], "{name}");
         assert_eq!(m.parts[0].mesh.positions()[1], [1.0, 0.0, 0.0], "{name}");
@@ -96,6 +93,56 @@ fn load_model_gunzips_detects_and_names_parts() {
     let path = dir.path().join("two.ply.gz");
     std::fs::write(&path, two).unwrap();
     assert_eq!(load_model(&path).unwrap().parts[0].name, "two");
+}
+
+#[test]
+fn an_unknown_extension_is_an_error_listing_the_formats() {
+    let dir = tempfile::tempdir().unwrap();
+    // Valid OBJ content does not help: the name promises another format, and guessing would
+    // turn, say, an unsupported format into "no triangles".
+    for (name, ext) in [
+        ("tri.mesh", "mesh"),
+        ("tri.DAT.gz", "dat"),
+        ("scan.3mf", "3mf"),
+    ] {
+        let path = dir.path().join(name);
+        std::fs::write(&path, OBJ).unwrap();
+        let e = load_model(&path).unwrap_err();
+        assert!(
+            matches!(&e.kind, LoadErrorKind::UnknownFormat(x) if x == ext),
+            "{name}: {e:?}"
+        );
+        assert_eq!(e.location, None);
+        let shown = e.to_string();
+        assert!(
+            shown.starts_with(&format!(
+                "{}: unknown mesh format '.{ext}': strata reads ",
+                path.display()
+            )),
+            "{shown}"
+        );
+        for known in [".ply", ".obj", ".off", ".stl", ".gltf", ".glb", ".gz"] {
+            assert!(shown.contains(known), "{shown} lacks {known}");
+        }
+    }
+    // Checked before reading: a missing file with an unknown extension says the same.
+    let e = load_model(&dir.path().join("absent.xyz")).unwrap_err();
+    assert!(matches!(e.kind, LoadErrorKind::UnknownFormat(_)), "{e}");
+}
+
+#[test]
+fn a_directory_is_not_a_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["models", "looks_like.ply"] {
+        let path = dir.path().join(name);
+        std::fs::create_dir(&path).unwrap();
+        let e = load_model(&path).unwrap_err();
+        assert!(matches!(e.kind, LoadErrorKind::IsDirectory), "{e:?}");
+        assert_eq!(
+            e.to_string(),
+            format!("{}: is a directory, not a mesh file", path.display())
+        );
+    }
 }
 
 #[test]

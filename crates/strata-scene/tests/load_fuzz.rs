@@ -1,9 +1,12 @@
 //! Property tests: for a valid sample of every format, truncation at any offset, random byte
 //! flips, random insertions and absurd numbers give `Ok` or `Err` from `parse_model`, never a
-//! panic, and never take long (huge claimed counts fail fast).
+//! panic, and every error names the file.
+//!
+//! Nothing here measures time: a loader that trusted a huge claimed count would abort on the
+//! allocation or run the suite into its time limit, and the exact refusals of huge counts (before
+//! anything is reserved) are asserted by each format's own tests.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
 
 use base64::Engine as _;
 use proptest::prelude::*;
@@ -131,6 +134,34 @@ fn glb() -> Vec<u8> {
     glb_from(json("").as_bytes(), &bin())
 }
 
+/// A unit square and a triangle above it, as STL stores them (corners repeated).
+const STL_TRIANGLES: [[[f32; 3]; 3]; 3] = [
+    [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]],
+    [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+    [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]],
+];
+
+/// A binary STL whose header starts with `solid`, as many exporters write it.
+fn stl_binary() -> Vec<u8> {
+    let mut out = b"solid square".to_vec();
+    out.resize(80, b' ');
+    out.extend_from_slice(&(STL_TRIANGLES.len() as u32).to_le_bytes());
+    for t in STL_TRIANGLES {
+        let normal = [0.0f32, 0.0, 1.0];
+        for v in normal.iter().chain(t.iter().flatten()) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&0u16.to_le_bytes());
+    }
+    out
+}
+
+const STL_ASCII: &str = "solid square\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n\
+    vertex 1 1 0\nendloop\nendfacet\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n\
+    vertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid square\n\
+    solid again\nfacet normal 0 0 1 outer loop vertex 0 0 1 vertex 1 0 1 vertex 1 1 1\n\
+    endloop endfacet\nendsolid\n";
+
 /// Every sample, its format, and a file name.
 fn samples() -> Vec<(Format, Vec<u8>)> {
     vec![
@@ -141,18 +172,17 @@ fn samples() -> Vec<(Format, Vec<u8>)> {
         (Format::Off, OFF.as_bytes().to_vec()),
         (Format::Gltf, gltf_text().into_bytes()),
         (Format::Glb, glb()),
+        (Format::Stl, stl_binary()),
+        (Format::Stl, STL_ASCII.as_bytes().to_vec()),
     ]
 }
 
-/// Parses and checks the outcome is quick; panics propagate and fail the property.
+/// How many [`samples`] there are (proptest ranges need a constant).
+const SAMPLES: usize = 9;
+
+/// Parses `bytes`; an error must name the file. Panics propagate and fail the property.
 fn survive(format: Format, bytes: &[u8]) {
-    let t0 = Instant::now();
     let r = parse_model(bytes, format, Path::new("fuzz.bin"));
-    let elapsed = t0.elapsed();
-    assert!(
-        elapsed < Duration::from_secs(1),
-        "{format} took {elapsed:?}"
-    );
     if let Err(e) = r {
         assert!(e.to_string().starts_with("fuzz.bin: "), "{e}");
     }
@@ -160,6 +190,7 @@ fn survive(format: Format, bytes: &[u8]) {
 
 #[test]
 fn samples_are_valid() {
+    assert_eq!(samples().len(), SAMPLES);
     for (format, bytes) in samples() {
         let m = parse_model(&bytes, format, Path::new("fuzz.bin"))
             .unwrap_or_else(|e| panic!("{format}: {e}"));
@@ -221,7 +252,7 @@ proptest! {
     #![proptest_config(config())]
 
     #[test]
-    fn truncation_at_any_offset(sample in 0..7usize, cut in any::<Index>()) {
+    fn truncation_at_any_offset(sample in 0..SAMPLES, cut in any::<Index>()) {
         let (format, bytes) = &samples()[sample];
         let at = cut.index(bytes.len() + 1);
         survive(*format, &bytes[..at]);
@@ -229,7 +260,7 @@ proptest! {
 
     #[test]
     fn random_byte_flips(
-        sample in 0..7usize,
+        sample in 0..SAMPLES,
         flips in prop::collection::vec((any::<Index>(), 1..=255u8), 1..8),
     ) {
         let (format, mut bytes) = samples().swap_remove(sample);
@@ -242,7 +273,7 @@ proptest! {
 
     #[test]
     fn random_insertions(
-        sample in 0..7usize,
+        sample in 0..SAMPLES,
         inserts in prop::collection::vec(
             (any::<Index>(), prop::collection::vec(prop_oneof![
                 any::<u8>(),
@@ -267,7 +298,7 @@ proptest! {
     /// Any number in a text sample (counts, indices, offsets, lengths) replaced by an odd one.
     #[test]
     fn odd_numbers_in_text(
-        sample in prop::sample::select(vec![0usize, 3, 4, 5]),
+        sample in prop::sample::select(vec![0usize, 3, 4, 5, 8]),
         which in any::<Index>(),
         number in prop::sample::select(ODD_NUMBERS.to_vec()),
     ) {
@@ -291,9 +322,9 @@ proptest! {
         survive(Format::Glb, &glb_from(&json, &b));
     }
 
-    /// Headers claiming up to 2^64 - 1 items in a tiny file fail fast.
+    /// Headers claiming up to 2^64 - 1 items in a tiny file are survived.
     #[test]
-    fn huge_claimed_counts_fail_fast(
+    fn huge_claimed_counts(
         n in prop_oneof![any::<u64>(), 1_000_000u64..u64::from(u32::MAX) + 2],
         m in any::<u64>(),
         list in any::<u32>(),
@@ -312,5 +343,8 @@ proptest! {
         survive(Format::Off, format!("OFF\n{n} {m} 0\n0 0 0\n1 0 0\n{list} 0 1\n").as_bytes());
         let gltf = gltf_text().replace(r#""count":4"#, &format!(r#""count":{n}"#));
         survive(Format::Gltf, gltf.as_bytes());
+        let mut stl = stl_binary();
+        stl[80..84].copy_from_slice(&(n as u32).to_le_bytes());
+        survive(Format::Stl, &stl);
     }
 }

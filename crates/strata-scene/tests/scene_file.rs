@@ -11,7 +11,7 @@ use std::sync::Arc;
 use base64::Engine as _;
 use glam::{Mat4, Vec3};
 use strata_core::{Material, ObjectId, Shading};
-use strata_scene::load::Location;
+use strata_scene::load::{LoadErrorKind, Location};
 use strata_scene::scene::file::{self, MAX_IMAGE_SIDE, SceneOrigin};
 use strata_scene::{
     Aabb, Animation, Camera, Scene, SceneError, SceneErrorKind, SceneObject, SearchPath, builtin,
@@ -64,7 +64,9 @@ fn error(text: &str) -> SceneError {
 }
 
 /// A range or consistency error at `key` whose message contains `contains`; also checks that
-/// `Display` reads `"{origin}: {key}: {message}"`.
+/// `Display` reads `"{origin}: line {n}: {key}: {message}"` (without the line when the key is
+/// not in the text, nor any table around it).
+#[track_caller]
 fn invalid(text: &str, key: &str, contains: &str) -> SceneError {
     let e = error(text);
     assert_eq!(e.key.as_deref(), Some(key), "{e}");
@@ -72,20 +74,29 @@ fn invalid(text: &str, key: &str, contains: &str) -> SceneError {
         panic!("expected SceneErrorKind::Invalid, got {:?}", e.kind)
     };
     assert!(msg.contains(contains), "{msg:?} lacks {contains:?}");
-    assert_eq!(e.to_string(), format!("{ORIGIN}: {key}: {msg}"));
+    match e.at {
+        Some(at) => {
+            assert_eq!(at.column, None, "{e}");
+            assert_eq!(e.to_string(), format!("{ORIGIN}: {at}: {key}: {msg}"));
+        }
+        None => assert_eq!(e.to_string(), format!("{ORIGIN}: {key}: {msg}")),
+    }
     e
 }
 
-/// A TOML syntax or schema error: no key, the message gives the line and contains `contains`.
-fn toml_error(text: &str, line: usize, contains: &[&str]) -> SceneError {
+/// A TOML syntax or schema error at `line` whose message contains each of `contains`; the
+/// message reads `"{origin}: line {n}, column {c}: [{key}: ]{message}"`.
+#[track_caller]
+fn toml_error(text: &str, line: u32, contains: &[&str]) -> SceneError {
     let e = error(text);
-    assert_eq!(e.key, None, "{e}");
     let SceneErrorKind::Toml(msg) = &e.kind else {
         panic!("expected SceneErrorKind::Toml, got {:?}", e.kind)
     };
+    assert_eq!(e.at.map(|a| a.line), Some(line), "{e}");
     assert!(
-        msg.contains(&format!("line {line}")),
-        "{msg:?} lacks line {line}"
+        e.to_string()
+            .starts_with(&format!("{ORIGIN}: line {line}, column ")),
+        "{e}"
     );
     for c in contains {
         assert!(msg.contains(c), "{msg:?} lacks {c:?}");
@@ -494,12 +505,14 @@ fn fit_recentres_and_scales_before_scale_rotate_translate() {
 mesh = "box.obj"
 fit = true
 [[objects]]
+name = "placed"
 mesh = "box.obj"
 fit = true
 scale = [2.0, 4.0, 1.0]
 rotate_deg = [0.0, 0.0, 90.0]
 translate = [0.0, 0.0, 5.0]
 [[objects]]
+name = "raw"
 mesh = "box.obj"
 "#,
     );
@@ -568,7 +581,7 @@ fn fit_needs_an_extent() {
 #[test]
 fn animation_turns_each_object_about_its_own_origin() {
     let s = scene(&format!(
-        "{QUAD}translate = [2.0, 0.0, 0.0]\n{QUAD}translate = [0.0, 0.0, -3.0]\n\
+        "{QUAD}translate = [2.0, 0.0, 0.0]\n{QUAD}name = \"b\"\ntranslate = [0.0, 0.0, -3.0]\n\
          rotate_deg = [0.0, 0.0, 90.0]\n\
          [animation]\nframes = 72\nrotate_deg_per_frame = [0.0, 5.0, 0.0]\n"
     ));
@@ -671,7 +684,11 @@ fn an_unknown_key_is_an_error_not_a_default() {
 #[test]
 fn a_wrong_type_is_an_error() {
     toml_error(&format!("width = \"wide\"\n{QUAD}"), 1, &["invalid type"]);
-    toml_error(&format!("width = -5\n{QUAD}"), 1, &[]);
+    invalid(
+        &format!("width = -5\n{QUAD}"),
+        "width",
+        "-5 is outside 1..=16384 pixels",
+    );
     toml_error(&format!("background = [1.0, 1.0]\n{QUAD}"), 1, &[]);
     toml_error(&format!("{QUAD}color = \"red\"\n"), 3, &["invalid type"]);
     toml_error(&format!("{QUAD}fit = 1\n"), 3, &["invalid type"]);
@@ -688,7 +705,22 @@ fn a_wrong_type_is_an_error() {
         3,
         &["frames"],
     );
-    toml_error(&format!("{QUAD}[animation]\nframes = -1\n"), 4, &[]);
+    invalid(
+        &format!("{QUAD}[animation]\nframes = -1\n"),
+        "animation.frames",
+        "-1 is outside 1..=4294967295",
+    );
+    invalid(
+        &format!("{QUAD}[animation]\nframes = 4294967296\n"),
+        "animation.frames",
+        "4294967296 is outside",
+    );
+    toml_error(
+        &format!("{QUAD}[animation]\nframes = 2.5\n"),
+        4,
+        &["invalid type"],
+    );
+    toml_error(&format!("height = 7.5\n{QUAD}"), 1, &["invalid type"]);
     toml_error("objects = 3\n", 1, &["invalid type"]);
 }
 
@@ -779,9 +811,9 @@ fn the_camera_must_look_somewhere_sensible() {
     invalid(
         &cam("near = 0.0"),
         "camera.near",
-        "must be a positive distance",
+        "must be a finite distance greater than 0",
     );
-    invalid(&cam("near = -1.0"), "camera.near", "positive");
+    invalid(&cam("near = -1.0"), "camera.near", "greater than 0");
     invalid(
         &cam("near = 2.0\nfar = 2.0"),
         "camera.far",
@@ -824,7 +856,7 @@ fn an_object_names_exactly_one_of_mesh_and_builtin() {
         "has both `mesh` and `builtin`",
     );
     invalid(
-        &format!("{QUAD}{QUAD}[[objects]]\nname = \"nothing\"\n"),
+        &format!("{QUAD}[[objects]]\nbuiltin = \"cube\"\n[[objects]]\nname = \"nothing\"\n"),
         "objects[2]",
         "needs `mesh",
     );
@@ -838,17 +870,17 @@ fn an_unknown_shape_lists_the_known_ones() {
         panic!("expected UnknownBuiltin, got {:?}", e.kind)
     };
     assert_eq!((*what, name.as_str()), ("shape", "teapot"));
-    assert_eq!(known, &["quad", "cube", "slab", "sphere", "torus", "grid"]);
+    assert_eq!(**known, ["quad", "cube", "slab", "sphere", "torus", "grid"]);
     assert_eq!(
         e.to_string(),
-        "scenes/test.toml: objects[1].builtin: no built-in shape named 'teapot' \
+        "scenes/test.toml: line 4: objects[1].builtin: no built-in shape named 'teapot' \
          (known: quad, cube, slab, sphere, torus, grid)"
     );
 }
 
 #[test]
 fn colours_must_be_in_unit_range() {
-    let with = |c: &str| format!("{QUAD}{QUAD}color = {c}\n");
+    let with = |c: &str| format!("{QUAD}{QUAD}name = \"b\"\ncolor = {c}\n");
     invalid(
         &with("[1.5, 0.0, 0.0, 1.0]"),
         "objects[1].color",
@@ -910,7 +942,7 @@ fn the_animation_is_checked() {
     invalid(
         &format!("{QUAD}[animation]\nframes = 0\n"),
         "animation.frames",
-        "at least 1",
+        "0 is outside 1..=4294967295",
     );
     invalid(
         &format!("{QUAD}[animation]\nframes = 2\nrotate_deg_per_frame = [0.0, inf, 0.0]\n"),
@@ -984,7 +1016,7 @@ fn errors_name_built_in_scenes() {
     assert_eq!(e.origin, "built-in scene 'demo'");
     assert_eq!(
         e.to_string(),
-        "built-in scene 'demo': width: 0 is outside 1..=16384 pixels"
+        "built-in scene 'demo': line 1: width: 0 is outside 1..=16384 pixels"
     );
     let e = file::parse("nope", SceneOrigin::Builtin("demo"), &SearchPath::default())
         .expect_err("syntax");
@@ -1085,7 +1117,7 @@ fn a_missing_mesh_lists_every_place_tried() {
     let shown = e.to_string();
     assert!(
         shown.starts_with(&format!(
-            "{}: objects[1].mesh: cannot find mesh 'gone.ply'",
+            "{}: line 4: objects[1].mesh: cannot find mesh 'gone.ply'",
             path.display()
         )),
         "{shown}"
@@ -1115,7 +1147,7 @@ fn a_built_in_scene_without_a_search_path_looks_nowhere() {
     assert!(tried.is_empty(), "{tried:?}");
     assert!(
         e.to_string()
-            .starts_with("built-in scene 'b': objects[0].mesh: "),
+            .starts_with("built-in scene 'b': line 2: objects[0].mesh: "),
         "{e}"
     );
     assert!(e.to_string().contains("nowhere"), "{e}");
@@ -1139,7 +1171,7 @@ fn a_malformed_mesh_names_the_file_and_line() {
     assert_eq!(load.path.file_name(), Some("bad.obj".as_ref()), "{e}");
     let shown = e.to_string();
     assert!(
-        shown.starts_with(&format!("{}: objects[1].mesh: ", path.display())),
+        shown.starts_with(&format!("{}: line 4: objects[1].mesh: ", path.display())),
         "{shown}"
     );
     assert!(shown.contains("bad.obj: line 3: "), "{shown}");
@@ -1157,16 +1189,19 @@ fn objects_naming_the_same_file_share_one_mesh() {
 [[objects]]
 mesh = "m.obj"
 [[objects]]
+name = "m fitted"
 mesh = "m.obj"
 fit = true
 color = [1.0, 0.0, 0.0, 1.0]
 [[objects]]
+name = "m again"
 mesh = "./m.obj"
 [[objects]]
 mesh = "other.obj"
 [[objects]]
 builtin = "sphere"
 [[objects]]
+name = "sphere 2"
 builtin = "sphere"
 "#,
     );
@@ -1276,6 +1311,7 @@ mesh = "pair.gltf"
 shading = "unlit"
 translate = [0.0, 1.0, 0.0]
 [[objects]]
+name = "pair 2"
 mesh = "pair.gltf"
 color = [0.1, 0.2, 0.3, 0.4]
 "#,
@@ -1287,8 +1323,14 @@ color = [0.1, 0.2, 0.3, 0.4]
     );
     assert_eq!(
         names(&s),
-        ["cube", "pair/left", "pair/right", "pair/left", "pair/right"],
-        "<name>/<node name>, the name defaulting to the file stem"
+        [
+            "cube",
+            "pair/left",
+            "pair/right",
+            "pair 2/left",
+            "pair 2/right"
+        ],
+        "<name>/<node name>"
     );
     // The glTF base colour where the scene gives none; the default where the node has no
     // material; the scene colour over both.
@@ -1325,6 +1367,11 @@ color = [0.1, 0.2, 0.3, 0.4]
 #[test]
 fn fit_spans_all_gltf_nodes_together() {
     let s = gltf_scene("[[objects]]\nmesh = \"pair.gltf\"\nfit = true\nscale = 2.0\n");
+    assert_eq!(
+        names(&s),
+        ["pair/left", "pair/right"],
+        "the name defaults to the file stem"
+    );
     let b = base_bounds(&s.objects);
     assert!(
         b.center().abs_diff_eq(Vec3::ZERO, 1e-6),
@@ -1513,7 +1560,7 @@ fn open_scene_picks_built_ins_by_name() {
     };
     assert_eq!((*what, name.as_str()), ("scene", "no-such-scene"));
     let all: Vec<&str> = builtin::SCENES.iter().map(|b| b.name).collect();
-    assert_eq!(known, &all);
+    assert_eq!(**known, *all);
     for n in &all {
         assert!(e.to_string().contains(n), "{e} lacks {n}");
     }
@@ -1544,4 +1591,319 @@ fn gzip(bytes: &[u8]) -> Vec<u8> {
     let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
     std::io::Write::write_all(&mut gz, bytes).expect("gzip into memory");
     gz.finish().expect("gzip into memory")
+}
+
+// ---------------------------------------------------------------------------------------------
+// Errors: arrays are counted whole, and every error has its line.
+
+/// A TOML-level error at `key` on `line`, whose message contains `contains`; checks how it reads.
+#[track_caller]
+fn toml_error_at(text: &str, line: u32, key: &str, contains: &str) -> SceneError {
+    let e = toml_error(text, line, &[contains]);
+    assert_eq!(e.key.as_deref(), Some(key), "{e}");
+    let SceneErrorKind::Toml(msg) = &e.kind else {
+        unreachable!("toml_error checked the kind")
+    };
+    let at = e.at.expect("a TOML error has a position");
+    assert!(at.column.is_some(), "{e}");
+    assert_eq!(e.to_string(), format!("{ORIGIN}: {at}: {key}: {msg}"));
+    e
+}
+
+/// Every array-valued key: a scene text with `value` at the key, the key's line and the
+/// number of elements the key takes.
+fn array_keys(value: &str) -> [(String, u32, &'static str, usize); 9] {
+    let camera = |k: &str| format!("[camera]\n{k} = {value}\n{QUAD}");
+    let object = |k: &str| format!("{QUAD}{k} = {value}\n");
+    [
+        (format!("background = {value}\n{QUAD}"), 1, "background", 3),
+        (camera("eye"), 2, "camera.eye", 3),
+        (camera("target"), 2, "camera.target", 3),
+        (camera("up"), 2, "camera.up", 3),
+        (object("color"), 3, "objects[0].color", 4),
+        (object("translate"), 3, "objects[0].translate", 3),
+        (object("rotate_deg"), 3, "objects[0].rotate_deg", 3),
+        (object("scale"), 3, "objects[0].scale", 3),
+        (
+            format!("{QUAD}[animation]\nframes = 2\nrotate_deg_per_frame = {value}\n"),
+            5,
+            "animation.rotate_deg_per_frame",
+            3,
+        ),
+    ]
+}
+
+#[test]
+fn the_reported_overlong_arrays_are_errors() {
+    toml_error_at(
+        &format!("background = [1.0, 1.0, 1.0, 0.5]\n{QUAD}"),
+        1,
+        "background",
+        "expected an array of 3 numbers, found 4 values",
+    );
+    toml_error_at(
+        &format!("{QUAD}color = [1, 0, 0, 0.5, 7]\n"),
+        3,
+        "objects[0].color",
+        "expected an array of 4 numbers, found 5 values",
+    );
+    toml_error_at(
+        &format!("[camera]\neye = [0, 0, 3, 99]\n{QUAD}"),
+        2,
+        "camera.eye",
+        "expected an array of 3 numbers, found 4 values",
+    );
+    let e = toml_error_at(
+        &format!("{QUAD}translate = [0.5, 0, 0, \"junk\"]\n"),
+        3,
+        "objects[0].translate",
+        "expected an array of 3 numbers, found 4 values",
+    );
+    assert_eq!(
+        e.to_string(),
+        "scenes/test.toml: line 3, column 13: objects[0].translate: \
+         expected an array of 3 numbers, found 4 values"
+    );
+}
+
+#[test]
+fn every_array_key_takes_exactly_its_length() {
+    for n in 0..=5usize {
+        let value = format!("[{}]", vec!["0.5"; n].join(", "));
+        for (text, line, key, len) in array_keys(&value) {
+            if n == len {
+                scene(&text);
+            } else {
+                let plural = if n == 1 { "" } else { "s" };
+                toml_error_at(
+                    &text,
+                    line,
+                    key,
+                    &format!("expected an array of {len} numbers, found {n} value{plural}"),
+                );
+            }
+        }
+    }
+    // A wrong type inside the length names the key too; one past it is counted, whatever it is.
+    for (text, line, key, _) in array_keys("[0.5, \"x\", 0.5]") {
+        toml_error_at(&text, line, key, "invalid type: string \"x\"");
+    }
+    for (text, line, key, len) in array_keys("[0.5, 0.5, 0.5, 0.5, [1, 2]]") {
+        toml_error_at(&text, line, key, &format!("{len} numbers, found 5 values"));
+    }
+}
+
+#[test]
+fn an_unknown_key_names_itself_and_its_line() {
+    let e = toml_error(
+        &format!("{QUAD}{QUAD}colr = [1.0, 0.0, 0.0, 1.0]\n"),
+        5,
+        &["colr"],
+    );
+    assert_eq!(e.at.map(|a| a.line), Some(5), "{e}");
+    assert_eq!(e.key.as_deref(), Some("objects[1].colr"), "{e}");
+    let e = toml_error(
+        "[camera]\nfovy = 30.0\n[[objects]]\nbuiltin = \"quad\"\n",
+        2,
+        &["fovy"],
+    );
+    assert_eq!(e.key.as_deref(), Some("camera.fovy"), "{e}");
+    let e = toml_error(
+        &format!("{QUAD}[animations]\nframes = 2\n"),
+        3,
+        &["animations"],
+    );
+    assert_eq!(e.key.as_deref(), Some("animations"), "{e}");
+}
+
+#[test]
+fn range_errors_give_the_line_of_their_key() {
+    let e = invalid(
+        &format!("width = 64\n\n{QUAD}{QUAD}name = \"b\"\ncolor = [0.5, 1.5, 0.0, 1.0]\n"),
+        "objects[1].color",
+        "1.5 is outside [0, 1]",
+    );
+    assert_eq!(e.at.map(|a| (a.line, a.column)), Some((8, None)), "{e}");
+    assert_eq!(
+        e.to_string(),
+        "scenes/test.toml: line 8: objects[1].color: 1.5 is outside [0, 1]"
+    );
+    // A default that is wrong only with another key: the line of its table.
+    let e = invalid(
+        &format!("\n[camera]\neye = [0.0, 5.0, 0.0]\n{QUAD}"),
+        "camera.up",
+        "parallel",
+    );
+    assert_eq!(e.at.map(|a| a.line), Some(2), "{e}");
+    // A key of the whole file that is absent: no line.
+    let e = invalid("width = 10\n", "objects", "no [[objects]]");
+    assert_eq!(e.at, None, "{e}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Object names.
+
+#[test]
+fn object_names_are_unique_and_both_places_are_named() {
+    let e = invalid(
+        "[[objects]]\nname = \"a\"\nbuiltin = \"quad\"\n[[objects]]\nname = \"b\"\n\
+         builtin = \"cube\"\n[[objects]]\nbuiltin = \"cube\"\nname = \"a\"\n",
+        "objects[2].name",
+        "'a' is already the name of objects[0] (line 2); objects are selected by name",
+    );
+    assert_eq!(e.at.map(|a| a.line), Some(9), "{e}");
+
+    // Default names count: two objects of one shape or file need names.
+    let e = invalid(
+        &format!("{QUAD}{QUAD}"),
+        "objects[1]",
+        "'quad' (the default name, from `mesh` or `builtin`) is already the name of objects[0] \
+         (line 1); objects are selected by name, so set `name` to tell them apart",
+    );
+    assert_eq!(e.at.map(|a| a.line), Some(3), "{e}");
+    invalid(
+        "[[objects]]\nname = \"cube\"\nbuiltin = \"quad\"\n[[objects]]\nbuiltin = \"cube\"\n",
+        "objects[1]",
+        "'cube' (the default name",
+    );
+    // Names are compared exactly; distinct names for one shape are fine.
+    let s = scene(&format!(
+        "{QUAD}{QUAD}name = \"Quad\"\n{QUAD}name = \"quad 2\"\n"
+    ));
+    assert_eq!(names(&s), ["quad", "Quad", "quad 2"]);
+}
+
+#[test]
+fn object_names_are_not_empty_and_not_numbers() {
+    invalid(
+        "[[objects]]\nname = \" \"\nbuiltin = \"quad\"\n",
+        "objects[0].name",
+        "is empty",
+    );
+    invalid(
+        "[[objects]]\nname = \"2\"\nbuiltin = \"quad\"\n",
+        "objects[0].name",
+        "'2' is a number, which would read as an object's position",
+    );
+    let dir = temp_dir();
+    write(dir.path(), "7.obj", BOX_OBJ);
+    let path = write(dir.path(), "s.toml", "[[objects]]\nmesh = \"7.obj\"\n");
+    let e = file::load(&path, &SearchPath::default()).expect_err("a numeric default name");
+    assert_eq!(e.key.as_deref(), Some("objects[0]"), "{e}");
+    assert!(e.to_string().contains("'7' (the default name"), "{e}");
+    assert!(e.to_string().contains("set `name`"), "{e}");
+    // Digits among letters are a name.
+    scene("[[objects]]\nname = \"7b\"\nbuiltin = \"quad\"\n");
+}
+
+#[test]
+fn gltf_parts_that_share_a_node_name_are_numbered() {
+    let dir = temp_dir();
+    write(
+        dir.path(),
+        "twins.gltf",
+        pair_gltf().replace("\"right\"", "\"left\""),
+    );
+    let path = write(dir.path(), "s.toml", "[[objects]]\nmesh = \"twins.gltf\"\n");
+    let s = load(&path, &SearchPath::default());
+    assert_eq!(names(&s), ["twins/left", "twins/left#2"]);
+    // A part's name that another object already has is an error naming both.
+    let path = write(
+        dir.path(),
+        "clash.toml",
+        "[[objects]]\nname = \"twins/left#2\"\nbuiltin = \"quad\"\n\n[[objects]]\nmesh = \"twins.gltf\"\n",
+    );
+    let e = file::load(&path, &SearchPath::default()).expect_err("a clash with a part name");
+    assert_eq!(e.key.as_deref(), Some("objects[1]"), "{e}");
+    assert_eq!(e.at.map(|a| a.line), Some(5), "{e}");
+    assert!(
+        e.to_string().contains(
+            "makes an object named 'twins/left#2', a name objects[0] (line 2) already gave"
+        ),
+        "{e}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Negative scale.
+
+#[test]
+fn a_negative_scale_mirrors() {
+    let s = scene(&format!(
+        "{QUAD}scale = [-1.0, 1.0, 1.0]\ntranslate = [0.0, 0.0, -1.0]\n"
+    ));
+    let m = s.objects[0].model_matrix(None, 0);
+    assert_maps(m, [0.5, 0.25, 0.0], [-0.5, 0.25, -1.0], "mirrored in x");
+    assert!(m.determinant() < 0.0, "a reflection");
+    let s = scene(&format!("{QUAD}scale = -2\n"));
+    assert_eq!(s.objects[0].scale, Vec3::splat(-2.0));
+    // Zero is still refused, with the range in the message.
+    invalid(
+        &format!("{QUAD}scale = [1.0, -0.0, 1.0]\n"),
+        "objects[0].scale",
+        "must be a finite, non-zero factor (a negative one mirrors)",
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Mesh files named by a scene.
+
+#[test]
+fn a_mesh_that_is_a_directory_says_so() {
+    let dir = temp_dir();
+    std::fs::create_dir(dir.path().join("bunny.ply")).expect("mkdir");
+    let path = write(dir.path(), "s.toml", "[[objects]]\nmesh = \"bunny.ply\"\n");
+    let e = file::load(&path, &SearchPath::default()).expect_err("a directory");
+    assert_eq!(e.key.as_deref(), Some("objects[0].mesh"), "{e}");
+    assert_eq!(e.at.map(|a| a.line), Some(2), "{e}");
+    let SceneErrorKind::Load(load) = &e.kind else {
+        panic!("expected SceneErrorKind::Load, got {:?}", e.kind)
+    };
+    assert!(matches!(load.kind, LoadErrorKind::IsDirectory), "{e}");
+    assert!(
+        e.to_string()
+            .ends_with("bunny.ply: is a directory, not a mesh file"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_mesh_with_an_unknown_extension_lists_the_formats() {
+    let dir = temp_dir();
+    write(dir.path(), "part.step", BOX_OBJ);
+    let path = write(dir.path(), "s.toml", "[[objects]]\nmesh = \"part.step\"\n");
+    let e = file::load(&path, &SearchPath::default()).expect_err("an unknown format");
+    let SceneErrorKind::Load(load) = &e.kind else {
+        panic!("expected SceneErrorKind::Load, got {:?}", e.kind)
+    };
+    assert!(
+        matches!(&load.kind, LoadErrorKind::UnknownFormat(x) if x == "step"),
+        "{e}"
+    );
+    assert!(
+        e.to_string()
+            .contains("unknown mesh format '.step': strata reads .ply"),
+        "{e}"
+    );
+}
+
+#[test]
+fn an_stl_mesh_loads_in_a_scene() {
+    let dir = temp_dir();
+    let stl = "solid t\nfacet normal 0 0 1\nouter loop\nvertex 2 0 -1\nvertex 6 1 1\nvertex 2 1 1\n\
+               endloop\nendfacet\nendsolid t\n";
+    write(dir.path(), "t.stl.gz", gzip(stl.as_bytes()));
+    let path = write(
+        dir.path(),
+        "s.toml",
+        "[[objects]]\nmesh = \"t.stl.gz\"\nfit = true\n",
+    );
+    let s = load(&path, &SearchPath::default());
+    assert_eq!(names(&s), ["t"]);
+    assert_eq!(s.objects[0].mesh.triangles().len(), 1);
+    let b = base_bounds(&s.objects);
+    assert!(
+        b.extent().abs_diff_eq(Vec3::new(1.0, 0.25, 0.5), 1e-6),
+        "{b:?}"
+    );
 }

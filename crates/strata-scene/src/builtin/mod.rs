@@ -115,7 +115,7 @@ pub fn load(name: &str, search: &SearchPath) -> Result<Scene, SceneError> {
                 SceneErrorKind::UnknownBuiltin {
                     what: "scene",
                     name: name.to_owned(),
-                    known: names(),
+                    known: names().into(),
                 },
             )
         })?

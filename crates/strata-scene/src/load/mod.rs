@@ -1,14 +1,17 @@
-//! Mesh loaders: PLY, OBJ, OFF and glTF 2.0 files, optionally gzipped, into [`Model`]s.
+//! Mesh loaders: PLY, OBJ, OFF, STL and glTF 2.0 files, optionally gzipped, into [`Model`]s.
 //!
 //! [`load_model`] reads a file, gunzips it when it starts with the gzip magic `1f 8b`, picks the
-//! format from the extension (after stripping `.gz`) or, failing that, by sniffing the content,
-//! and hands the bytes to [`parse_model`]. Each format's module states the subset it supports:
+//! format from the extension (after stripping `.gz`) or, for a file without one, by sniffing the
+//! content, and hands the bytes to [`parse_model`]. An extension that names no format strata
+//! reads is an error ([`LoadErrorKind::UnknownFormat`]) rather than a guess, and so is a
+//! directory. Each format's module states the subset it supports:
 //!
 //! | format | module | errors located by |
 //! | --- | --- | --- |
 //! | PLY ascii, binary LE, binary BE | `ply` | line (header, ascii body), byte (binary body) |
 //! | Wavefront OBJ | `obj` | line |
 //! | OFF, COFF, NOFF, CNOFF, NCOFF (ascii) | `off` | line |
+//! | STL binary, STL ascii | `stl` | byte (binary), line (ascii) |
 //! | glTF 2.0 (`.gltf`, `.glb`) | `gltf` | the glTF object named (node, accessor, …) |
 //!
 //! Every error is a [`LoadError`]: the file path, an optional [`Location`] and a
@@ -24,6 +27,7 @@ mod obj;
 mod off;
 mod ply;
 mod source;
+mod stl;
 mod text;
 
 use std::fmt;
@@ -33,8 +37,9 @@ use glam::Mat4;
 
 use crate::mesh::{Mesh, MeshError};
 
-/// A mesh file format.
+/// A mesh file format. More may be added, so matches need a wildcard arm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub enum Format {
     /// Stanford PLY (ascii, binary little or big endian).
     Ply,
@@ -46,19 +51,23 @@ pub enum Format {
     Gltf,
     /// glTF 2.0 binary container.
     Glb,
+    /// STL (stereolithography), binary or ascii.
+    Stl,
 }
+
+/// The extensions strata reads, for error messages and `--help` texts.
+pub const KNOWN_EXTENSIONS: &str = ".ply, .obj, .off, .stl, .gltf, .glb (each optionally gzipped, \
+                                    with .gz added)";
 
 impl Format {
     /// The format named by the file extension, ignoring case and a trailing `.gz`
     /// (`dragon.PLY.gz` → [`Format::Ply`]); `None` for an unknown or missing extension.
     pub fn from_path(path: &Path) -> Option<Format> {
-        let name = path.file_name()?.to_str()?.to_ascii_lowercase();
-        let name = name.strip_suffix(".gz").unwrap_or(&name);
-        let (_, ext) = name.rsplit_once('.')?;
-        match ext {
+        match extension(path)?.as_str() {
             "ply" => Some(Format::Ply),
             "obj" => Some(Format::Obj),
             "off" => Some(Format::Off),
+            "stl" => Some(Format::Stl),
             "gltf" => Some(Format::Gltf),
             "glb" => Some(Format::Glb),
             _ => None,
@@ -66,8 +75,9 @@ impl Format {
     }
 
     /// Guesses the format of (decompressed) file content: `ply` followed by a line end, the GLB
-    /// magic `glTF`, a JSON object (`{`), an OFF keyword (`OFF`, `COFF`, `NOFF`, …) as the first
-    /// word outside `#` comments, else OBJ.
+    /// magic `glTF`, a JSON object (`{`), a binary STL (its size matches its triangle count) or
+    /// `solid` as the first word, an OFF keyword (`OFF`, `COFF`, `NOFF`, …) as the first word
+    /// outside `#` comments, else OBJ.
     pub fn sniff(bytes: &[u8]) -> Format {
         if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
             return Format::Ply;
@@ -82,6 +92,9 @@ impl Format {
             .map_or(&[][..], |i| &start[i..]);
         if first.starts_with(b"{") {
             return Format::Gltf;
+        }
+        if stl::is_stl(bytes) {
+            return Format::Stl;
         }
         // The first word outside `#` comments decides between OFF and OBJ.
         let mut lines = text::Lines::new(first);
@@ -105,6 +118,7 @@ impl fmt::Display for Format {
             Format::Off => "OFF",
             Format::Gltf => "glTF",
             Format::Glb => "GLB",
+            Format::Stl => "STL",
         })
     }
 }
@@ -180,6 +194,12 @@ pub enum LoadErrorKind {
     /// The file (or a glTF buffer file) could not be read.
     #[error("cannot read: {0}")]
     Io(std::io::Error),
+    /// The path names a directory.
+    #[error("is a directory, not a mesh file")]
+    IsDirectory,
+    /// The file's extension names no format strata reads.
+    #[error("unknown mesh format '.{0}': strata reads {KNOWN_EXTENSIONS}")]
+    UnknownFormat(String),
     /// The file starts with the gzip magic but does not decompress.
     #[error("invalid gzip data: {0}")]
     Gzip(std::io::Error),
@@ -248,9 +268,28 @@ impl From<MeshError> for Fail {
 
 /// Reads, decompresses, detects and parses a mesh file; see the module docs.
 pub fn load_model(path: &Path) -> Result<Model, LoadError> {
+    if path.is_dir() {
+        return Err(Fail::nowhere(LoadErrorKind::IsDirectory).with_path(path));
+    }
+    let named = match extension(path) {
+        None => None,
+        Some(ext) => match Format::from_path(path) {
+            Some(format) => Some(format),
+            None => return Err(Fail::nowhere(LoadErrorKind::UnknownFormat(ext)).with_path(path)),
+        },
+    };
     let bytes = source::read(path).map_err(|f| f.with_path(path))?;
-    let format = Format::from_path(path).unwrap_or_else(|| Format::sniff(&bytes));
+    let format = named.unwrap_or_else(|| Format::sniff(&bytes));
     parse_model(&bytes, format, path)
+}
+
+/// The lowercase extension after stripping a trailing `.gz` (`Dragon.PLY.gz` → `ply`); `None`
+/// without one (`mesh`, `mesh.gz`, `mesh.`).
+fn extension(path: &Path) -> Option<String> {
+    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    let (_, ext) = name.rsplit_once('.')?;
+    (!ext.is_empty()).then(|| ext.to_owned())
 }
 
 /// Parses already decompressed file content. `path` names the file in errors, gives PLY/OBJ/OFF
@@ -270,6 +309,7 @@ pub fn parse_model(bytes: &[u8], format: Format, path: &Path) -> Result<Model, L
         Format::Ply => single(ply::parse(bytes)),
         Format::Obj => single(obj::parse(bytes)),
         Format::Off => single(off::parse(bytes)),
+        Format::Stl => single(stl::parse(bytes)),
         Format::Gltf | Format::Glb => gltf::parse(bytes, path),
     };
     model.map_err(|f| f.with_path(path))

@@ -1,8 +1,12 @@
 //! The TOML scene file (DESIGN §2): schema, validation, mesh resolution.
 //!
 //! Every key of DESIGN §2 is accepted; unknown keys are errors (a typo must not silently fall back
-//! to a default). Syntax and type errors carry the TOML line and column; range errors name the
-//! key (`objects[2].color`). Defaults for keys left out:
+//! to a default), and so are arrays of the wrong length (serde's own `[f32; 3]` stops reading
+//! after three elements and the TOML deserializer ignores the rest, so `[r, g, b, a]` would pass
+//! as `[r, g, b]`: `Numbers` counts them all). Every error names the key (`objects[2].color`)
+//! and its line, found by a second, spanned parse (module `keys`) when an error is reported;
+//! syntax and type errors also give the column. Object names must be unique, non-empty and not plain numbers: remote nodes select
+//! objects by name or by position. Defaults for keys left out:
 //!
 //! | key | default |
 //! | --- | --- |
@@ -15,6 +19,11 @@
 //! | `shading` | `"headlight"` |
 //! | `translate`, `rotate_deg`, `scale` | `[0, 0, 0]`, `[0, 0, 0]`, `1` (`scale` may also be `[x, y, z]`) |
 //!
+//! A negative `scale` factor mirrors the object. That reverses its triangles' winding, which
+//! changes nothing here: no face is culled, the rasterizer covers either winding, normals go
+//! through the inverse transpose (which mirrors them too) and headlight shading uses `|N·L|`. A
+//! zero factor is refused: it flattens the object and makes the normal matrix singular.
+//!
 //! An object names exactly one of `mesh` (a file, found through [`SearchPath`]) or `builtin` (a
 //! shape of [`crate::builtin::shapes`]).
 
@@ -26,6 +35,7 @@ use glam::{Mat4, Vec3};
 use serde::Deserialize;
 use strata_core::{Material, ObjectId, Shading};
 
+use super::keys::KeyIndex;
 use super::{Animation, Scene, SceneError, SceneErrorKind, SceneObject};
 use crate::builtin::shapes;
 use crate::camera::Camera;
@@ -86,15 +96,10 @@ pub fn parse(
     search: &SearchPath,
 ) -> Result<Scene, SceneError> {
     let label = origin.label();
-    let file: SceneFile = toml::from_str(text).map_err(|e| {
-        SceneError::new(
-            &label,
-            None,
-            SceneErrorKind::Toml(e.to_string().trim_end().to_owned()),
-        )
-    })?;
+    let file: SceneFile = toml::from_str(text).map_err(|e| toml_error(&label, text, &e))?;
     Resolver {
         label: &label,
+        text,
         origin,
         search,
         models: HashMap::new(),
@@ -103,14 +108,30 @@ pub fn parse(
     .resolve(file)
 }
 
+/// A TOML syntax or schema error, with the key and the position its span points at.
+fn toml_error(label: &str, text: &str, e: &toml::de::Error) -> SceneError {
+    let message = e.message().trim_end().to_owned();
+    let Some(span) = e.span() else {
+        return SceneError::new(label, None, SceneErrorKind::Toml(message));
+    };
+    let keys = KeyIndex::new(text);
+    SceneError::new(
+        label,
+        keys.key_at(&span).map(str::to_owned),
+        SceneErrorKind::Toml(message),
+    )
+    .at(Some(keys.position(span.start)))
+}
+
 // ----- schema ---------------------------------------------------------------------------------
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFile {
-    width: Option<u32>,
-    height: Option<u32>,
-    background: Option<[f32; 3]>,
+    // Signed, so that `width = -5` is refused with the allowed range rather than a type name.
+    width: Option<i64>,
+    height: Option<i64>,
+    background: Option<Numbers<3>>,
     camera: Option<CameraFile>,
     #[serde(default)]
     objects: Vec<ObjectFile>,
@@ -120,9 +141,9 @@ struct SceneFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CameraFile {
-    eye: Option<[f32; 3]>,
-    target: Option<[f32; 3]>,
-    up: Option<[f32; 3]>,
+    eye: Option<Numbers<3>>,
+    target: Option<Numbers<3>>,
+    up: Option<Numbers<3>>,
     fovy_deg: Option<f32>,
     near: Option<f32>,
     far: Option<f32>,
@@ -136,10 +157,10 @@ struct ObjectFile {
     builtin: Option<String>,
     #[serde(default)]
     fit: bool,
-    color: Option<[f32; 4]>,
+    color: Option<Numbers<4>>,
     shading: Option<ShadingFile>,
-    translate: Option<[f32; 3]>,
-    rotate_deg: Option<[f32; 3]>,
+    translate: Option<Numbers<3>>,
+    rotate_deg: Option<Numbers<3>>,
     scale: Option<ScaleFile>,
 }
 
@@ -170,18 +191,9 @@ impl<'de> Deserialize<'de> for ScaleFile {
             }
             fn visit_seq<A: serde::de::SeqAccess<'de>>(
                 self,
-                mut seq: A,
+                seq: A,
             ) -> Result<ScaleFile, A::Error> {
-                let mut s = [0.0f32; 3];
-                for (i, slot) in s.iter_mut().enumerate() {
-                    *slot = seq
-                        .next_element()?
-                        .ok_or_else(|| serde::de::Error::invalid_length(i, &self))?;
-                }
-                if seq.next_element::<f32>()?.is_some() {
-                    return Err(serde::de::Error::invalid_length(4, &self));
-                }
-                Ok(ScaleFile(s))
+                NumbersVisitor::<3>.visit_seq(seq).map(|n| ScaleFile(n.0))
             }
         }
         d.deserialize_any(V)
@@ -191,9 +203,61 @@ impl<'de> Deserialize<'de> for ScaleFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct AnimationFile {
-    frames: u32,
+    frames: i64,
     #[serde(default)]
-    rotate_deg_per_frame: [f32; 3],
+    rotate_deg_per_frame: Numbers<3>,
+}
+
+/// An array of exactly `N` numbers (integers or floats).
+///
+/// Unlike serde's `[f32; N]`, which reads `N` elements and leaves the rest unread (and the TOML
+/// deserializer does not object), every element is counted, so `[1, 0, 0, 99]` is an error.
+#[derive(Clone, Copy, Debug)]
+struct Numbers<const N: usize>([f32; N]);
+
+impl<const N: usize> Default for Numbers<N> {
+    fn default() -> Self {
+        Numbers([0.0; N])
+    }
+}
+
+impl<'de, const N: usize> Deserialize<'de> for Numbers<N> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_seq(NumbersVisitor::<N>)
+    }
+}
+
+struct NumbersVisitor<const N: usize>;
+
+impl<'de, const N: usize> serde::de::Visitor<'de> for NumbersVisitor<N> {
+    type Value = Numbers<N>;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "an array of {N} numbers")
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Numbers<N>, A::Error> {
+        let mut out = [0.0f32; N];
+        let mut found = 0usize;
+        for slot in out.iter_mut() {
+            match seq.next_element::<f32>()? {
+                Some(v) => *slot = v,
+                None => break,
+            }
+            found += 1;
+        }
+        while seq.next_element::<serde::de::IgnoredAny>()?.is_some() {
+            found += 1;
+        }
+        if found == N {
+            Ok(Numbers(out))
+        } else {
+            Err(serde::de::Error::custom(format!(
+                "expected an array of {N} numbers, found {found} value{}",
+                if found == 1 { "" } else { "s" }
+            )))
+        }
+    }
 }
 
 // ----- validation and resolution --------------------------------------------------------------
@@ -208,6 +272,8 @@ struct LoadedPart {
 
 struct Resolver<'a> {
     label: &'a str,
+    /// The scene text, for the lines of errors.
+    text: &'a str,
     origin: SceneOrigin<'a>,
     search: &'a SearchPath,
     models: HashMap<PathBuf, Arc<Vec<LoadedPart>>>,
@@ -216,43 +282,46 @@ struct Resolver<'a> {
 
 impl Resolver<'_> {
     fn invalid(&self, key: impl Into<String>, msg: impl Into<String>) -> SceneError {
-        SceneError::new(
-            self.label,
-            Some(key.into()),
-            SceneErrorKind::Invalid(msg.into()),
-        )
+        self.error(key, SceneErrorKind::Invalid(msg.into()))
+    }
+
+    /// An error at `key`, placed at the key's line (or its table's, for a key left out).
+    fn error(&self, key: impl Into<String>, kind: SceneErrorKind) -> SceneError {
+        let key = key.into();
+        let at = KeyIndex::new(self.text).position_of(&key);
+        SceneError::new(self.label, Some(key), kind).at(at)
     }
 
     fn resolve(mut self, file: SceneFile) -> Result<Scene, SceneError> {
-        let width = file.width.unwrap_or(1280);
-        let height = file.height.unwrap_or(720);
-        for (key, v) in [("width", width), ("height", height)] {
-            if v == 0 || v > MAX_IMAGE_SIDE {
-                return Err(
-                    self.invalid(key, format!("{v} is outside 1..={MAX_IMAGE_SIDE} pixels"))
-                );
-            }
-        }
-        let background = file.background.unwrap_or([1.0; 3]);
+        let width = self.image_side("width", file.width.unwrap_or(1280))?;
+        let height = self.image_side("height", file.height.unwrap_or(720))?;
+        let background = file.background.map_or([1.0; 3], |b| b.0);
         self.unit_range("background", &background)?;
         let camera = self.camera(file.camera)?;
         if file.objects.is_empty() {
             return Err(self.invalid("objects", "the scene has no [[objects]]; add at least one"));
         }
         let mut objects = Vec::new();
+        let mut names = Names::default();
         for (i, obj) in file.objects.into_iter().enumerate() {
-            self.object(i, obj, &mut objects)?;
+            self.object(i, obj, &mut names, &mut objects)?;
         }
         let animation = match file.animation {
             None => None,
             Some(a) => {
-                if a.frames == 0 {
-                    return Err(self.invalid("animation.frames", "must be at least 1"));
-                }
-                self.finite("animation.rotate_deg_per_frame", &a.rotate_deg_per_frame)?;
+                let frames = u32::try_from(a.frames)
+                    .ok()
+                    .filter(|&f| f >= 1)
+                    .ok_or_else(|| {
+                        self.invalid(
+                            "animation.frames",
+                            format!("{} is outside 1..={}", a.frames, u32::MAX),
+                        )
+                    })?;
+                self.finite("animation.rotate_deg_per_frame", &a.rotate_deg_per_frame.0)?;
                 Some(Animation {
-                    frames: a.frames,
-                    rotate_deg_per_frame: Vec3::from(a.rotate_deg_per_frame),
+                    frames,
+                    rotate_deg_per_frame: Vec3::from(a.rotate_deg_per_frame.0),
                 })
             }
         };
@@ -266,6 +335,14 @@ impl Resolver<'_> {
             objects,
             animation,
         })
+    }
+
+    /// `width` or `height`, in 1..=[`MAX_IMAGE_SIDE`].
+    fn image_side(&self, key: &str, v: i64) -> Result<u32, SceneError> {
+        u32::try_from(v)
+            .ok()
+            .filter(|s| (1..=MAX_IMAGE_SIDE).contains(s))
+            .ok_or_else(|| self.invalid(key, format!("{v} is outside 1..={MAX_IMAGE_SIDE} pixels")))
     }
 
     fn finite(&self, key: &str, v: &[f32]) -> Result<(), SceneError> {
@@ -286,9 +363,9 @@ impl Resolver<'_> {
         let d = Camera::default();
         let Some(c) = file else { return Ok(d) };
         let cam = Camera {
-            eye: c.eye.map_or(d.eye, Vec3::from),
-            target: c.target.map_or(d.target, Vec3::from),
-            up: c.up.map_or(d.up, Vec3::from),
+            eye: c.eye.map_or(d.eye, |v| Vec3::from(v.0)),
+            target: c.target.map_or(d.target, |v| Vec3::from(v.0)),
+            up: c.up.map_or(d.up, |v| Vec3::from(v.0)),
             fovy_deg: c.fovy_deg.unwrap_or(d.fovy_deg),
             near: c.near.unwrap_or(d.near),
             far: c.far.unwrap_or(d.far),
@@ -317,7 +394,7 @@ impl Resolver<'_> {
         if !(cam.near > 0.0 && cam.near.is_finite()) {
             return Err(self.invalid(
                 "camera.near",
-                format!("{} must be a positive distance", cam.near),
+                format!("{} must be a finite distance greater than 0", cam.near),
             ));
         }
         if !(cam.far > cam.near && cam.far.is_finite()) {
@@ -336,6 +413,7 @@ impl Resolver<'_> {
         &mut self,
         i: usize,
         obj: ObjectFile,
+        names: &mut Names,
         out: &mut Vec<SceneObject>,
     ) -> Result<(), SceneError> {
         let key = |k: &str| format!("objects[{i}].{k}");
@@ -355,19 +433,20 @@ impl Resolver<'_> {
             (Some(mesh), None) => (self.mesh(&key("mesh"), mesh)?, file_stem(Path::new(mesh))),
             (None, Some(name)) => (self.shape(&key("builtin"), name)?, name.clone()),
         };
-        let name = obj.name.unwrap_or(default_name);
-        if let Some(c) = &obj.color {
+        let name = self.object_name(i, obj.name, default_name, names)?;
+        let color = obj.color.map(|c| c.0);
+        if let Some(c) = &color {
             self.unit_range(&key("color"), c)?;
         }
-        let translate = obj.translate.unwrap_or_default();
+        let translate = obj.translate.unwrap_or_default().0;
         self.finite(&key("translate"), &translate)?;
-        let rotate_deg = obj.rotate_deg.unwrap_or_default();
+        let rotate_deg = obj.rotate_deg.unwrap_or_default().0;
         self.finite(&key("rotate_deg"), &rotate_deg)?;
         let scale = obj.scale.map_or([1.0; 3], |s| s.0);
         if let Some(s) = scale.iter().find(|s| !s.is_finite() || **s == 0.0) {
             return Err(self.invalid(
                 key("scale"),
-                format!("{s} must be a finite, non-zero factor"),
+                format!("{s} must be a finite, non-zero factor (a negative one mirrors)"),
             ));
         }
         let fit = if obj.fit {
@@ -389,16 +468,13 @@ impl Resolver<'_> {
             ShadingFile::Headlight => Shading::Headlight,
             ShadingFile::Unlit => Shading::Unlit,
         };
-        let several = parts.len() > 1;
-        for part in parts.iter() {
+        let part_names = part_names(&name, &parts);
+        for (part, part_name) in parts.iter().zip(part_names) {
             let id = u32::try_from(out.len())
                 .map_err(|_| self.invalid("objects", "more than 2^32 objects"))?;
+            self.claim_part_name(i, &part_name, names)?;
             out.push(SceneObject {
-                name: if several {
-                    format!("{name}/{}", part.name)
-                } else {
-                    name.clone()
-                },
+                name: part_name,
                 id: ObjectId(id),
                 mesh: part.mesh.clone(),
                 base: fit * part.transform,
@@ -406,8 +482,7 @@ impl Resolver<'_> {
                 rotate_deg: Vec3::from(rotate_deg),
                 scale: Vec3::from(scale),
                 material: Material {
-                    color: obj
-                        .color
+                    color: color
                         .or(part.base_color)
                         .unwrap_or(Material::default().color),
                     shading,
@@ -417,31 +492,88 @@ impl Resolver<'_> {
         Ok(())
     }
 
+    /// The object's name: `given`, else `default`; checked and recorded in `names`.
+    fn object_name(
+        &self,
+        i: usize,
+        given: Option<String>,
+        default: String,
+        names: &mut Names,
+    ) -> Result<String, SceneError> {
+        let explicit = given.is_some();
+        let key = if explicit {
+            format!("objects[{i}].name")
+        } else {
+            format!("objects[{i}]")
+        };
+        let name = given.unwrap_or(default);
+        let whose = if explicit {
+            ""
+        } else {
+            " (the default name, from `mesh` or `builtin`)"
+        };
+        if name.trim().is_empty() {
+            return Err(self.invalid(key, "is empty; give the object a name"));
+        }
+        if name.bytes().all(|b| b.is_ascii_digit()) {
+            return Err(self.invalid(
+                key,
+                format!(
+                    "'{name}'{whose} is a number, which would read as an object's position \
+                     where objects are selected; set `name` to one with a letter in it"
+                ),
+            ));
+        }
+        if let Some(&j) = names.objects.get(&name) {
+            return Err(self.invalid(
+                key,
+                format!(
+                    "'{name}'{whose} is already the name of {}; objects are selected by name, \
+                     so set `name` to tell them apart",
+                    self.object_place(j)
+                ),
+            ));
+        }
+        names.objects.insert(name.clone(), i);
+        Ok(name)
+    }
+
+    /// Records the name of one scene object (a glTF part's `name/part`, else the object's name).
+    fn claim_part_name(&self, i: usize, name: &str, names: &mut Names) -> Result<(), SceneError> {
+        if let Some(&j) = names.parts.get(name) {
+            return Err(self.invalid(
+                format!("objects[{i}]"),
+                format!(
+                    "makes an object named '{name}', a name {} already gave an object; \
+                     set `name` to tell them apart",
+                    self.object_place(j)
+                ),
+            ));
+        }
+        names.parts.insert(name.to_owned(), i);
+        Ok(())
+    }
+
+    /// `objects[3] (line 12)`, for messages that point at a second place.
+    fn object_place(&self, j: usize) -> String {
+        let key = format!("objects[{j}]");
+        match KeyIndex::new(self.text).position_of(&format!("{key}.name")) {
+            Some(at) => format!("{key} ({at})"),
+            None => key,
+        }
+    }
+
     fn mesh(&mut self, key: &str, name: &str) -> Result<Arc<Vec<LoadedPart>>, SceneError> {
         let path = self
             .search
             .resolve(name, self.origin.dir())
-            .map_err(|tried| {
-                SceneError::new(
-                    self.label,
-                    Some(key.to_owned()),
-                    SceneErrorKind::MeshNotFound {
-                        name: name.to_owned(),
-                        tried,
-                    },
-                )
-            })?;
+            .map_err(|tried| self.not_found(key, name, tried))?;
         let canonical = path.canonicalize().unwrap_or_else(|_| path.clone());
         if let Some(m) = self.models.get(&canonical) {
             return Ok(m.clone());
         }
-        let model = load::load_model(&path).map_err(|e| {
-            SceneError::new(
-                self.label,
-                Some(key.to_owned()),
-                SceneErrorKind::Load(Box::new(e)),
-            )
-        })?;
+        let model = load::load_model(&path)
+            .map_err(|e| self.error(key, SceneErrorKind::Load(Box::new(e))))?;
         let parts: Arc<Vec<LoadedPart>> = Arc::new(
             model
                 .parts
@@ -461,18 +593,39 @@ impl Resolver<'_> {
         Ok(parts)
     }
 
+    /// The error for a mesh that `resolve` did not find: a directory where a file was expected
+    /// says so; otherwise every place tried is listed.
+    fn not_found(&self, key: &str, name: &str, tried: Vec<PathBuf>) -> SceneError {
+        match tried.iter().find(|p| p.is_dir()) {
+            Some(dir) => self.error(
+                key,
+                SceneErrorKind::Load(Box::new(load::LoadError {
+                    path: dir.clone(),
+                    location: None,
+                    kind: load::LoadErrorKind::IsDirectory,
+                })),
+            ),
+            None => self.error(
+                key,
+                SceneErrorKind::MeshNotFound {
+                    name: name.to_owned(),
+                    tried,
+                },
+            ),
+        }
+    }
+
     fn shape(&mut self, key: &str, name: &str) -> Result<Arc<Vec<LoadedPart>>, SceneError> {
         if let Some(s) = self.shapes.get(name) {
             return Ok(s.clone());
         }
         let mesh = shapes::shape(name).ok_or_else(|| {
-            SceneError::new(
-                self.label,
-                Some(key.to_owned()),
+            self.error(
+                key,
                 SceneErrorKind::UnknownBuiltin {
                     what: "shape",
                     name: name.to_owned(),
-                    known: shapes::SHAPE_NAMES.to_vec(),
+                    known: shapes::SHAPE_NAMES.into(),
                 },
             )
         })?;
@@ -485,6 +638,36 @@ impl Resolver<'_> {
         self.shapes.insert(name.to_owned(), parts.clone());
         Ok(parts)
     }
+}
+
+/// The names taken so far, each with the index of the file object that took it.
+#[derive(Default)]
+struct Names {
+    /// File objects' names (`name`, or the default from `mesh` or `builtin`).
+    objects: HashMap<String, usize>,
+    /// Scene objects' names: as above, or `name/part` for each part of a glTF model.
+    parts: HashMap<String, usize>,
+}
+
+/// The scene-object names of an object called `name` with these parts: `name` for a single
+/// part, else `name/part` with repeated part names (glTF allows them) numbered `part#2`, `part#3`.
+fn part_names(name: &str, parts: &[LoadedPart]) -> Vec<String> {
+    if parts.len() == 1 {
+        return vec![name.to_owned()];
+    }
+    let mut seen: HashMap<&str, usize> = HashMap::new();
+    parts
+        .iter()
+        .map(|p| {
+            let n = seen.entry(p.name.as_str()).or_insert(0);
+            *n += 1;
+            if *n == 1 {
+                format!("{name}/{}", p.name)
+            } else {
+                format!("{name}/{}#{n}", p.name)
+            }
+        })
+        .collect()
 }
 
 /// `dragon_vrip.ply.gz` → `dragon_vrip`.

@@ -22,6 +22,7 @@
 //!   the turntable of seed 000 §6.1, 5° a frame about y.
 
 pub mod file;
+mod keys;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -201,7 +202,7 @@ pub enum SceneErrorKind {
         /// The name asked for.
         name: String,
         /// The names that exist.
-        known: Vec<&'static str>,
+        known: Box<[&'static str]>,
     },
 }
 
@@ -217,12 +218,39 @@ fn looked_in(tried: &[PathBuf]) -> String {
     }
 }
 
-/// A scene error: where (file or built-in scene, and the key) and what.
+/// A place in a scene text: a 1-based line and, where known, a 1-based column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TextPosition {
+    /// The line, counting from 1.
+    pub line: u32,
+    /// The column in characters, counting from 1, when the error points into the line.
+    pub column: Option<u32>,
+}
+
+impl std::fmt::Display for TextPosition {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.column {
+            Some(c) => write!(f, "line {}, column {c}", self.line),
+            None => write!(f, "line {}", self.line),
+        }
+    }
+}
+
+/// A scene error: where (file or built-in scene, line, and the key) and what.
+///
+/// It reads `scene.toml: line 12: objects[2].color: 1.5 is outside [0, 1]`; the line and the key
+/// are left out when the error has none (a file that cannot be read, a key left at its default).
 #[derive(Debug, thiserror::Error)]
-#[error("{origin}: {}{kind}", .key.as_deref().map(|k| format!("{k}: ")).unwrap_or_default())]
+#[error(
+    "{origin}: {}{}{kind}",
+    .at.map(|p| format!("{p}: ")).unwrap_or_default(),
+    .key.as_deref().map(|k| format!("{k}: ")).unwrap_or_default()
+)]
 pub struct SceneError {
     /// The scene file's path or the built-in scene's name.
     pub origin: String,
+    /// Where in the scene text, when the error concerns a place in it.
+    pub at: Option<TextPosition>,
     /// The key path (`objects[2].color`), when the error is about one key.
     pub key: Option<String>,
     /// What went wrong.
@@ -230,12 +258,19 @@ pub struct SceneError {
 }
 
 impl SceneError {
-    /// An error about `origin`, optionally at `key`.
+    /// An error about `origin`, optionally at `key`, without a position.
     pub fn new(origin: impl Into<String>, key: Option<String>, kind: SceneErrorKind) -> Self {
         SceneError {
             origin: origin.into(),
+            at: None,
             key,
             kind,
         }
+    }
+
+    /// The same error, placed at `at`.
+    pub fn at(mut self, at: Option<TextPosition>) -> Self {
+        self.at = at;
+        self
     }
 }
