@@ -109,7 +109,7 @@ fn sniffing_matches_extensions() {
     ];
     let Some(found) = models(&names) else { return };
     for (name, path) in names.iter().zip(found.files()) {
-        let raw = std::fs::read(&path).unwrap();
+        let raw = std::fs::read(path).unwrap();
         let bytes = if name.ends_with(".gz") {
             let mut out = Vec::new();
             std::io::Read::read_to_end(&mut flate2_reader(&raw), &mut out).unwrap();

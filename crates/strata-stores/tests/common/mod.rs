@@ -48,11 +48,23 @@ pub(crate) fn render_with(
     (result, deep)
 }
 
+/// [`render_with`] for a method that must export a DeepFrame.
+pub(crate) fn render_exact(
+    method: &mut dyn Method,
+    scene: &Scene,
+    frame: u32,
+    threads: usize,
+) -> (FrameResult, DeepFrame) {
+    let name = method.name();
+    let (result, deep) = render_with(method, scene, frame, threads);
+    let deep = deep.unwrap_or_else(|| panic!("{name} keeps fragments but exports no DeepFrame"));
+    (result, deep)
+}
+
 /// The linked-list A-buffer's frame and DeepFrame: the reference every method is checked against.
 pub(crate) fn reference(scene: &Scene, frame: u32) -> (FrameResult, DeepFrame) {
     let mut abuffer = create("abuffer", &MethodOptions::default()).expect("abuffer exists");
-    let (r, deep) = render_with(abuffer.as_mut(), scene, frame, 2);
-    (r, deep.expect("the A-buffer is exact"))
+    render_exact(abuffer.as_mut(), scene, frame, 2)
 }
 
 /// Every fragment the rasterizer emits, per pixel, in arrival (primitive) order.
