@@ -2,7 +2,10 @@
 //!
 //! Search order (first directory that holds the file wins):
 //!
-//! 1. each directory of `$STRATA_MODEL_PATH` (colon-separated), in order;
+//! 1. each directory of `$STRATA_MODEL_PATH` (colon-separated), in order; a relative one is taken
+//!    relative to the workspace root, because `cargo test` runs each test binary in its crate's
+//!    directory (so `STRATA_MODEL_PATH=../shared/models cargo test` means the same folder from
+//!    every crate, the one next to the repository);
 //! 2. `<workspace root>/../shared/models`, the folder next to the repository that the project's
 //!    own machines keep the meshes in;
 //! 3. `$XDG_DATA_HOME/strata/models`, or `~/.local/share/strata/models` without
@@ -99,7 +102,7 @@ impl SearchOrder {
                 std::env::split_paths(v)
                     .filter(|d| !d.as_os_str().is_empty())
                     .map(|dir| Place {
-                        dir,
+                        dir: workspace_root.join(dir),
                         origin: Origin::ModelPathVar,
                     })
                     .collect()
@@ -356,6 +359,24 @@ mod tests {
                     Origin::NextToWorkspace
                 ),
                 (PathBuf::from("/xdg/strata/models"), Origin::FetchModels),
+            ]
+        );
+    }
+
+    #[test]
+    fn relative_model_path_entries_start_at_the_workspace_root() {
+        let order = SearchOrder::new(
+            &vars(Some("../shared/models:/abs"), None, None),
+            Path::new("/work/repo"),
+        );
+        assert_eq!(
+            dirs(&order)[..2],
+            [
+                (
+                    PathBuf::from("/work/repo/../shared/models"),
+                    Origin::ModelPathVar
+                ),
+                (PathBuf::from("/abs"), Origin::ModelPathVar),
             ]
         );
     }
