@@ -117,6 +117,15 @@ pub(crate) fn max_diff(a: &Rgb8Image, b: &Rgb8Image) -> u8 {
     metrics::max_channel_difference(a, b).expect("same size")
 }
 
+/// How many 8-bit channels differ between two images of the same size.
+pub(crate) fn differing_channels(a: &Rgb8Image, b: &Rgb8Image) -> usize {
+    a.as_bytes()
+        .iter()
+        .zip(b.as_bytes())
+        .filter(|(x, y)| x != y)
+        .count()
+}
+
 /// Checks that a method is exact: for every built-in scene, on 1 and 2 threads and with
 /// scrambled triangles, its DeepFrame equals the A-buffer's and its image differs by at most
 /// `tolerance` steps (0: bit-identical). Returns the largest image difference seen.
@@ -174,13 +183,7 @@ pub(crate) fn difference_over_frames(
         let (got, deep) = render_with(m.as_mut(), scene, frame, 2);
         assert_eq!(deep.as_ref(), Some(&want_deep), "frame {frame}");
         worst = worst.max(max_diff(&got.image, &want.image));
-        differing += got
-            .image
-            .as_bytes()
-            .iter()
-            .zip(want.image.as_bytes())
-            .filter(|(a, b)| a != b)
-            .count();
+        differing += differing_channels(&got.image, &want.image);
     }
     (worst, differing)
 }
