@@ -1,7 +1,11 @@
 //! PLY loader: ascii and binary encodings agree, extra elements and properties are skipped,
 //! every scalar type reads, and malformed files fail with the exact line or byte offset.
 
+mod common;
+
 use std::path::Path;
+
+use common::{PYRAMID_POSITIONS, assert_pyramid};
 
 use strata_scene::load::{Format, LoadError, LoadErrorKind, Location, Model, parse_model};
 
@@ -112,13 +116,6 @@ fn encode(decl: &str, rows: &[Vec<V>], enc: Enc) -> Vec<u8> {
     out
 }
 
-const POSITIONS: [[f32; 3]; 5] = [
-    [0.0, 0.0, 0.0],
-    [1.0, 0.0, 0.0],
-    [1.0, 1.0, 0.0],
-    [0.0, 1.0, 0.0],
-    [0.5, 0.5, 1.0],
-];
 const FACES: [&[u32]; 5] = [
     &[0, 3, 2, 1],
     &[0, 1, 4],
@@ -126,20 +123,11 @@ const FACES: [&[u32]; 5] = [
     &[2, 3, 4],
     &[3, 0, 4],
 ];
-const TRIANGLES: [[u32; 3]; 6] = [
-    [0, 3, 2],
-    [0, 2, 1],
-    [0, 1, 4],
-    [1, 2, 4],
-    [2, 3, 4],
-    [3, 0, 4],
-];
-
 /// The pyramid with only what the loader needs.
 fn plain(enc: Enc) -> Vec<u8> {
     let decl = "element vertex 5\nproperty float x\nproperty float y\nproperty float z\n\
                 element face 5\nproperty list uchar int vertex_indices\n";
-    let mut rows: Vec<Vec<V>> = POSITIONS
+    let mut rows: Vec<Vec<V>> = PYRAMID_POSITIONS
         .iter()
         .map(|p| p.iter().map(|&c| V::S(S::F32(c))).collect())
         .collect();
@@ -171,7 +159,7 @@ fn cluttered(enc: Enc) -> Vec<u8> {
         ],
         vec![V::L(|n| S::U16(n as u16), vec![]), V::S(S::U8(8))],
     ];
-    for (i, p) in POSITIONS.iter().enumerate() {
+    for (i, p) in PYRAMID_POSITIONS.iter().enumerate() {
         rows.push(vec![
             V::S(S::U8(200)),
             V::S(S::F64(f64::from(p[0]))),
@@ -206,12 +194,7 @@ fn parse(bytes: &[u8]) -> Result<Model, LoadError> {
 }
 
 fn check_pyramid(m: &Model) {
-    assert_eq!(m.parts.len(), 1);
-    let part = &m.parts[0];
-    assert_eq!(part.name, "pyramid");
-    assert_eq!(part.mesh.positions(), &POSITIONS);
-    assert_eq!(part.mesh.triangles(), &TRIANGLES);
-    assert!(!part.mesh.has_file_normals());
+    assert_pyramid(m, "pyramid", false);
 }
 
 #[test]
