@@ -1,100 +1,26 @@
 //! End-to-end tests of the `strata` command: help, render, frames, pools, errors, scenes, demo,
-//! bench, and the real meshes of `shared/models` (skipped with a note when absent).
+//! bench, and the real meshes (found by `strata_testdata`; a missing one is a visible `SKIPPED:`
+//! line, or a failure with `STRATA_REQUIRE_MODELS=1`).
 //!
 //! Inputs are small: the built-in `overlap` scene (640×480, 4 triangles) and tiny scene files
 //! (64×48) written into temp dirs. Tests that must not find real meshes point `STRATA_MODEL_PATH`,
 //! `HOME` and `XDG_DATA_HOME` at an empty temp dir.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use assert_cmd::Command;
+use common::{
+    Ran, assert_mentions, assert_no_panic, bytes, read_json, read_png, run_err, run_ok, strata,
+    strata_with_models, strata_without_models, write,
+};
 use serde_json::Value;
-use strata_core::Rgb8Image;
 use tempfile::TempDir;
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
-
-/// The `strata` binary, with the caller's environment (see [`strata_without_models`] to isolate it).
-fn strata() -> Command {
-    Command::cargo_bin("strata").expect("the strata binary is built for integration tests")
-}
-
-/// `strata` with no mesh directories at all: `STRATA_MODEL_PATH`, `HOME` and `XDG_DATA_HOME` all
-/// point at `empty` (an empty directory).
-fn strata_without_models(empty: &Path) -> Command {
-    let mut c = strata();
-    c.env("STRATA_MODEL_PATH", empty)
-        .env("HOME", empty)
-        .env("XDG_DATA_HOME", empty);
-    c
-}
-
-/// Output of a command that must succeed.
-struct Ran {
-    stdout: String,
-    stderr: String,
-}
-
-fn run_ok(cmd: &mut Command) -> Ran {
-    let out = cmd.output().expect("strata runs");
-    let ran = Ran {
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    };
-    assert!(
-        out.status.success(),
-        "expected success, got {:?}\nstdout:\n{}\nstderr:\n{}",
-        out.status.code(),
-        ran.stdout,
-        ran.stderr
-    );
-    assert_no_panic(&ran.stderr);
-    ran
-}
-
-/// Runs a command that must fail the documented way (exit 2, `strata: error: …`, no panic) and
-/// returns its stderr.
-fn run_err(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("strata runs");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(
-        out.status.code(),
-        Some(2),
-        "expected exit code 2\nstdout:\n{}\nstderr:\n{stderr}",
-        String::from_utf8_lossy(&out.stdout)
-    );
-    assert_no_panic(&stderr);
-    assert!(
-        stderr.contains("strata: error:"),
-        "no 'strata: error:' in stderr:\n{stderr}"
-    );
-    stderr
-}
-
-fn assert_no_panic(stderr: &str) {
-    assert!(
-        !stderr.contains("panicked at"),
-        "strata panicked:\n{stderr}"
-    );
-}
-
-fn assert_mentions(text: &str, needles: &[&str]) {
-    for n in needles {
-        assert!(text.contains(n), "expected {n:?} in:\n{text}");
-    }
-}
-
-fn read_json(path: &Path) -> Value {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: bad JSON: {e}", path.display()))
-}
-
-fn read_png(path: &Path) -> Rgb8Image {
-    Rgb8Image::read_png(path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
-}
 
 fn u64_field(v: &Value, key: &str) -> u64 {
     v[key]
@@ -106,17 +32,6 @@ fn f64_field(v: &Value, key: &str) -> f64 {
     v[key]
         .as_f64()
         .unwrap_or_else(|| panic!("{key} is not a number in {v}"))
-}
-
-/// Writes `text` to `dir/name` and returns the path.
-fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
-    let path = dir.join(name);
-    std::fs::write(&path, text).unwrap();
-    path
-}
-
-fn bytes(path: &Path) -> Vec<u8> {
-    std::fs::read(path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
 }
 
 /// Renders `scene` with extra `args` into `dir/out`, returning the stats JSON.
@@ -210,17 +125,6 @@ height = 48
 builtin = "cube"
 color = [0.2, 0.6, 1.0, 0.5]
 "#;
-
-/// The real model directory next to the project (`/work/shared/models`), or `None` after a note.
-fn shared_models() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models");
-    if dir.join("bunny.obj").is_file() {
-        Some(dir)
-    } else {
-        eprintln!("note: {} has no bunny.obj; skipping", dir.display());
-        None
-    }
-}
 
 // ---------------------------------------------------------------------------------------------
 // Help
@@ -897,14 +801,8 @@ fn scenes_lists_every_builtin_scene() {
         }
     }
     // With the real models on the path, bunny is available.
-    if let Some(models) = shared_models() {
-        let ran = run_ok(
-            strata()
-                .env("STRATA_MODEL_PATH", &models)
-                .env("HOME", empty.path())
-                .env("XDG_DATA_HOME", empty.path())
-                .arg("scenes"),
-        );
+    if let Some(models) = strata_testdata::models(&["bunny.obj"]) {
+        let ran = run_ok(strata_with_models(&models.path_var(), empty.path()).arg("scenes"));
         let bunny = ran
             .stdout
             .lines()
@@ -1137,16 +1035,17 @@ fn bench_zero_runs_is_an_error() {
 
 #[test]
 fn renders_the_real_bunny() {
-    let Some(models) = shared_models() else {
+    let Some(models) = strata_testdata::models(&["bunny.obj"]) else {
         return;
     };
     let dir = TempDir::new().unwrap();
     let empty = TempDir::new().unwrap();
+    let model_dir = models.dirs().remove(0);
     let (png, s, _) = render(
         dir.path(),
         "bunny",
         "bunny.png",
-        &["--models", models.to_str().unwrap()],
+        &["--models", model_dir.to_str().expect("a UTF-8 model path")],
     );
     assert_eq!(u64_field(&s, "triangles"), 69666);
     assert!(u64_field(&s, "fragments") > 0);
@@ -1157,10 +1056,7 @@ fn renders_the_real_bunny() {
     // The same through STRATA_MODEL_PATH.
     let out = dir.path().join("env.png");
     run_ok(
-        strata()
-            .env("STRATA_MODEL_PATH", &models)
-            .env("HOME", empty.path())
-            .env("XDG_DATA_HOME", empty.path())
+        strata_with_models(&models.path_var(), empty.path())
             .args(["render", "bunny", "--out"])
             .arg(&out),
     );

@@ -2,69 +2,13 @@
 //! codec selection on a small copy of it, and the errors (exit code 2, `strata: error: …`, no
 //! panic).
 
+mod common;
+
 use std::path::Path;
 
-use assert_cmd::Command;
+use common::{assert_mentions, read_json, run_err, run_ok, strata, strata_without_models};
 use serde_json::Value;
 use tempfile::TempDir;
-
-fn strata() -> Command {
-    Command::cargo_bin("strata").expect("the strata binary is built for integration tests")
-}
-
-/// `strata` that finds no mesh files.
-fn strata_without_models(empty: &Path) -> Command {
-    let mut c = strata();
-    c.env("STRATA_MODEL_PATH", empty)
-        .env("HOME", empty)
-        .env("XDG_DATA_HOME", empty);
-    c
-}
-
-fn run_ok(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("strata runs");
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        out.status.success(),
-        "expected success\nstdout:\n{stdout}\nstderr:\n{stderr}"
-    );
-    assert!(!stderr.contains("panicked at"), "{stderr}");
-    stdout
-}
-
-/// Runs a command that must fail the documented way and returns its stderr.
-fn run_err(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("strata runs");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(
-        out.status.code(),
-        Some(2),
-        "expected exit code 2\nstdout:\n{}\nstderr:\n{stderr}",
-        String::from_utf8_lossy(&out.stdout)
-    );
-    assert!(
-        !stderr.contains("panicked at"),
-        "strata panicked:\n{stderr}"
-    );
-    assert!(
-        stderr.starts_with("strata: error:"),
-        "stderr does not start with 'strata: error:':\n{stderr}"
-    );
-    stderr
-}
-
-fn assert_mentions(text: &str, needles: &[&str]) {
-    for n in needles {
-        assert!(text.contains(n), "expected {n:?} in:\n{text}");
-    }
-}
-
-fn read_json(path: &Path) -> Value {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: bad JSON: {e}", path.display()))
-}
 
 fn u(v: &Value) -> u64 {
     v.as_u64()
@@ -106,7 +50,8 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
                 "codecs", "spheres", "--frames", "2", "--runs", "1", "-j", "2", "--json",
             ])
             .arg(&json),
-    );
+    )
+    .stdout;
     assert_mentions(
         &stdout,
         &[
@@ -210,7 +155,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
 
 /// `spheres` as a scene file at 160×90 (`strata scenes --print`, resized), in `dir`.
 fn small_spheres(dir: &Path) -> std::path::PathBuf {
-    let text = run_ok(strata().args(["scenes", "--print", "spheres"]));
+    let text = run_ok(strata().args(["scenes", "--print", "spheres"])).stdout;
     assert!(
         text.contains("width = 1280") && text.contains("height = 720"),
         "{text}"
@@ -242,7 +187,8 @@ fn codecs_measures_only_the_codecs_asked_for_at_their_levels() {
                 "--json",
             ])
             .arg(&json),
-    );
+    )
+    .stdout;
     assert_mentions(&stdout, &["160x90", "3 frame(s) [0, 24, 48]"]);
     for name in ["zstd:19", "deep-zstd:-3", "deep-zstd"] {
         row(&stdout, name);
@@ -278,7 +224,8 @@ fn codecs_measures_only_the_codecs_asked_for_at_their_levels() {
             .arg("codecs")
             .arg(&still)
             .args(["--frames", "8", "--runs", "1"]),
-    );
+    )
+    .stdout;
     assert_mentions(&stdout, &["1 frame(s) [0]", "every decode round-tripped"]);
 }
 

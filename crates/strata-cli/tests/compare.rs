@@ -1,11 +1,9 @@
 //! `strata compare` end to end: the table, report.json, images and heat maps.
 
-use assert_cmd::Command;
-use tempfile::TempDir;
+mod common;
 
-fn strata() -> Command {
-    Command::cargo_bin("strata").expect("the strata binary")
-}
+use common::strata;
+use tempfile::TempDir;
 
 #[test]
 fn compare_writes_a_report_with_metrics_against_the_reference() {

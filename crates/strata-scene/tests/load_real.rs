@@ -1,25 +1,15 @@
-//! The loaders on the real meshes of `shared/models` (skipped with a note when absent).
+//! The loaders on the real meshes (Stanford dragon, bunny, armadillo; the Khronos engine).
 //!
-//! The directory is `$STRATA_MODEL_PATH` (colon-separated directories) if set, else
-//! `../shared/models` next to the project root. Expected counts are those of the models' README.
+//! The meshes are found by `strata_testdata::model` (`$STRATA_MODEL_PATH`, then
+//! `../shared/models` next to the workspace, then the folder `scripts/fetch-models` fills); a
+//! missing one is a visible `SKIPPED:` line, or a failure with `STRATA_REQUIRE_MODELS=1`.
+//! Expected counts are those of the models' README.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use strata_scene::load::{Format, Model, load_model};
-
-/// The file `name` in the model directories, or `None` (after a note) when it is absent.
-fn model(name: &str) -> Option<PathBuf> {
-    let dirs: Vec<PathBuf> = match std::env::var_os("STRATA_MODEL_PATH") {
-        Some(v) if !v.is_empty() => std::env::split_paths(&v).collect(),
-        _ => vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models")],
-    };
-    let found = dirs.iter().map(|d| d.join(name)).find(|p| p.is_file());
-    if found.is_none() {
-        eprintln!("note: {name} not found in {dirs:?}; skipping");
-    }
-    found
-}
+use strata_testdata::models;
 
 fn counts(m: &Model) -> (usize, usize) {
     m.parts.iter().fold((0, 0), |(v, t), p| {
@@ -27,9 +17,9 @@ fn counts(m: &Model) -> (usize, usize) {
     })
 }
 
-fn check(name: &str, vertices: usize, triangles: usize) {
-    let Some(path) = model(name) else { return };
-    let m = load_model(&path).unwrap_or_else(|e| panic!("{e}"));
+/// Loads `path` (the model file `name`) and checks it is one part with these counts.
+fn check(name: &str, path: &Path, vertices: usize, triangles: usize) {
+    let m = load_model(path).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(m.parts.len(), 1, "{name}");
     let part = &m.parts[0];
     assert_eq!(
@@ -44,26 +34,41 @@ fn check(name: &str, vertices: usize, triangles: usize) {
     assert_eq!(part.name, stem);
 }
 
+/// [`check`] on the model file `name`, found by `strata_testdata`.
+fn check_one(name: &str, vertices: usize, triangles: usize) {
+    if let Some(path) = strata_testdata::model(name) {
+        check(name, &path, vertices, triangles);
+    }
+}
+
 #[test]
 fn dragon_full_resolution() {
-    check("dragon_vrip.ply.gz", 437_645, 871_414);
+    check_one("dragon_vrip.ply.gz", 437_645, 871_414);
 }
 
 #[test]
 fn dragon_decimated() {
-    check("dragon_vrip_res2.ply.gz", 100_250, 202_520);
-    check("dragon_vrip_res3.ply.gz", 22_998, 47_794);
-    check("dragon_vrip_res4.ply.gz", 5_205, 11_102);
+    let expected = [
+        ("dragon_vrip_res2.ply.gz", 100_250, 202_520),
+        ("dragon_vrip_res3.ply.gz", 22_998, 47_794),
+        ("dragon_vrip_res4.ply.gz", 5_205, 11_102),
+    ];
+    let Some(found) = models(&expected.map(|(name, ..)| name)) else {
+        return;
+    };
+    for ((name, v, t), path) in expected.iter().zip(found.files()) {
+        check(name, path, *v, *t);
+    }
 }
 
 #[test]
 fn bunny_obj() {
-    check("bunny.obj", 34_835, 69_666);
+    check_one("bunny.obj", 34_835, 69_666);
 }
 
 #[test]
 fn armadillo_off() {
-    check("armadillo.off", 26_002, 52_000);
+    check_one("armadillo.off", 26_002, 52_000);
 }
 
 /// 2CylinderEngine: 82 nodes, 67 of them with a mesh, instancing 29 distinct meshes. The parts
@@ -71,7 +76,7 @@ fn armadillo_off() {
 /// and 75,730.
 #[test]
 fn engine_glb() {
-    let Some(path) = model("2CylinderEngine.glb") else {
+    let Some(path) = strata_testdata::model("2CylinderEngine.glb") else {
         return;
     };
     let m = load_model(&path).unwrap_or_else(|e| panic!("{e}"));
@@ -96,14 +101,15 @@ fn engine_glb() {
 /// Same meshes through the sniffer: the content, not the extension, picks the parser.
 #[test]
 fn sniffing_matches_extensions() {
-    for name in [
+    let names = [
         "bunny.obj",
         "armadillo.off",
         "2CylinderEngine.glb",
         "dragon_vrip_res4.ply.gz",
-    ] {
-        let Some(path) = model(name) else { continue };
-        let raw = std::fs::read(&path).unwrap();
+    ];
+    let Some(found) = models(&names) else { return };
+    for (name, path) in names.iter().zip(found.files()) {
+        let raw = std::fs::read(path).unwrap();
         let bytes = if name.ends_with(".gz") {
             let mut out = Vec::new();
             std::io::Read::read_to_end(&mut flate2_reader(&raw), &mut out).unwrap();
@@ -113,7 +119,7 @@ fn sniffing_matches_extensions() {
         };
         assert_eq!(
             Some(Format::sniff(&bytes)),
-            Format::from_path(&path),
+            Format::from_path(path),
             "{name}"
         );
     }
@@ -128,19 +134,20 @@ fn flate2_reader(raw: &[u8]) -> impl std::io::Read + '_ {
 #[test]
 #[ignore = "timing report; run in release"]
 fn timings() {
-    for name in [
+    let names = [
         "dragon_vrip.ply.gz",
         "dragon_vrip_res2.ply.gz",
         "bunny.obj",
         "armadillo.off",
         "2CylinderEngine.glb",
-    ] {
-        let Some(path) = model(name) else { continue };
+    ];
+    let Some(found) = models(&names) else { return };
+    for (name, path) in names.iter().zip(found.files()) {
         let mut best = f64::INFINITY;
         let mut what = (0, 0, 0);
         for _ in 0..5 {
             let t0 = Instant::now();
-            let m = load_model(&path).unwrap_or_else(|e| panic!("{e}"));
+            let m = load_model(path).unwrap_or_else(|e| panic!("{e}"));
             best = best.min(t0.elapsed().as_secs_f64());
             let (v, t) = counts(&m);
             what = (m.parts.len(), v, t);

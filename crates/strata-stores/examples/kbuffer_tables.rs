@@ -7,8 +7,10 @@
 //!
 //! 1. vkbuffer with importance maps vs Optimal-K at budgets of 25/50/75 % of the scene's
 //!    fragments: RMSE and bad pixels (a channel off by more than 2/255) against the A-buffer, on
-//!    the built-in `slabs`, `spheres`, `mixed` and, when MODELS_DIR (default `../shared/models`)
-//!    holds them, `bunny` and `dragon`, all at their scene size (1280×720).
+//!    the built-in `slabs`, `spheres`, `mixed` and, when their meshes are found (in MODELS_DIR if
+//!    given, else where the tests look: `$STRATA_MODEL_PATH`, `../shared/models` next to the
+//!    workspace, the folder `scripts/fetch-models` fills), `bunny` and `dragon`, all at their
+//!    scene size (1280×720). A mesh not found is said on stderr.
 //! 2. The fixed k-buffer, plain and tail-blended: bad pixels against k = 1…12 on `spheres` and
 //!    `dragon`, every object at alpha 0.5.
 //!
@@ -41,17 +43,24 @@ fn quality(image: &Rgb8Image, reference: &Rgb8Image) -> (f64, f64) {
 }
 
 fn main() {
-    let models = std::env::args()
-        .nth(1)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("../shared/models"));
-    let search = SearchPath::new([models.clone()]);
+    let dirs: Vec<PathBuf> = match std::env::args().nth(1) {
+        Some(dir) => vec![PathBuf::from(dir)],
+        None => strata_testdata::models::SearchOrder::from_env()
+            .places()
+            .iter()
+            .map(|p| p.dir.clone())
+            .collect(),
+    };
+    let search = SearchPath::new(dirs);
     let mut names = vec!["slabs", "spheres", "mixed"];
-    if models.join("bunny.obj").is_file() {
-        names.push("bunny");
-    }
-    if models.join("dragon_vrip.ply.gz").is_file() {
-        names.push("dragon");
+    for (scene, file) in [("bunny", "bunny.obj"), ("dragon", "dragon_vrip.ply.gz")] {
+        match search.resolve(file, None) {
+            Ok(_) => names.push(scene),
+            Err(tried) => eprintln!(
+                "note: {file} not found (looked in {tried:?}); the {scene} rows are left out \
+                 (pass MODELS_DIR, set STRATA_MODEL_PATH or run scripts/fetch-models)"
+            ),
+        }
     }
 
     println!(

@@ -4,8 +4,8 @@
 mod common;
 
 use common::{
-    SCENES, arrivals, check_exact, difference_over_frames, max_diff, reference, render_with, scene,
-    scrambled, varied_alphas,
+    SCENES, arrivals, check_exact, difference_over_frames, differing_channels, max_diff, reference,
+    render_with, scene, scrambled, varied_alphas,
 };
 use strata_core::DeepFrame;
 use strata_stores::abuffer::fixed_array::{self, FixedArrayABuffer};
@@ -182,13 +182,7 @@ fn wf_difference_per_scene_at_a_larger_size() {
         let (want, _) = reference(&s, 0);
         let (r, _) = render_with(&mut WeightFactor::new(&MethodOptions::default()), &s, 0, 2);
         let d = max_diff(&r.image, &want.image);
-        let differing = r
-            .image
-            .as_bytes()
-            .iter()
-            .zip(want.image.as_bytes())
-            .filter(|(a, b)| a != b)
-            .count();
+        let differing = differing_channels(&r.image, &want.image);
         println!("wf {name} 320x180: max {d} step(s), {differing} channel(s) differ");
         assert!(d <= 1, "{name}: {d}");
         assert_eq!(r.capture.dropped, 0);

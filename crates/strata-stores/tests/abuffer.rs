@@ -4,29 +4,19 @@
 //! triangle order or thread count, agreement with an independent brute-force resolve, overflow
 //! that is counted, and real meshes that render the same fragments every time.
 
-use std::path::PathBuf;
-use std::sync::Arc;
+mod common;
 
+use std::path::Path;
+
+use common::{arrivals, render_with, scene, scrambled};
 use strata_core::fragment::sort_front_to_back;
 use strata_core::{DeepFrame, Fragment, Rgb8Image, composite};
-use strata_raster::{FragmentVec, FrameInput, Rasterizer};
+use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::{FrameResult, MethodOptions, PoolCapacity, create, render_frame};
+use strata_testdata::{Rgb8, assert_matches_reference};
 
 // ----- helpers ----------------------------------------------------------------------------------
-
-fn scene(name: &str, width: u32, height: u32) -> Scene {
-    let mut s = open_scene(name, &SearchPath::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-    (s.width, s.height) = (width, height);
-    s
-}
-
-fn pool(threads: usize) -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .expect("thread pool")
-}
 
 /// Renders frame `frame` of `scene` with the A-buffer on `threads` threads.
 fn render(
@@ -43,31 +33,19 @@ fn render(
         },
     )
     .expect("abuffer exists");
-    let input = FrameInput::from_scene(scene, frame);
-    let mut raster = Rasterizer::default();
-    let result = pool(threads)
-        .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))
-        .expect("render");
-    let deep = method
-        .deep_frame()
-        .expect("exact method")
-        .expect("valid DeepFrame");
-    (result, deep)
+    let (result, deep) = render_with(method.as_mut(), scene, frame, threads);
+    (result, deep.expect("the A-buffer exports a DeepFrame"))
 }
 
 /// The image computed without any fragment store: every fragment the rasterizer emits, grouped
 /// per pixel, sorted, composited.
 fn brute_force(scene: &Scene, frame: u32) -> Rgb8Image {
-    let input = FrameInput::from_scene(scene, frame);
-    let mut raster = Rasterizer::default();
-    let mut all = FragmentVec::new();
-    raster.prepare(&input).rasterize(&mut all);
     let mut image = Rgb8Image::filled(
         scene.width,
         scene.height,
         composite::background_pixel(scene.background),
     );
-    for (p, mut list) in all.per_pixel(input.pixel_count()).into_iter().enumerate() {
+    for (p, mut list) in arrivals(scene, frame).into_iter().enumerate() {
         if list.is_empty() {
             continue;
         }
@@ -78,37 +56,19 @@ fn brute_force(scene: &Scene, frame: u32) -> Rgb8Image {
     image
 }
 
-/// A copy of `scene` with every object's triangles in a scrambled order and the objects drawn in
-/// reverse order.
-fn scrambled(scene: &Scene, seed: u64) -> Scene {
-    let mut s = scene.clone();
-    let mut state = seed | 1;
-    for o in &mut s.objects {
-        let n = o.mesh.triangles().len();
-        let mut order: Vec<usize> = (0..n).collect();
-        for i in (1..n).rev() {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            order.swap(i, (state % (i as u64 + 1)) as usize);
-        }
-        o.mesh = Arc::new(o.mesh.reorder_triangles(&order));
-    }
-    s.objects.reverse();
-    s
+/// The stored reference images (`tests/images`).
+fn images_dir() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/images"))
 }
 
-fn models_dir() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "note: {} not found; real-mesh checks skipped",
-            dir.display()
-        );
-        None
-    }
+/// `image` against the reference `tests/images/<name>.png` (`STRATA_BLESS=1` rewrites it).
+fn assert_reference(name: &str, image: &Rgb8Image) {
+    let pixels = Rgb8 {
+        width: image.width(),
+        height: image.height(),
+        data: image.as_bytes(),
+    };
+    assert_matches_reference(images_dir(), name, &pixels);
 }
 
 // ----- exact values -----------------------------------------------------------------------------
@@ -294,8 +254,15 @@ const REAL_MESH_FRAGMENTS: &[(&str, u64)] = &[
 
 #[test]
 fn real_meshes_render_the_same_fragments_every_time() {
-    let Some(dir) = models_dir() else { return };
-    let search = SearchPath::new([dir]);
+    let Some(models) = strata_testdata::models(&[
+        "bunny.obj",
+        "dragon_vrip_res2.ply.gz",
+        "armadillo.off",
+        "dragon_vrip.ply.gz",
+    ]) else {
+        return;
+    };
+    let search = SearchPath::new(models.dirs());
     for &(name, expected) in REAL_MESH_FRAGMENTS {
         let s = open_scene(name, &search).unwrap_or_else(|e| panic!("{name}: {e}"));
         let (r, deep) = render(&s, 0, 2, PoolCapacity::Auto);
@@ -307,43 +274,29 @@ fn real_meshes_render_the_same_fragments_every_time() {
     }
 }
 
+/// Built-in scenes (no meshes needed) through the A-buffer at 160×90, against the PNGs in
+/// `tests/images`: any change to the rasterizer's coverage, the shading or the compositing shows
+/// here. Frame 3, so the animation is part of what is pinned.
+#[test]
+fn builtin_scene_images_match_the_stored_references() {
+    for name in ["spheres", "mixed"] {
+        let s = scene(name, 160, 90);
+        let (r, deep) = render(&s, 3, 2, PoolCapacity::Auto);
+        assert_eq!(deep.resolve(s.background), r.image, "{name}");
+        assert_reference(&format!("{name}-160x90-frame3"), &r.image);
+    }
+}
+
 #[test]
 fn real_mesh_image_matches_the_stored_reference() {
-    // A small render of the bunny against tests/images/bunny-320x180.png. Set STRATA_BLESS=1 to
-    // rewrite the reference after an intended change; on failure the actual image and a diff are
-    // written next to it.
-    let Some(dir) = models_dir() else { return };
-    let mut s = open_scene("bunny", &SearchPath::new([dir])).expect("bunny scene");
+    // A small render of the bunny against tests/images/bunny-320x180.png.
+    let Some(models) = strata_testdata::models(&["bunny.obj"]) else {
+        return;
+    };
+    let mut s = open_scene("bunny", &SearchPath::new(models.dirs())).expect("bunny scene");
     (s.width, s.height) = (320, 180);
     let (r, _) = render(&s, 7, 2, PoolCapacity::Auto);
-    let images = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/images");
-    let reference = images.join("bunny-320x180.png");
-    if std::env::var_os("STRATA_BLESS").is_some() {
-        std::fs::create_dir_all(&images).expect("images dir");
-        r.image.write_png(&reference).expect("write reference");
-        return;
-    }
-    let want = Rgb8Image::read_png(&reference)
-        .expect("reference image (run with STRATA_BLESS=1 to create it)");
-    if want != r.image {
-        let target = std::env::temp_dir();
-        r.image
-            .write_png(target.join("bunny-320x180.actual.png"))
-            .ok();
-        let diff: Vec<u8> = want
-            .as_bytes()
-            .iter()
-            .zip(r.image.as_bytes())
-            .map(|(a, b)| a.abs_diff(*b).saturating_mul(16))
-            .collect();
-        if let Some(d) = Rgb8Image::from_raw(320, 180, diff) {
-            d.write_png(target.join("bunny-320x180.diff.png")).ok();
-        }
-        panic!(
-            "bunny differs from its reference; actual and diff written to {}",
-            target.display()
-        );
-    }
+    assert_reference("bunny-320x180", &r.image);
 }
 
 #[test]

@@ -4,8 +4,8 @@
 mod common;
 
 use common::{
-    SCENES, check_exact, difference_over_frames, max_diff, pool, reference, render_with, scene,
-    scrambled, select, varied_alphas,
+    SCENES, check_exact, difference_over_frames, differing_channels, max_diff, pool, reference,
+    render_with, scene, scrambled, select, varied_alphas,
 };
 use strata_core::metrics;
 use strata_raster::{FrameInput, Rasterizer};
@@ -122,13 +122,7 @@ fn dual_depth_peeling_difference_per_scene_at_a_larger_size() {
         let mut m = DualDepthPeeling::new(&layers(0));
         let (r, _) = render_with(&mut m, &s, 0, 2);
         let d = max_diff(&r.image, &want.image);
-        let differing = r
-            .image
-            .as_bytes()
-            .iter()
-            .zip(want.image.as_bytes())
-            .filter(|(a, b)| a != b)
-            .count();
+        let differing = differing_channels(&r.image, &want.image);
         let max = want.depth.expect("depth").max_depth_complexity();
         println!(
             "dual-depth-peeling {name} 320x180: max {d} step(s), {differing} channel(s) differ, \

@@ -3,29 +3,40 @@
 //! Each method is classified here; a method added to the registry without a classification fails
 //! `every_registered_method_is_classified`, so nothing escapes this comparison.
 
+mod common;
+
+use common::{SCENES, pool, scene};
 use strata_core::metrics::max_channel_difference;
 use strata_raster::{FrameInput, Rasterizer};
-use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::{Budget, METHODS, MethodOptions, create, render_frame};
 
-/// How close a method comes to the A-buffer when given enough memory or passes.
-#[derive(Debug, PartialEq)]
-enum Expect {
-    /// The same image and the same DeepFrame, bit for bit.
-    Exact,
-    /// Same fragments (DeepFrame); the image within one 8-bit step per channel, because the
-    /// method blends in another order (weight factors, back-to-front halves).
+/// How close a method's image comes to the A-buffer's when given enough memory or passes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Image {
+    /// The same image, bit for bit.
+    Identical,
+    /// Within one 8-bit step per channel, because the method blends in another order (weight
+    /// factors, back-to-front halves).
     WithinOneStep,
-    /// An approximation: only sanity is checked (image of the right size, nothing panics).
+    /// An approximation: only its size is checked.
     Approximate,
 }
 
-fn expectation(name: &str) -> Option<Expect> {
+/// What a method must hand out as its DeepFrame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Deep {
+    /// Exactly the A-buffer's DeepFrame: the method keeps every fragment.
+    SameAsABuffer,
+    /// Nothing: the method keeps no fragments (exporting some would be a bug).
+    None,
+}
+
+fn expectation(name: &str) -> Option<(Image, Deep)> {
     Some(match name {
         "abuffer" | "abuffer-array" | "sbuffer" | "kbuffer" | "vkbuffer" | "tfss"
-        | "depth-peeling" => Expect::Exact,
-        "wf" | "dual-depth-peeling" => Expect::WithinOneStep,
-        "wboit" => Expect::Approximate,
+        | "depth-peeling" => (Image::Identical, Deep::SameAsABuffer),
+        "wf" | "dual-depth-peeling" => (Image::WithinOneStep, Deep::SameAsABuffer),
+        "wboit" => (Image::Approximate, Deep::None),
         _ => return None,
     })
 }
@@ -41,12 +52,6 @@ fn generous() -> MethodOptions {
     }
 }
 
-fn scene(name: &str) -> Scene {
-    let mut s = open_scene(name, &SearchPath::default()).expect("built-in scene");
-    (s.width, s.height) = (160, 90);
-    s
-}
-
 #[test]
 fn every_registered_method_is_classified() {
     for m in METHODS {
@@ -60,12 +65,9 @@ fn every_registered_method_is_classified() {
 
 #[test]
 fn every_method_with_enough_room_matches_the_a_buffer() {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(2)
-        .build()
-        .unwrap();
-    for scene_name in ["slabs", "spheres", "mixed", "overlap"] {
-        let s = scene(scene_name);
+    let pool = pool(2);
+    for scene_name in SCENES {
+        let s = scene(scene_name, 160, 90);
         let input = FrameInput::from_scene(&s, 4);
         let mut raster = Rasterizer::default();
         let render = |name: &str, raster: &mut Rasterizer| {
@@ -81,27 +83,29 @@ fn every_method_with_enough_room_matches_the_a_buffer() {
             let what = format!("{} on {scene_name}", m.name);
             let (r, deep) = render(m.name, &mut raster);
             assert_eq!((r.image.width(), r.image.height()), (160, 90), "{what}");
-            match expectation(m.name).expect("classified") {
-                Expect::Exact => {
+            let (image, expected_deep) = expectation(m.name).expect("classified");
+            match image {
+                Image::Identical => {
                     assert_eq!(r.image, reference.image, "{what}: image differs");
-                    assert_eq!(
-                        deep.as_ref(),
-                        Some(&reference_deep),
-                        "{what}: DeepFrame differs"
-                    );
+                }
+                Image::WithinOneStep => {
+                    let d = max_channel_difference(&r.image, &reference.image).unwrap();
+                    assert!(d <= 1, "{what}: off by {d} steps");
+                }
+                Image::Approximate => {}
+            }
+            match expected_deep {
+                Deep::SameAsABuffer => {
+                    let deep = deep.unwrap_or_else(|| {
+                        panic!("{what}: keeps every fragment but exports no DeepFrame")
+                    });
+                    assert_eq!(deep, reference_deep, "{what}: DeepFrame differs");
                     assert_eq!(
                         r.capture.dropped, 0,
                         "{what}: dropped fragments with room to spare"
                     );
                 }
-                Expect::WithinOneStep => {
-                    let d = max_channel_difference(&r.image, &reference.image).unwrap();
-                    assert!(d <= 1, "{what}: off by {d} steps");
-                    if let Some(deep) = deep {
-                        assert_eq!(deep, reference_deep, "{what}: DeepFrame differs");
-                    }
-                }
-                Expect::Approximate => assert!(
+                Deep::None => assert!(
                     deep.is_none(),
                     "{what}: an approximation exporting fragments?"
                 ),
@@ -112,16 +116,13 @@ fn every_method_with_enough_room_matches_the_a_buffer() {
 
 #[test]
 fn every_method_is_deterministic_across_thread_counts() {
-    let s = scene("spheres");
+    let s = scene("spheres", 160, 90);
     let input = FrameInput::from_scene(&s, 2);
     for m in METHODS {
         let images: Vec<_> = [1, 3]
             .into_iter()
             .map(|threads| {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
+                let pool = pool(threads);
                 // Tight settings, so that what each method drops or evicts matters too.
                 let options = MethodOptions {
                     array_size: 3,

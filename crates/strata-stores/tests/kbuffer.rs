@@ -6,49 +6,26 @@
 //! that touches pixels it should not, an oracle that loses to the heuristic it is meant to bound,
 //! and results that depend on thread count or triangle order.
 
-use std::sync::Arc;
+mod common;
 
+use common::{reference, render_exact, scene, scrambled};
 use strata_core::metrics::rmse;
 use strata_core::{DeepFrame, Rgb8Image};
-use strata_raster::{FrameInput, Rasterizer};
-use strata_scene::{Scene, SearchPath, open_scene};
+use strata_scene::Scene;
 use strata_stores::kbuffer::maps::{heat_map, k_heat_map, write_heat_map};
 use strata_stores::kbuffer::{KBuffer, VariableKBuffer, optimal_k};
-use strata_stores::{Budget, FrameResult, KFrom, Method, MethodOptions, create, render_frame};
+use strata_stores::{Budget, FrameResult, KFrom, Method, MethodOptions};
 
 // ----- helpers ----------------------------------------------------------------------------------
-
-fn scene(name: &str, width: u32, height: u32) -> Scene {
-    let mut s = open_scene(name, &SearchPath::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-    (s.width, s.height) = (width, height);
-    s
-}
-
-fn pool(threads: usize) -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .expect("thread pool")
-}
 
 /// Renders frame 0 of `scene` with `method` on `threads` threads; returns the result and the
 /// method's DeepFrame.
 fn render(method: &mut dyn Method, scene: &Scene, threads: usize) -> (FrameResult, DeepFrame) {
-    let input = FrameInput::from_scene(scene, 0);
-    let mut raster = Rasterizer::default();
-    let result = pool(threads)
-        .install(|| render_frame(method, &mut raster, &input, scene.background))
-        .expect("render");
-    let deep = method
-        .deep_frame()
-        .expect("k-buffers keep fragments")
-        .expect("valid DeepFrame");
-    (result, deep)
+    render_exact(method, scene, 0, threads)
 }
 
 fn abuffer(scene: &Scene) -> (FrameResult, DeepFrame) {
-    let mut a = create("abuffer", &MethodOptions::default()).expect("abuffer");
-    render(a.as_mut(), scene, 2)
+    reference(scene, 0)
 }
 
 fn kbuffer(scene: &Scene, k: u32, tail_blend: bool, threads: usize) -> (FrameResult, DeepFrame) {
@@ -81,26 +58,6 @@ fn truncated(deep: &DeepFrame, keep: impl Fn(usize) -> u32) -> DeepFrame {
         out.extend(deep.run(p).iter().take(counts[p] as usize))
     })
     .expect("valid")
-}
-
-/// A copy of `scene` with every object's triangles in a scrambled order and the objects drawn in
-/// reverse order.
-fn scrambled(scene: &Scene, seed: u64) -> Scene {
-    let mut s = scene.clone();
-    let mut state = seed | 1;
-    for o in &mut s.objects {
-        let n = o.mesh.triangles().len();
-        let mut order: Vec<usize> = (0..n).collect();
-        for i in (1..n).rev() {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            order.swap(i, (state % (i as u64 + 1)) as usize);
-        }
-        o.mesh = Arc::new(o.mesh.reorder_triangles(&order));
-    }
-    s.objects.reverse();
-    s
 }
 
 // ----- fixed k ----------------------------------------------------------------------------------

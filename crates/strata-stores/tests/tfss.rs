@@ -3,42 +3,21 @@
 //! threads; its memory is what the model of seed 002 predicts; leading-zeros elimination saves
 //! memory where colours have leading zeros to drop.
 
+mod common;
+
+use common::{reference, render_exact, scene};
 use strata_core::DeepFrame;
-use strata_raster::{FrameInput, Rasterizer};
-use strata_scene::{Scene, SearchPath, open_scene};
+use strata_scene::Scene;
 use strata_stores::tfss::model::{self, ColourTrace, Transparency};
 use strata_stores::tfss::{LzBudget, Tfss};
-use strata_stores::{FrameResult, Method, MethodOptions, PoolCapacity, create, render_frame};
-
-fn scene(name: &str, width: u32, height: u32) -> Scene {
-    let mut s = open_scene(name, &SearchPath::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-    (s.width, s.height) = (width, height);
-    s
-}
-
-fn pool(threads: usize) -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .expect("thread pool")
-}
+use strata_stores::{FrameResult, Method, MethodOptions, PoolCapacity};
 
 fn render(method: &mut dyn Method, scene: &Scene, threads: usize) -> (FrameResult, DeepFrame) {
-    let input = FrameInput::from_scene(scene, 0);
-    let mut raster = Rasterizer::default();
-    let r = pool(threads)
-        .install(|| render_frame(method, &mut raster, &input, scene.background))
-        .expect("render");
-    let deep = method
-        .deep_frame()
-        .expect("exact")
-        .expect("valid DeepFrame");
-    (r, deep)
+    render_exact(method, scene, 0, threads)
 }
 
 fn abuffer(scene: &Scene) -> (FrameResult, DeepFrame) {
-    let mut m = create("abuffer", &MethodOptions::default()).expect("abuffer");
-    render(m.as_mut(), scene, 2)
+    reference(scene, 0)
 }
 
 fn tfss(l_num: u32, leading_zeros: bool) -> Tfss {

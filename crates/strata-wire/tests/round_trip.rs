@@ -4,9 +4,10 @@
 //!
 //! Real frames are the built-in `spheres`, `mixed` and `slabs` scenes rendered with the
 //! linked-list A-buffer at 256×144 (their 1280×720 layout at a 25th of the pixels), and the
-//! Stanford bunny of `shared/models` at 320×180 (skipped with a note when absent).
+//! Stanford bunny at 320×180 (found by `strata_testdata`: a visible `SKIPPED:` line when absent,
+//! a failure with `STRATA_REQUIRE_MODELS=1`).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use proptest::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId, Rgba8};
@@ -294,21 +295,6 @@ fn scene(name: &str, search: &SearchPath, width: u32, height: u32) -> Scene {
     s
 }
 
-/// The model directories: `$STRATA_MODEL_PATH` if set, else `shared/models` next to the
-/// project; `None` (after a note) when none of them holds `file`.
-fn models_with(file: &str) -> Option<Vec<PathBuf>> {
-    let dirs: Vec<PathBuf> = match std::env::var_os("STRATA_MODEL_PATH") {
-        Some(v) if !v.is_empty() => std::env::split_paths(&v).collect(),
-        _ => vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models")],
-    };
-    if dirs.iter().any(|d| d.join(file).is_file()) {
-        Some(dirs)
-    } else {
-        eprintln!("note: {file} not found in {dirs:?}; skipping");
-        None
-    }
-}
-
 /// Renders frame 13 of a built-in scene at 256×144 and round-trips it with every codec; the
 /// DeepFrame-aware codecs must beat the seed layout on real frames.
 fn check_builtin_scene(name: &str, min_max_depth: u32) {
@@ -363,10 +349,10 @@ fn slabs_round_trip_with_every_codec() {
 
 #[test]
 fn the_bunny_round_trips_with_every_codec() {
-    let Some(dirs) = models_with("bunny.obj") else {
+    let Some(models) = strata_testdata::models(&["bunny.obj"]) else {
         return;
     };
-    let s = scene("bunny", &SearchPath::new(dirs), 320, 180);
+    let s = scene("bunny", &SearchPath::new(models.dirs()), 320, 180);
     let (header, deep) = render(&s, 9);
     assert!(deep.fragment_count() > 10_000, "{}", deep.fragment_count());
     let sizes = round_trip_all(&header, &deep);

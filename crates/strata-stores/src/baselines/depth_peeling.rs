@@ -57,9 +57,9 @@ use strata_core::{
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
+use super::peeled::peeled_to_deep_frame;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
-use crate::regions::exclusive_prefix_sum;
 use crate::resolve::resolve_pixels;
 
 /// The name the method is selected by.
@@ -365,38 +365,13 @@ impl Method for DepthPeeling {
             return None;
         }
         let counts: Vec<u32> = self.state.par_iter().map(|s| s.count).collect();
-        Some(layers_to_deep_frame(
+        Some(peeled_to_deep_frame(
             self.width,
             self.height,
             &counts,
             &self.peeled,
         ))
     }
-}
-
-/// Groups peeled fragments by pixel into a DeepFrame. `peeled` lists each pixel's fragments
-/// front to back (layer after layer); `counts` says how many each pixel has.
-pub(crate) fn layers_to_deep_frame(
-    width: u32,
-    height: u32,
-    counts: &[u32],
-    peeled: &[(u32, Fragment)],
-) -> Result<DeepFrame, DeepFrameError> {
-    let (offsets, total) = exclusive_prefix_sum(counts);
-    if total > u64::from(u32::MAX) || total != peeled.len() as u64 {
-        return Err(DeepFrameError::TooManyFragments(total));
-    }
-    let n = total as usize;
-    let mut depth = vec![0.0f32; n];
-    let mut color = vec![Rgba8::default(); n];
-    let mut object = vec![ObjectId::default(); n];
-    let mut cursor = offsets[..counts.len()].to_vec();
-    for &(p, f) in peeled {
-        let i = cursor[p as usize] as usize;
-        cursor[p as usize] += 1;
-        (depth[i], color[i], object[i]) = (f.depth, f.color, f.object);
-    }
-    DeepFrame::from_parts(width, height, offsets, depth, color, object)
 }
 
 #[cfg(test)]

@@ -75,9 +75,9 @@ use strata_core::{
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
 use super::depth_peeling::blend_front;
+use super::peeled::peeled_to_deep_frame;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
-use crate::regions::exclusive_prefix_sum;
 use crate::resolve::resolve_pixels;
 
 /// The name the method is selected by.
@@ -384,25 +384,12 @@ impl Method for DualDepthPeeling {
             .par_iter()
             .map(|s| s.front_count + s.back_count)
             .collect();
-        // Group by pixel (strips are in pixel order), then let the DeepFrame sort each run:
-        // a pixel's fronts and backs arrive interleaved pass by pass.
-        let (offsets, total) = exclusive_prefix_sum(&counts);
-        let kept: usize = self.peeled.iter().map(Vec::len).sum();
-        if total != kept as u64 || total > u64::from(u32::MAX) {
-            return Some(Err(DeepFrameError::TooManyFragments(total)));
-        }
-        let mut grouped = vec![Fragment::default(); kept];
-        let mut cursor = offsets[..counts.len()].to_vec();
-        for &(p, f) in self.peeled.iter().flatten() {
-            let i = &mut cursor[p as usize];
-            grouped[*i as usize] = f;
-            *i += 1;
-        }
-        Some(DeepFrame::build(
+        // A pixel's fronts and backs arrive interleaved pass by pass: the export sorts each run.
+        Some(peeled_to_deep_frame(
             self.width,
             self.height,
             &counts,
-            |p, out| out.extend_from_slice(&grouped[offsets[p] as usize..offsets[p + 1] as usize]),
+            self.peeled.iter().flatten(),
         ))
     }
 }

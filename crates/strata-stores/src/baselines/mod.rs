@@ -12,4 +12,5 @@
 
 pub mod depth_peeling;
 pub mod dual_depth_peeling;
+mod peeled;
 pub mod wboit;

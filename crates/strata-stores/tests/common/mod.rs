@@ -48,11 +48,23 @@ pub(crate) fn render_with(
     (result, deep)
 }
 
+/// [`render_with`] for a method that must export a DeepFrame.
+pub(crate) fn render_exact(
+    method: &mut dyn Method,
+    scene: &Scene,
+    frame: u32,
+    threads: usize,
+) -> (FrameResult, DeepFrame) {
+    let name = method.name();
+    let (result, deep) = render_with(method, scene, frame, threads);
+    let deep = deep.unwrap_or_else(|| panic!("{name} keeps fragments but exports no DeepFrame"));
+    (result, deep)
+}
+
 /// The linked-list A-buffer's frame and DeepFrame: the reference every method is checked against.
 pub(crate) fn reference(scene: &Scene, frame: u32) -> (FrameResult, DeepFrame) {
     let mut abuffer = create("abuffer", &MethodOptions::default()).expect("abuffer exists");
-    let (r, deep) = render_with(abuffer.as_mut(), scene, frame, 2);
-    (r, deep.expect("the A-buffer is exact"))
+    render_exact(abuffer.as_mut(), scene, frame, 2)
 }
 
 /// Every fragment the rasterizer emits, per pixel, in arrival (primitive) order.
@@ -103,6 +115,15 @@ pub(crate) fn scrambled(scene: &Scene, seed: u64) -> Scene {
 /// The largest channel difference between two images, in 8-bit steps.
 pub(crate) fn max_diff(a: &Rgb8Image, b: &Rgb8Image) -> u8 {
     metrics::max_channel_difference(a, b).expect("same size")
+}
+
+/// How many 8-bit channels differ between two images of the same size.
+pub(crate) fn differing_channels(a: &Rgb8Image, b: &Rgb8Image) -> usize {
+    a.as_bytes()
+        .iter()
+        .zip(b.as_bytes())
+        .filter(|(x, y)| x != y)
+        .count()
 }
 
 /// Checks that a method is exact: for every built-in scene, on 1 and 2 threads and with
@@ -162,13 +183,7 @@ pub(crate) fn difference_over_frames(
         let (got, deep) = render_with(m.as_mut(), scene, frame, 2);
         assert_eq!(deep.as_ref(), Some(&want_deep), "frame {frame}");
         worst = worst.max(max_diff(&got.image, &want.image));
-        differing += got
-            .image
-            .as_bytes()
-            .iter()
-            .zip(want.image.as_bytes())
-            .filter(|(a, b)| a != b)
-            .count();
+        differing += differing_channels(&got.image, &want.image);
     }
     (worst, differing)
 }
