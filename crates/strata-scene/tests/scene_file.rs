@@ -2,8 +2,8 @@
 //! `M = T · A(k) · R · S · F · N`, errors (with the key they name and the origin they report),
 //! mesh resolution and sharing, glTF expansion into objects, and the built-in scenes.
 //!
-//! Mesh-dependent built-in scenes use `../shared/models` next to the project root and are skipped
-//! with a note when it is absent.
+//! Mesh-dependent built-in scenes find the meshes through `strata-testdata` (skipped visibly when
+//! absent, a failure with `STRATA_REQUIRE_MODELS=1`).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -1415,20 +1415,6 @@ fn a_single_node_gltf_keeps_the_plain_name() {
 // ---------------------------------------------------------------------------------------------
 // Built-in scenes and open_scene.
 
-/// `../shared/models` next to the project root, or `None` (after a note).
-fn shared_models() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "note: {} not found; skipping the built-in scenes that need meshes",
-            dir.display()
-        );
-        None
-    }
-}
-
 #[test]
 fn built_in_scene_names_are_unique_and_found() {
     let mut seen = Vec::new();
@@ -1500,18 +1486,17 @@ fn mesh_built_in_scenes_need_their_meshes() {
 
 #[test]
 fn mesh_built_in_scenes_parse_with_the_shared_models() {
-    let Some(models) = shared_models() else {
+    let meshes: Vec<&str> = builtin::SCENES
+        .iter()
+        .flat_map(|b| b.meshes.iter().copied())
+        .collect();
+    // Every mesh every built-in scene needs: missing ones skip visibly, or fail in CI.
+    let Some(models) = strata_testdata::models(&meshes) else {
         return;
     };
-    let search = SearchPath::new([models]);
+    let search = SearchPath::new(models.dirs());
     for b in builtin::SCENES.iter().filter(|b| !b.meshes.is_empty()) {
-        if !b.available(&search) {
-            eprintln!(
-                "note: {} needs {:?}, not all in the shared models; skipping",
-                b.name, b.meshes
-            );
-            continue;
-        }
+        assert!(b.available(&search), "{} needs {:?}", b.name, b.meshes);
         let s = b.load(&search).unwrap_or_else(|e| panic!("{e}"));
         check_builtin(b, &s);
         // Every mesh scene fits its model: centred, largest extent 1, over all its parts.
