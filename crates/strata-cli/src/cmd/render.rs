@@ -8,7 +8,7 @@ use strata_stores::kbuffer::maps::heat_map;
 use strata_stores::render_frame;
 
 use crate::options::{RenderOptions, check_output, open_scene, thread_pool};
-use crate::report::{stats_json, summary_line};
+use crate::report::{maps_page, stats_json, summary_line};
 
 /// Render one frame of a scene to a PNG.
 ///
@@ -28,7 +28,8 @@ pub(crate) struct Args {
     pub(crate) stats: Option<PathBuf>,
 
     /// Also write the per-pixel maps the method computes (vkbuffer: `k` and `importance`) into
-    /// this folder, each as a heat map PNG and a NumPy `.npy` (float32, height × width).
+    /// this folder, each as a heat map PNG and a NumPy `.npy` (float32, height × width), and
+    /// maps.html showing them with their colour scales.
     #[arg(long, value_name = "DIR")]
     pub(crate) maps: Option<PathBuf>,
 
@@ -47,22 +48,73 @@ fn scene_stem(spec: &str) -> String {
         .map_or_else(|| spec.to_owned(), |s| s.to_string_lossy().into_owned())
 }
 
-/// Runs `strata render`.
+/// Refuses, before anything is rendered or written, outputs that cannot be written: a missing
+/// directory for the image or the statistics, `--maps` for a method that computes none, or a
+/// `--maps` path that is a file.
+fn check_outputs(args: &Args, out: &std::path::Path) -> Result<()> {
+    check_output(out)?;
+    if let Some(stats) = &args.stats {
+        check_output(stats)?;
+    }
+    if let Some(dir) = &args.maps {
+        let info = strata_stores::find(&args.render.method)?;
+        if info.pixel_maps.is_empty() {
+            let with_maps: Vec<&str> = strata_stores::METHODS
+                .iter()
+                .filter(|m| !m.pixel_maps.is_empty())
+                .map(|m| m.name)
+                .collect();
+            anyhow::bail!(
+                "--maps: method {} computes no per-pixel maps (methods that do: {})",
+                info.name,
+                with_maps.join(", ")
+            );
+        }
+        if dir.exists() && !dir.is_dir() {
+            anyhow::bail!("--maps {}: not a directory", dir.display());
+        }
+    }
+    Ok(())
+}
+
+/// Writes every per-pixel map of `method` into `dir` as `.npy` and heat-map PNG, and `maps.html`
+/// showing them with their colour scales.
+fn write_maps(dir: &std::path::Path, method: &dyn strata_stores::Method) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut legends = Vec::new();
+    for m in method.pixel_maps() {
+        strata_core::npy::write_f32(
+            dir.join(format!("{}.npy", m.name)),
+            m.width,
+            m.height,
+            &m.values,
+        )?;
+        heat_map(&m.values, m.width, m.height, None)
+            .write_png(dir.join(format!("{}.png", m.name)))?;
+        let max = m.values.iter().copied().fold(0.0f32, f32::max);
+        legends.push((m.name, max));
+    }
+    let page = maps_page(method.name(), &legends);
+    let path = dir.join("maps.html");
+    std::fs::write(&path, page).with_context(|| format!("cannot write {}", path.display()))?;
+    eprintln!(
+        "wrote the per-pixel maps into {} (see maps.html)",
+        dir.display()
+    );
+    Ok(())
+}
+
+/// Runs `strata render`: validate everything, then render, then write.
 pub(crate) fn run(args: Args) -> Result<()> {
     let out = args
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("{}.png", scene_stem(&args.scene))));
-    check_output(&out)?;
-    if let Some(stats) = &args.stats {
-        check_output(stats)?;
-    }
-    if let Some(dir) = &args.maps {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
+    let options = args.render.checked_method_options()?;
+    check_outputs(&args, &out)?;
     let scene = open_scene(&args.scene, &args.render.search_path())?;
     scene.check_frame(args.frame)?;
-    let mut method = strata_stores::create(&args.render.method, &args.render.method_options())?;
+    let mut method = strata_stores::create(&args.render.method, &options)?;
     let pool = thread_pool(args.render.threads)?;
     let input = FrameInput::from_scene(&scene, args.frame);
     let mut raster = Rasterizer::default();
@@ -82,24 +134,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(dir) = &args.maps {
-        let maps = method.pixel_maps();
-        if maps.is_empty() {
-            anyhow::bail!(
-                "method {} computes no per-pixel maps (vkbuffer does)",
-                method.name()
-            );
-        }
-        for m in maps {
-            strata_core::npy::write_f32(
-                dir.join(format!("{}.npy", m.name)),
-                m.width,
-                m.height,
-                &m.values,
-            )?;
-            heat_map(&m.values, m.width, m.height, None)
-                .write_png(dir.join(format!("{}.png", m.name)))?;
-        }
-        eprintln!("wrote the per-pixel maps into {}", dir.display());
+        write_maps(dir, method.as_ref())?;
     }
     eprintln!("{}", summary_line(&scene, &result));
     eprintln!("wrote {}", out.display());
