@@ -214,7 +214,9 @@ pub(crate) fn hot_legend_html(caption: &str, max: f64) -> String {
 fn map_caption(name: &str) -> &'static str {
     match name {
         "k" => "k: fragments kept at each pixel",
-        "importance" => "importance I(p) of each pixel",
+        "importance" => {
+            "importance of each pixel: I(p), or with --k-from optimal k(p) over the pixel's fragments"
+        }
         _ => "value at each pixel",
     }
 }

@@ -1398,6 +1398,32 @@ fn option_of_another_method_is_refused_before_anything_is_written() {
     assert_eq!(stats["method"], "kbuffer");
 }
 
+/// Checks that fail (threads, frame, scene) leave no report folder behind.
+#[test]
+fn failed_checks_leave_no_report_folder() {
+    let dir = TempDir::new().unwrap();
+    let out = dir.path().join("out");
+    let err = run_err(
+        strata_without_models(dir.path())
+            .args(["demo", "-j", "0", "--out-dir"])
+            .arg(&out),
+    );
+    assert_mentions(&err, &["--threads"]);
+    for args in [
+        &["compare", "overlap", "--methods", "kbuffer", "-j", "0"][..],
+        &["compare", "overlap", "--methods", "kbuffer", "--frame", "3"],
+        &["compare", "no-such-scene", "--methods", "kbuffer"],
+    ] {
+        run_err(
+            strata_without_models(dir.path())
+                .args(args)
+                .arg("--out-dir")
+                .arg(&out),
+        );
+    }
+    assert!(!out.exists(), "a failed command created its report folder");
+}
+
 /// A render node refuses another method's option before it starts listening.
 #[test]
 fn node_refuses_an_option_of_another_method() {

@@ -208,15 +208,15 @@ pub(crate) fn run(args: Args) -> Result<()> {
     }
     check_reference(&args, &base)?;
     check_given_options(&args, &specs, &base)?;
-    // Create the output folder before the (long) measuring, so a bad path fails at once.
-    let dir = &args.out_dir;
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
+    // Everything is checked; create the output folder before the (long) measuring, so a bad
+    // path fails at once.
+    let dir = &args.out_dir;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut raster = Rasterizer::default();
 
     eprintln!("reference: {} …", args.reference);

@@ -61,10 +61,10 @@ fn method_sentence(method: &str, fidelity: Fidelity) -> String {
 pub(crate) fn run(args: Args) -> Result<()> {
     let options = args.render.checked_method_options()?;
     let fidelity = strata_stores::find(&args.render.method)?.fidelity(&options);
+    let pool = thread_pool(args.render.threads)?;
     let dir = &args.out_dir;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let search = args.render.search_path();
-    let pool = thread_pool(args.render.threads)?;
     let threads = pool.current_num_threads();
     let mut raster = Rasterizer::default();
     let (available, skipped): (Vec<&builtin::BuiltinScene>, Vec<_>) =
