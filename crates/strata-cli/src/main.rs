@@ -39,7 +39,7 @@ enum Command {
     Scenes(cmd::scenes::Args),
     /// List the fragment stores (`--method`).
     Methods(cmd::methods::Args),
-    /// Seed 002's TFSS evaluation on a scene: fragment distribution, memory of R-buffer, WF,
+    /// The TFSS evaluation of Lin 2007 on a scene: fragment distribution, memory of R-buffer, WF,
     /// TFSS and strata's layouts, access/time model.
     #[command(long_about = cmd::tfss_sim::LONG_ABOUT)]
     TfssSim(cmd::tfss_sim::Args),

@@ -1672,4 +1672,15 @@ fn methods_lists_fidelity_and_options() {
         about("vkbuffer"),
         &["--budget", "--k-from", "--alpha", "--point-of-interest"],
     );
+    // Sources are cited by author and year, not by internal shorthand.
+    let tfss = lines
+        .iter()
+        .find(|l| l.starts_with("tfss "))
+        .expect("tfss listed");
+    assert_mentions(tfss, &["Lin 2007"]);
+    assert!(
+        !ran.stdout.to_lowercase().contains("seed 0"),
+        "{}",
+        ran.stdout
+    );
 }

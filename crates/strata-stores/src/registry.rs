@@ -104,7 +104,7 @@ fn exact_without_layer_limit(o: &MethodOptions) -> Fidelity {
 pub const METHODS: &[MethodInfo] = &[
     MethodInfo {
         name: linked_list::NAME,
-        summary: "per-pixel linked-list A-buffer: heads, node pool, allocation counter (seed 000 §2, seed 001 Alg. 4-6)",
+        summary: "per-pixel linked-list A-buffer: heads, node pool, allocation counter (Jähne 2014; Tsopouridis 2021, Alg. 4-6)",
         options: &["pool"],
         pixel_maps: &[],
         fidelity: exact_with_growing_pool,
@@ -112,7 +112,7 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: fixed_array::NAME,
-        summary: "fixed-array A-buffer: --array-size fragments per pixel, overflow counted (seed 001 Alg. 1-3)",
+        summary: "fixed-array A-buffer: --array-size fragments per pixel, overflow counted (Tsopouridis 2021, Alg. 1-3)",
         options: &["array-size"],
         pixel_maps: &[],
         fidelity: |_| Fidelity::Bounded,
@@ -120,7 +120,7 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: sbuffer::NAME,
-        summary: "S-buffer: counting pass, prefix sum, exactly sized contiguous regions (seed 001 Alg. 7-12)",
+        summary: "S-buffer: counting pass, prefix sum, exactly sized contiguous regions (Vasilakis & Fudos 2012; Tsopouridis 2021, Alg. 7-12)",
         options: &[],
         pixel_maps: &[],
         fidelity: |_| Fidelity::Exact,
@@ -128,7 +128,7 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: wf::NAME,
-        summary: "weight-factor resolve over S-buffer regions, no sort (seed 002 §2.5.2, Eq. 2-4)",
+        summary: "weight-factor resolve over S-buffer regions, no sort (Amor et al. 2006; Lin 2007, Eq. 2-4)",
         options: &[],
         pixel_maps: &[],
         fidelity: |_| Fidelity::Exact,
@@ -136,7 +136,7 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: fixed::NAME,
-        summary: "k-buffer: the --k nearest fragments per pixel by insertion, --tail-blend for the rest (seed 001 Alg. 13-15)",
+        summary: "k-buffer: the --k nearest fragments per pixel by insertion, --tail-blend for the rest (Tsopouridis 2021, Alg. 13-15)",
         options: &["k", "tail-blend"],
         pixel_maps: &[],
         fidelity: |_| Fidelity::Bounded,
@@ -144,7 +144,7 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: variable::NAME,
-        summary: "variable k-buffer: k(p) under a --budget from importance maps or --k-from optimal (seed 001 Alg. 16-21, 23)",
+        summary: "variable k-buffer: k(p) under a --budget from importance maps or --k-from optimal (Tsopouridis 2021, Alg. 16-21, 23)",
         options: &[
             "budget",
             "k-from",
@@ -161,7 +161,7 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: tfss::NAME,
-        summary: "TFSS: SSA table, T-buffer sections of --l-num fragments, NSA chains, --leading-zeros (seed 002 ch. 3)",
+        summary: "TFSS: SSA table, T-buffer sections of --l-num fragments, NSA chains, --leading-zeros (Lin 2007, ch. 3)",
         options: &["l-num", "leading-zeros", "pool"],
         pixel_maps: &[],
         fidelity: exact_with_growing_pool,
