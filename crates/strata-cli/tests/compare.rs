@@ -101,7 +101,22 @@ fn compare_rejects_bad_specs_before_rendering() {
 fn compare_refuses_foreign_options_bad_values_and_inexact_references() {
     let dir = TempDir::new().unwrap();
     let out_dir = dir.path().join("report");
-    let cases: [(&[&str], &[&str]); 9] = [
+    let cases: [(&[&str], &[&str]); 10] = [
+        (
+            &[
+                "--methods",
+                "kbuffer",
+                "--reference",
+                "abuffer",
+                "--pool",
+                "4x",
+            ],
+            &[
+                "--reference abuffer",
+                "bounded",
+                "apply to the reference too",
+            ],
+        ),
         (
             &["--methods", "kbuffer:pool=4x"],
             &[

@@ -163,8 +163,16 @@ fn check_reference(args: &Args, base: &MethodOptions) -> Result<()> {
     let info = strata_stores::find(&args.reference)?;
     let fidelity = info.fidelity(base);
     if fidelity != Fidelity::Exact {
+        // Exact by default: the command line's options made it bounded (a fixed --pool, say).
+        let hint = if info.fidelity(&MethodOptions::default()) == Fidelity::Exact {
+            " (method options on the command line apply to the reference too; give them to a \
+             compared method in its spec instead, such as abuffer:pool=4x)"
+                .to_owned()
+        } else {
+            String::new()
+        };
         bail!(
-            "--reference {}: the reference must be an exact method, and {} is {}; exact methods: {}",
+            "--reference {}: the reference must be an exact method, and {} is {}; exact methods: {}{hint}",
             info.name,
             info.name,
             fidelity.describe(),
