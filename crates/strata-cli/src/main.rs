@@ -3,13 +3,14 @@
 #[macro_use]
 mod out;
 mod cmd;
+mod flip;
 mod images;
 mod options;
 mod report;
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// strata keeps every fragment of every pixel, so transparency is correct in any draw order.
 ///
@@ -39,12 +40,12 @@ enum Command {
     Scenes(cmd::scenes::Args),
     /// List the fragment stores (`--method`).
     Methods(cmd::methods::Args),
-    /// Seed 002's TFSS evaluation on a scene: fragment distribution, memory of R-buffer, WF,
+    /// The TFSS evaluation of Lin 2007 on a scene: fragment distribution, memory of R-buffer, WF,
     /// TFSS and strata's layouts, access/time model.
     #[command(long_about = cmd::tfss_sim::LONG_ABOUT)]
     TfssSim(cmd::tfss_sim::Args),
     /// Encode a scene's DeepFrames with every wire codec: bytes, ratios against raw and the
-    /// seed's LZ4, encode and decode times, bit-exact round trips.
+    /// plain layout under LZ4, encode and decode times, bit-exact round trips.
     Codecs(cmd::codecs::Args),
     /// Serve a display as a render node: render some objects of a scene, stream the fragments.
     ///
@@ -68,8 +69,42 @@ enum Command {
     Inspect(cmd::inspect::Args),
 }
 
+impl Command {
+    /// The method options of this subcommand, if it has any.
+    fn method_params(&mut self) -> Option<&mut options::MethodParams> {
+        match self {
+            Command::Render(a) => Some(&mut a.render.params),
+            Command::Demo(a) => Some(&mut a.render.params),
+            Command::Node(a) => Some(&mut a.render.params),
+            Command::Bench(a) => Some(&mut a.params),
+            Command::Compare(a) => Some(&mut a.params),
+            _ => None,
+        }
+    }
+
+    /// Refuses a method option the command line set that `node`'s method does not read, before
+    /// it starts listening. (`render`, `demo`, `bench` and `compare` check their options
+    /// themselves, with everything else, before they render or write anything.)
+    fn check_method_options(&self) -> anyhow::Result<()> {
+        match self {
+            Command::Node(a) => a.render.checked_method_options().map(drop),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Parses the command line, noting which method options it set (as opposed to their defaults).
+fn parse() -> Result<Cli, clap::Error> {
+    let matches = Cli::command().try_get_matches()?;
+    let mut cli = Cli::from_arg_matches(&matches)?;
+    if let (Some((_, sub)), Some(params)) = (matches.subcommand(), cli.command.method_params()) {
+        params.given = options::given_method_options(sub);
+    }
+    Ok(cli)
+}
+
 fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
+    let cli = match parse() {
         Ok(cli) => cli,
         Err(e) => {
             use clap::error::ErrorKind;
@@ -86,20 +121,23 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let result = match cli.command {
-        Command::Render(a) => cmd::render::run(a),
-        Command::Demo(a) => cmd::demo::run(a),
-        Command::Bench(a) => cmd::bench::run(a),
-        Command::Compare(a) => cmd::compare::run(a),
-        Command::Scenes(a) => cmd::scenes::run(a),
-        Command::Methods(a) => cmd::methods::run(a),
-        Command::TfssSim(a) => cmd::tfss_sim::run(a),
-        Command::Codecs(a) => cmd::codecs::run(a),
-        Command::Node(a) => cmd::node::run(a),
-        Command::Display(a) => cmd::display::run(a),
-        Command::Composite(a) => cmd::composite::run(a),
-        Command::Inspect(a) => cmd::inspect::run(a),
-    };
+    let result = cli
+        .command
+        .check_method_options()
+        .and_then(|()| match cli.command {
+            Command::Render(a) => cmd::render::run(a),
+            Command::Demo(a) => cmd::demo::run(a),
+            Command::Bench(a) => cmd::bench::run(a),
+            Command::Compare(a) => cmd::compare::run(a),
+            Command::Scenes(a) => cmd::scenes::run(a),
+            Command::Methods(a) => cmd::methods::run(a),
+            Command::TfssSim(a) => cmd::tfss_sim::run(a),
+            Command::Codecs(a) => cmd::codecs::run(a),
+            Command::Node(a) => cmd::node::run(a),
+            Command::Display(a) => cmd::display::run(a),
+            Command::Composite(a) => cmd::composite::run(a),
+            Command::Inspect(a) => cmd::inspect::run(a),
+        });
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if out::is_broken_pipe(&e) => ExitCode::SUCCESS,

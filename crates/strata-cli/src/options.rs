@@ -1,36 +1,47 @@
 //! Options shared by several subcommands: threads, method, model search path, scene opening.
+//!
+//! Method options are checked twice over: their values by the argument parser (the range-checking
+//! parse functions of `strata_stores::options`), and whether the chosen method reads them by
+//! [`MethodParams::checked_for`], from the names [`given_method_options`] found set on the command
+//! line (clap's value source tells a user's value from a default).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use clap::parser::ValueSource;
 use strata_scene::{Scene, SearchPath};
+use strata_stores::options as opt;
 use strata_stores::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
 
-/// Parameters of the fragment stores; each method reads the ones it understands.
+/// Parameters of the fragment stores. Each method reads some of them (`strata methods` says
+/// which); one given on the command line that the chosen method does not read is an error.
+///
+/// The values are parsed and range-checked by the same functions as `key=value` in a method spec
+/// (`strata compare --methods kbuffer:k=8`).
 #[derive(Args, Debug, Clone)]
 #[command(next_help_heading = "Method options")]
 pub(crate) struct MethodParams {
-    /// abuffer: node pool — `auto` (grow to fit, never drop), a multiple of the pixel count
-    /// (`4x`), or a number of fragments. Fixed pools drop and count what overflows.
+    /// abuffer, tfss: node pool — `auto` (grow to fit, never drop), a positive multiple of the
+    /// pixel count (`4x`), or a number of fragments. Fixed pools drop and count what overflows.
     #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<PoolCapacity>())]
     pub(crate) pool: PoolCapacity,
 
-    /// abuffer-array: fragments per pixel (A).
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    /// abuffer-array: fragments per pixel (A), 1 to 1024.
+    #[arg(long, default_value_t = 8, value_parser = opt::parse_array_size)]
     pub(crate) array_size: u32,
 
-    /// kbuffer: fragments kept per pixel (k).
-    #[arg(short, long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    /// kbuffer: fragments kept per pixel (k), 1 to 1024.
+    #[arg(short, long, default_value_t = 4, value_parser = opt::parse_k)]
     pub(crate) k: u32,
 
     /// kbuffer: blend the fragments beyond the k nearest behind them instead of dropping them.
     #[arg(long)]
     pub(crate) tail_blend: bool,
 
-    /// vkbuffer: memory budget — a share of the frame's fragments (`50%`), an average per pixel
-    /// (`2x`), bytes (`20MB`, `16MiB`) or a number of fragments.
+    /// vkbuffer: memory budget — a share of the frame's fragments above 0 % and up to 100 %
+    /// (`50%`), an average per pixel (`2x`), bytes (`20MB`, `16MiB`) or a number of fragments.
     #[arg(long, default_value = "50%", value_parser = |s: &str| s.parse::<Budget>())]
     pub(crate) budget: Budget,
 
@@ -38,33 +49,34 @@ pub(crate) struct MethodParams {
     #[arg(long, default_value = "importance", value_parser = |s: &str| s.parse::<KFrom>())]
     pub(crate) k_from: KFrom,
 
-    /// vkbuffer importance: periphery fall-off exponent d.
-    #[arg(long, default_value_t = 2.0)]
+    /// vkbuffer importance: periphery fall-off exponent d, greater than 0 and at most 64.
+    #[arg(long, default_value_t = 2.0, value_parser = opt::parse_periphery_exponent)]
     pub(crate) periphery_exponent: f64,
 
     /// vkbuffer importance: depth-complexity range bias α in [0, 1].
-    #[arg(long, default_value_t = 0.1)]
-    pub(crate) alpha: f64,
+    #[arg(long, default_value_t = 0.1, value_parser = opt::parse_range_bias)]
+    pub(crate) range_bias: f64,
 
-    /// vkbuffer importance: N_limit, the layer count of full importance (default: the frame's
-    /// largest per-pixel fragment count).
-    #[arg(long)]
+    /// vkbuffer importance: N_limit, the layer count of full importance, at least 1 (default: the
+    /// frame's largest per-pixel fragment count).
+    #[arg(long, value_parser = opt::parse_n_limit)]
     pub(crate) n_limit: Option<u32>,
 
-    /// vkbuffer importance: noise level λ.
-    #[arg(long, default_value_t = 0.1)]
+    /// vkbuffer importance: noise level λ in [0, 1].
+    #[arg(long, default_value_t = 0.1, value_parser = opt::parse_noise)]
     pub(crate) noise: f64,
 
-    /// vkbuffer importance: point of interest as `x,y` fractions of the image (0.5,0.5 = centre).
-    #[arg(long, default_value = "0.5,0.5", value_parser = parse_point)]
+    /// vkbuffer importance: point of interest as `x,y` fractions of the image, each in [0, 1]
+    /// (0.5,0.5 = centre).
+    #[arg(long, default_value = "0.5,0.5", value_parser = opt::parse_point_of_interest)]
     pub(crate) point_of_interest: [f64; 2],
 
     /// vkbuffer importance: seed of the noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = opt::parse_seed)]
     pub(crate) seed: u64,
 
-    /// tfss: fragments per T-buffer section (L_num).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    /// tfss: fragments per T-buffer section (L_num), 1 to 64.
+    #[arg(long, default_value_t = 2, value_parser = opt::parse_l_num)]
     pub(crate) l_num: u32,
 
     /// tfss: leading-zeros elimination of colours, with a Length table.
@@ -72,24 +84,30 @@ pub(crate) struct MethodParams {
     pub(crate) leading_zeros: bool,
 
     /// depth-peeling, dual-depth-peeling: most layers to peel (0: until nothing is left).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = opt::parse_max_layers)]
     pub(crate) max_layers: u32,
+
+    /// The options above that the command line set (not left at their defaults), by name;
+    /// filled in by `main` after parsing.
+    #[arg(skip)]
+    pub(crate) given: Vec<&'static str>,
 }
 
-fn parse_point(s: &str) -> Result<[f64; 2], String> {
-    let parts: Vec<f64> = s
-        .split(',')
-        .map(|v| v.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("'{s}': expected x,y such as 0.5,0.5"))?;
-    match parts[..] {
-        [x, y] if x.is_finite() && y.is_finite() => Ok([x, y]),
-        _ => Err(format!("'{s}': expected two numbers x,y such as 0.5,0.5")),
-    }
+/// The method options `matches` (one subcommand's) got from the command line, by name.
+pub(crate) fn given_method_options(matches: &clap::ArgMatches) -> Vec<&'static str> {
+    opt::OPTION_NAMES
+        .iter()
+        .copied()
+        .filter(|name| {
+            let id = name.replace('-', "_");
+            matches.ids().any(|i| i.as_str() == id)
+                && matches.value_source(&id) == Some(ValueSource::CommandLine)
+        })
+        .collect()
 }
 
 impl MethodParams {
-    /// The options the methods read.
+    /// The options the methods read, unchecked (see [`MethodParams::checked_for`]).
     pub(crate) fn method_options(&self) -> MethodOptions {
         MethodOptions {
             pool: self.pool,
@@ -100,7 +118,7 @@ impl MethodParams {
             k_from: self.k_from,
             importance: ImportanceParams {
                 periphery_exponent: self.periphery_exponent,
-                alpha: self.alpha,
+                alpha: self.range_bias,
                 n_limit: self.n_limit,
                 noise: self.noise,
                 point_of_interest: self.point_of_interest,
@@ -110,6 +128,17 @@ impl MethodParams {
             leading_zeros: self.leading_zeros,
             max_layers: self.max_layers,
         }
+    }
+
+    /// The options for `method`, refusing an unknown method and any option the command line set
+    /// that `method` does not read.
+    pub(crate) fn checked_for(&self, method: &str) -> Result<MethodOptions> {
+        let options = self.method_options();
+        strata_stores::find(method)?;
+        for option in &self.given {
+            strata_stores::check_option(method, option, &format!("--{option}"), &options)?;
+        }
+        Ok(options)
     }
 }
 
@@ -133,9 +162,15 @@ pub(crate) struct RenderOptions {
 }
 
 impl RenderOptions {
-    /// The options the methods read.
+    /// The options the methods read, unchecked (see [`RenderOptions::checked_method_options`]).
     pub(crate) fn method_options(&self) -> MethodOptions {
         self.params.method_options()
+    }
+
+    /// The options for `--method`, refusing an unknown method and any option the command line
+    /// set that the method does not read.
+    pub(crate) fn checked_method_options(&self) -> Result<MethodOptions> {
+        self.params.checked_for(&self.method)
     }
 
     /// The mesh search path: `--models` directories, then the environment's.

@@ -1198,3 +1198,397 @@ fn render_exports_the_variable_k_buffers_maps() {
     );
     assert!(err.contains("computes no per-pixel maps"), "{err}");
 }
+
+// ---------------------------------------------------------------------------------------------
+// Strict method options: another method's option, out-of-range values, nothing written first
+
+/// Every file and folder directly in `dir`, by name (to show that a failed command wrote nothing).
+fn entries(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// An option that only another method reads is an error naming the method, the option and the
+/// methods that take it, for every subcommand that renders with one method; nothing is written.
+#[test]
+fn option_of_another_method_is_refused_before_anything_is_written() {
+    let dir = TempDir::new().unwrap();
+    let cases: [(&[&str], &[&str]); 6] = [
+        (
+            &[
+                "render", "overlap", "--method", "kbuffer", "--budget", "25%",
+            ],
+            &["method kbuffer", "--budget", "only vkbuffer takes it"],
+        ),
+        (
+            &["render", "overlap", "--method", "sbuffer", "--pool", "4x"],
+            &["method sbuffer", "--pool", "abuffer, tfss"],
+        ),
+        (
+            &[
+                "render",
+                "overlap",
+                "-m",
+                "vkbuffer",
+                "--k-from",
+                "optimal",
+                "--range-bias",
+                "0.5",
+            ],
+            &[
+                "vkbuffer with k-from optimal",
+                "--range-bias",
+                "only with k-from importance",
+            ],
+        ),
+        (
+            &["render", "overlap", "--tail-blend"],
+            &["method abuffer", "--tail-blend", "only kbuffer takes it"],
+        ),
+        (
+            &[
+                "bench",
+                "overlap",
+                "--method",
+                "wboit",
+                "--max-layers",
+                "3",
+                "--runs",
+                "1",
+            ],
+            &[
+                "method wboit",
+                "--max-layers",
+                "depth-peeling, dual-depth-peeling",
+            ],
+        ),
+        (
+            &["demo", "-m", "abuffer", "-k", "8"],
+            &["method abuffer", "--k", "only kbuffer takes it"],
+        ),
+    ];
+    for (args, needles) in cases {
+        let err = run_err(
+            strata_without_models(dir.path())
+                .current_dir(dir.path())
+                .args(args)
+                .arg(if args[0] == "demo" {
+                    "--out-dir"
+                } else {
+                    "--models"
+                })
+                .arg(dir.path().join("out")),
+        );
+        assert_mentions(&err, needles);
+        assert_eq!(
+            entries(dir.path()),
+            Vec::<String>::new(),
+            "{args:?} wrote a file"
+        );
+    }
+    // The options a method does read are accepted, and an option left at its default is not
+    // "given": the default --pool auto does not stop kbuffer.
+    let (_, stats, _) = render(
+        dir.path(),
+        "overlap",
+        "k.png",
+        &["--method", "kbuffer", "-k", "2", "--tail-blend"],
+    );
+    assert_eq!(stats["method"], "kbuffer");
+}
+
+/// Checks that fail (threads, frame, scene) leave no report folder behind.
+#[test]
+fn failed_checks_leave_no_report_folder() {
+    let dir = TempDir::new().unwrap();
+    let out = dir.path().join("out");
+    let err = run_err(
+        strata_without_models(dir.path())
+            .args(["demo", "-j", "0", "--out-dir"])
+            .arg(&out),
+    );
+    assert_mentions(&err, &["--threads"]);
+    for args in [
+        &["compare", "overlap", "--methods", "kbuffer", "-j", "0"][..],
+        &["compare", "overlap", "--methods", "kbuffer", "--frame", "3"],
+        &["compare", "no-such-scene", "--methods", "kbuffer"],
+    ] {
+        run_err(
+            strata_without_models(dir.path())
+                .args(args)
+                .arg("--out-dir")
+                .arg(&out),
+        );
+    }
+    assert!(!out.exists(), "a failed command created its report folder");
+}
+
+/// A render node refuses another method's option before it starts listening.
+#[test]
+fn node_refuses_an_option_of_another_method() {
+    let err = run_err(strata().args([
+        "node",
+        "--listen",
+        "127.0.0.1:0",
+        "--scene",
+        "overlap",
+        "--method",
+        "kbuffer",
+        "--budget",
+        "20%",
+    ]));
+    assert_mentions(&err, &["method kbuffer", "--budget", "vkbuffer"]);
+}
+
+/// Every method option is range-checked as its help says, by the argument parser (exit 2, the
+/// option, the value and the accepted range named), before any file is written.
+#[test]
+fn out_of_range_method_options_are_refused() {
+    let dir = TempDir::new().unwrap();
+    let png = dir.path().join("a.png");
+    for (method, option, value, expected) in [
+        ("vkbuffer", "--range-bias", "2", "[0, 1]"),
+        ("vkbuffer", "--range-bias", "-0.5", "[0, 1]"),
+        ("vkbuffer", "--noise", "-1", "[0, 1]"),
+        ("vkbuffer", "--noise", "NaN", "[0, 1]"),
+        ("vkbuffer", "--point-of-interest", "5,5", "each in [0, 1]"),
+        ("vkbuffer", "--point-of-interest", "0.5", "each in [0, 1]"),
+        ("vkbuffer", "--n-limit", "0", "at least 1"),
+        ("vkbuffer", "--periphery-exponent", "0", "greater than 0"),
+        ("vkbuffer", "--periphery-exponent", "-2", "greater than 0"),
+        ("vkbuffer", "--budget", "150%", "up to 100 %"),
+        ("kbuffer", "--k", "0", "from 1 to 1024"),
+        ("abuffer-array", "--array-size", "2000", "from 1 to 1024"),
+        ("tfss", "--l-num", "65", "from 1 to 64"),
+        ("depth-peeling", "--max-layers", "-1", "whole number"),
+    ] {
+        let out = strata()
+            .args(["render", "overlap", "--method", method, "--out"])
+            .arg(&png)
+            .arg(format!("{option}={value}"))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{option} {value}: {stderr}");
+        assert_no_panic(&stderr);
+        assert_mentions(
+            &stderr,
+            &[
+                "strata: error:",
+                option.trim_start_matches('-'),
+                &format!("'{value}'"),
+                expected,
+            ],
+        );
+        assert!(!png.exists(), "{option} {value}: wrote the image");
+    }
+    // The ends of each range are accepted.
+    for args in [
+        ["--range-bias", "1", "--noise", "0"],
+        ["--point-of-interest", "0,1", "--n-limit", "1"],
+        ["--budget", "100%", "--seed", "7"],
+    ] {
+        let args = [&["--method", "vkbuffer"][..], &args[..]].concat();
+        render(dir.path(), "overlap", "ok.png", &args);
+    }
+}
+
+/// `--maps` with a method that computes none fails before the image, the statistics or the
+/// folder are written.
+#[test]
+fn maps_for_a_method_without_maps_writes_nothing() {
+    let dir = TempDir::new().unwrap();
+    let err = run_err(
+        strata()
+            .args(["render", "overlap", "--method", "sbuffer", "--out"])
+            .arg(dir.path().join("a.png"))
+            .arg("--stats")
+            .arg(dir.path().join("a.json"))
+            .arg("--maps")
+            .arg(dir.path().join("maps")),
+    );
+    assert_mentions(
+        &err,
+        &[
+            "--maps",
+            "sbuffer",
+            "computes no per-pixel maps",
+            "vkbuffer",
+        ],
+    );
+    assert_eq!(entries(dir.path()), Vec::<String>::new());
+}
+
+/// The maps of the variable k-buffer come with maps.html, where each heat map has a colour bar
+/// labelled from 0 to the map's largest value.
+#[test]
+fn render_maps_page_shows_each_maps_colour_scale() {
+    let dir = TempDir::new().unwrap();
+    let maps = dir.path().join("maps");
+    run_ok(
+        strata()
+            .args([
+                "render", "overlap", "--method", "vkbuffer", "--budget", "2x", "--maps",
+            ])
+            .arg(&maps)
+            .arg("--out")
+            .arg(dir.path().join("vk.png")),
+    );
+    let npy = std::fs::read(maps.join("k.npy")).unwrap();
+    let header_len = u16::from_le_bytes([npy[8], npy[9]]) as usize;
+    let max_k = npy[10 + header_len..]
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+        .fold(0.0f32, f32::max);
+    assert!(
+        max_k >= 2.0,
+        "a budget of 2 per pixel gives some pixel k ≥ 2: {max_k}"
+    );
+    let html = std::fs::read_to_string(maps.join("maps.html")).unwrap();
+    assert_eq!(
+        html.matches("linear-gradient").count(),
+        2,
+        "one colour bar per map"
+    );
+    assert_mentions(
+        &html,
+        &[
+            "src=\"k.png\"",
+            "src=\"importance.png\"",
+            "rgb(0,0,0) 0.0%",
+            "rgb(255,255,255) 100.0%",
+            "<span>0</span>",
+            &format!("<span>{max_k}</span>"),
+            "fragments kept",
+        ],
+    );
+}
+
+/// The demo of an approximate method says what it is, instead of claiming every fragment is kept
+/// and marking a DeepFrame check it cannot have as failed.
+#[test]
+fn demo_describes_an_approximate_method_as_such() {
+    let dir = TempDir::new().unwrap();
+    let out = dir.path().join("demo");
+    run_ok(
+        strata_without_models(dir.path())
+            .args(["demo", "-m", "wboit", "-j", "2", "--out-dir"])
+            .arg(&out),
+    );
+    for page in ["report.md", "report.html"] {
+        let text = std::fs::read_to_string(out.join(page)).unwrap();
+        assert_mentions(
+            &text,
+            &[
+                "approximate (weighted blend; keeps no fragments)",
+                "none (blended)",
+                "n/a (no DeepFrame)",
+            ],
+        );
+        assert!(!text.contains("keeps all its fragments"), "{page}: {text}");
+        assert!(
+            !text.contains("| NO |") && !text.contains("<td>NO</td>"),
+            "{page}"
+        );
+    }
+    // An exact method still says it keeps every fragment, and checks its DeepFrame.
+    let exact = dir.path().join("exact");
+    run_ok(
+        strata_without_models(dir.path())
+            .args(["demo", "-m", "sbuffer", "-j", "2", "--out-dir"])
+            .arg(&exact),
+    );
+    let md = std::fs::read_to_string(exact.join("report.md")).unwrap();
+    assert_mentions(
+        &md,
+        &[
+            "exact (keeps every fragment",
+            "keeps all its fragments",
+            "| yes |",
+        ],
+    );
+    assert!(!md.contains("n/a"));
+}
+
+/// `strata bench` names the CPU it measured on, beside its figures and in its JSON, and shows no
+/// figure from elsewhere for a scene that has none.
+#[test]
+fn bench_names_the_cpu_it_measured_on() {
+    let dir = TempDir::new().unwrap();
+    let json = dir.path().join("b.json");
+    let ran = run_ok(
+        strata()
+            .args([
+                "bench", "overlap", "--runs", "1", "--warmup", "0", "-j", "1", "--json",
+            ])
+            .arg(&json),
+    );
+    let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let model = cpuinfo.lines().find_map(|l| {
+        l.strip_prefix("model name")?
+            .split_once(':')
+            .map(|(_, m)| m.trim())
+    });
+    let doc = read_json(&json);
+    let cpu = doc["cpu"].as_str().expect("cpu in the JSON");
+    if let Some(model) = model {
+        assert!(cpu.starts_with(model), "{cpu} vs {model}");
+    }
+    assert!(ran.stdout.matches(cpu).count() >= 2, "{}", ran.stdout);
+    assert_eq!(doc["reference_figures"], serde_json::json!([]));
+    assert!(!ran.stdout.contains("reference figures"), "{}", ran.stdout);
+}
+
+/// `strata methods` says how faithful each method is and which options it reads.
+#[test]
+fn methods_lists_fidelity_and_options() {
+    let ran = run_ok(strata().arg("methods"));
+    let lines: Vec<&str> = ran.stdout.lines().collect();
+    let about = |name: &str| {
+        let i = lines
+            .iter()
+            .position(|l| l.split_whitespace().next() == Some(name))
+            .unwrap_or_else(|| panic!("{name} not listed:\n{}", ran.stdout));
+        lines[i + 1]
+    };
+    assert_mentions(
+        about("abuffer"),
+        &["exact", "bounded with a fixed --pool", "options: --pool"],
+    );
+    assert_mentions(about("kbuffer"), &["bounded", "options: --k --tail-blend"]);
+    assert_mentions(
+        about("wboit"),
+        &[
+            "approximate (weighted blend; keeps no fragments)",
+            "options: none",
+        ],
+    );
+    assert_mentions(
+        about("depth-peeling"),
+        &["exact", "bounded with --max-layers above 0"],
+    );
+    assert_mentions(
+        about("vkbuffer"),
+        &[
+            "--budget",
+            "--k-from",
+            "--range-bias",
+            "--point-of-interest",
+        ],
+    );
+    // Sources are cited by author and year, not by internal shorthand.
+    let tfss = lines
+        .iter()
+        .find(|l| l.starts_with("tfss "))
+        .expect("tfss listed");
+    assert_mentions(tfss, &["Lin 2007"]);
+    assert!(
+        !ran.stdout.to_lowercase().contains("seed 0"),
+        "{}",
+        ran.stdout
+    );
+}

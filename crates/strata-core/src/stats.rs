@@ -1,4 +1,5 @@
-//! Depth-complexity statistics: how many fragments each pixel holds.
+//! Depth-complexity statistics (how many fragments each pixel holds), and the median every
+//! report of timings and sizes uses.
 
 /// A histogram of per-pixel fragment counts and the figures derived from it.
 ///
@@ -99,9 +100,32 @@ impl DepthStats {
     }
 }
 
+/// The median of the finite values among `values` (NaN and infinities are skipped): the middle
+/// one of an odd count, the mean of the two middle ones of an even count; `None` if there are
+/// no finite values.
+pub fn median(values: impl IntoIterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2]),
+        _ => Some((v[n / 2 - 1] + v[n / 2]) / 2.0),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn median_of_odd_and_even_counts_skipping_non_finite_values() {
+        assert_eq!(median([3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median([4.0, 1.0, 3.0, 2.0]), Some(2.5));
+        assert_eq!(median([f64::NAN, 5.0, f64::INFINITY, 1.0]), Some(3.0));
+        assert_eq!(median([f64::NAN]), None);
+        assert_eq!(median(Vec::new()), None);
+    }
 
     #[test]
     fn figures_from_counts() {

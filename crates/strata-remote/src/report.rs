@@ -97,15 +97,10 @@ pub struct NodeIncident {
     pub what: String,
 }
 
-/// The median of `v` (0 when empty).
-pub fn median(mut v: Vec<f64>) -> f64 {
-    v.retain(|x| x.is_finite());
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => 0.0,
-        n if n % 2 == 1 => v[n / 2],
-        n => (v[n / 2 - 1] + v[n / 2]) / 2.0,
-    }
+/// The median of the finite values of `v` (0 when there are none); see
+/// [`strata_core::stats::median`].
+pub fn median(v: Vec<f64>) -> f64 {
+    strata_core::stats::median(v).unwrap_or(0.0)
 }
 
 /// A whole run.

@@ -41,5 +41,10 @@ pub mod tfss;
 pub mod wf;
 
 pub use method::{CaptureReport, FrameResult, Method, PixelMap, StoreError, render_frame};
-pub use options::{Budget, ImportanceParams, KFrom, MethodOptions, PoolCapacity};
-pub use registry::{METHODS, MethodInfo, UnknownMethod, create};
+pub use options::{
+    BadValue, Budget, ImportanceParams, KFrom, MethodOptions, OptionError, PoolCapacity,
+};
+pub use registry::{
+    CheckError, Fidelity, METHODS, MethodInfo, OptionNotTaken, UnknownMethod, check_option, create,
+    exact_methods, find, methods_taking,
+};

@@ -1,4 +1,172 @@
 //! What configures the methods: one options struct, parsed once, read by each method.
+//!
+//! Every option has one name (`k`, `budget`, `point-of-interest`, …) used both on the command
+//! line (`--k`, `--budget`) and in method specs (`kbuffer:k=8`), and one parse function that
+//! range-checks it ([`parse_k`], [`parse_range_bias`], …, and `FromStr` for [`PoolCapacity`],
+//! [`Budget`] and [`KFrom`]). The command line's argument parser and [`MethodOptions::set`] call
+//! the same functions, so both forms accept exactly the same values. Which method reads which
+//! option is the registry's business ([`crate::registry::check_option`]).
+
+/// What an option accepts, when a value is outside it: the message says what is expected, and
+/// the caller adds which option and which value (`--alpha 2`, `alpha=2`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("expected {expected}")]
+pub struct BadValue {
+    /// What the option accepts, in words.
+    pub expected: &'static str,
+}
+
+/// Why [`MethodOptions::set`] refused an option.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum OptionError {
+    /// No option has this name.
+    #[error("unknown option '{option}' (known: {})", OPTION_NAMES.join(", "))]
+    Unknown {
+        /// The name given.
+        option: String,
+    },
+    /// The option takes a value and was given none.
+    #[error("{option} needs a value ({option}=…)")]
+    MissingValue {
+        /// The option.
+        option: &'static str,
+    },
+    /// The value is not one the option accepts.
+    #[error("{option}={value}: {reason}")]
+    BadValue {
+        /// The option.
+        option: &'static str,
+        /// The value given.
+        value: String,
+        /// What it accepts.
+        reason: BadValue,
+    },
+}
+
+/// Every option's name, as `--name` on the command line and `name=value` in a method spec.
+pub const OPTION_NAMES: &[&str] = &[
+    "pool",
+    "array-size",
+    "k",
+    "tail-blend",
+    "budget",
+    "k-from",
+    "periphery-exponent",
+    "range-bias",
+    "n-limit",
+    "noise",
+    "point-of-interest",
+    "seed",
+    "l-num",
+    "leading-zeros",
+    "max-layers",
+];
+
+/// The largest `k` and array size a store accepts: more than any pixel of the built-in scenes or
+/// the real meshes holds, and small enough that `k × pixels` slots stay allocatable.
+pub const MAX_FRAGMENTS_PER_PIXEL: u32 = 1024;
+
+/// A whole number in `min..=max`.
+fn whole(s: &str, min: u64, max: u64, expected: &'static str) -> Result<u64, BadValue> {
+    match s.trim().replace('_', "").parse::<u64>() {
+        Ok(n) if (min..=max).contains(&n) => Ok(n),
+        _ => Err(BadValue { expected }),
+    }
+}
+
+/// A finite number in `range` (which may be open at either end through `lo_open`).
+fn real(s: &str, lo: f64, hi: f64, lo_open: bool, expected: &'static str) -> Result<f64, BadValue> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v <= hi && (v > lo || (!lo_open && v == lo)) => Ok(v),
+        _ => Err(BadValue { expected }),
+    }
+}
+
+/// `array-size`: fragments per pixel of the fixed-array A-buffer, 1 to 1024.
+pub fn parse_array_size(s: &str) -> Result<u32, BadValue> {
+    let n = whole(
+        s,
+        1,
+        MAX_FRAGMENTS_PER_PIXEL.into(),
+        "a whole number from 1 to 1024",
+    )?;
+    Ok(n as u32)
+}
+
+/// `k`: fragments per pixel of the k-buffer, 1 to 1024.
+pub fn parse_k(s: &str) -> Result<u32, BadValue> {
+    let n = whole(
+        s,
+        1,
+        MAX_FRAGMENTS_PER_PIXEL.into(),
+        "a whole number from 1 to 1024",
+    )?;
+    Ok(n as u32)
+}
+
+/// `l-num`: fragments per T-buffer section of TFSS, 1 to 64.
+pub fn parse_l_num(s: &str) -> Result<u32, BadValue> {
+    let n = whole(
+        s,
+        1,
+        crate::tfss::MAX_L_NUM.into(),
+        "a whole number from 1 to 64",
+    )?;
+    Ok(n as u32)
+}
+
+/// `max-layers`: layers depth peeling peels at most; 0 peels until nothing is left.
+pub fn parse_max_layers(s: &str) -> Result<u32, BadValue> {
+    let expected = "a whole number (0: until nothing is left)";
+    Ok(whole(s, 0, u32::MAX.into(), expected)? as u32)
+}
+
+/// `periphery-exponent`: the importance fall-off exponent `d`, a positive number up to 64.
+pub fn parse_periphery_exponent(s: &str) -> Result<f64, BadValue> {
+    real(s, 0.0, 64.0, true, "a number greater than 0 and at most 64")
+}
+
+/// `range-bias`: the depth-complexity range bias `α`, in `[0, 1]`.
+pub fn parse_range_bias(s: &str) -> Result<f64, BadValue> {
+    real(s, 0.0, 1.0, false, "a number in [0, 1]")
+}
+
+/// `noise`: the noise level `λ`, in `[0, 1]` (the importance without noise is in `[0, 1]` too).
+pub fn parse_noise(s: &str) -> Result<f64, BadValue> {
+    real(s, 0.0, 1.0, false, "a number in [0, 1]")
+}
+
+/// `n-limit`: the layer count of full importance, at least 1.
+pub fn parse_n_limit(s: &str) -> Result<u32, BadValue> {
+    Ok(whole(s, 1, u32::MAX.into(), "a whole number of at least 1")? as u32)
+}
+
+/// `seed`: the seed of the importance noise, any whole number.
+pub fn parse_seed(s: &str) -> Result<u64, BadValue> {
+    whole(s, 0, u64::MAX, "a whole number")
+}
+
+/// `point-of-interest`: `x,y` as fractions of the image width and height, each in `[0, 1]`.
+pub fn parse_point_of_interest(s: &str) -> Result<[f64; 2], BadValue> {
+    let expected = "x,y fractions of the image, each in [0, 1], such as 0.5,0.5";
+    let (x, y) = s.split_once(',').ok_or(BadValue { expected })?;
+    Ok([
+        real(x, 0.0, 1.0, false, expected)?,
+        real(y, 0.0, 1.0, false, expected)?,
+    ])
+}
+
+/// A flag's value in a method spec: none (`kbuffer:tail-blend`) is `true`.
+pub fn parse_flag(s: Option<&str>) -> Result<bool, BadValue> {
+    match s.map(str::trim) {
+        None | Some("true" | "yes" | "on" | "1") => Ok(true),
+        Some("false" | "no" | "off" | "0") => Ok(false),
+        Some(_) => Err(BadValue {
+            expected: "true or false",
+        }),
+    }
+}
 
 /// How many fragment nodes a pool-based store (the linked list) allocates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -13,27 +181,26 @@ pub enum PoolCapacity {
 }
 
 impl std::str::FromStr for PoolCapacity {
-    type Err = String;
+    type Err = BadValue;
 
-    /// `auto`, `<k>x` (a multiple of the pixel count) or a number of fragments.
-    fn from_str(s: &str) -> Result<Self, String> {
+    /// `auto`, `<k>x` (a positive multiple of the pixel count) or a number of fragments.
+    fn from_str(s: &str) -> Result<Self, BadValue> {
+        let bad = BadValue {
+            expected: "auto, a positive multiple of the pixel count (4x) or a number of fragments",
+        };
         let s = s.trim();
         if s.eq_ignore_ascii_case("auto") {
             return Ok(PoolCapacity::Auto);
         }
         if let Some(k) = s.strip_suffix(['x', 'X']) {
-            return match k.parse::<f64>() {
+            return match k.trim().parse::<f64>() {
                 Ok(k) if k > 0.0 && k.is_finite() => Ok(PoolCapacity::PerPixel(k)),
-                _ => Err(format!(
-                    "'{s}': expected a positive multiple of the pixel count such as 4x"
-                )),
+                _ => Err(bad),
             };
         }
         match s.replace('_', "").parse::<u64>() {
             Ok(n) if n > 0 => Ok(PoolCapacity::Fragments(n)),
-            _ => Err(format!(
-                "'{s}': expected auto, a multiple of the pixel count (4x) or a number of fragments"
-            )),
+            _ => Err(bad),
         }
     }
 }
@@ -67,35 +234,26 @@ impl Budget {
 }
 
 impl std::str::FromStr for Budget {
-    type Err = String;
+    type Err = BadValue;
 
-    /// `50%`, `2x`, `20MB` / `20MiB` / `1GB` / `1GiB`, or a number of fragments.
-    fn from_str(s: &str) -> Result<Self, String> {
+    /// `50%` (more than 0 and at most 100 %), `2x`, `20MB` / `20MiB` / `1GB` / `1GiB`, or a
+    /// number of fragments.
+    fn from_str(s: &str) -> Result<Self, BadValue> {
         let t = s.trim();
-        let bad = || {
-            format!(
-                "'{t}': expected a share of the frame's fragments (50%), an average per pixel (2x), \
-                 bytes (20MB, 16MiB) or a number of fragments"
-            )
+        let bad = || BadValue {
+            expected: "a share of the frame's fragments above 0 % and up to 100 % (50%), an \
+                       average per pixel (2x), bytes (20MB, 16MiB) or a number of fragments",
         };
         let positive = |v: f64| (v > 0.0 && v.is_finite()).then_some(v);
+        let number = |v: &str| v.trim().parse::<f64>().ok().and_then(positive);
         if let Some(p) = t.strip_suffix('%') {
-            let v = p
-                .trim()
-                .parse::<f64>()
-                .ok()
-                .and_then(positive)
-                .ok_or_else(bad)?;
-            return Ok(Budget::SceneShare(v / 100.0));
+            return match number(p) {
+                Some(v) if v <= 100.0 => Ok(Budget::SceneShare(v / 100.0)),
+                _ => Err(bad()),
+            };
         }
         if let Some(k) = t.strip_suffix(['x', 'X']) {
-            return Ok(Budget::PerPixel(
-                k.trim()
-                    .parse::<f64>()
-                    .ok()
-                    .and_then(positive)
-                    .ok_or_else(bad)?,
-            ));
+            return number(k).map(Budget::PerPixel).ok_or_else(bad);
         }
         let lower = t.to_ascii_lowercase();
         for (suffix, unit) in [
@@ -107,12 +265,7 @@ impl std::str::FromStr for Budget {
             ("kb", 1_000),
         ] {
             if let Some(v) = lower.strip_suffix(suffix) {
-                let v = v
-                    .trim()
-                    .parse::<f64>()
-                    .ok()
-                    .and_then(positive)
-                    .ok_or_else(bad)?;
+                let v = number(v).ok_or_else(bad)?;
                 return Ok(Budget::Bytes((v * unit as f64) as u64));
             }
         }
@@ -134,13 +287,15 @@ pub enum KFrom {
 }
 
 impl std::str::FromStr for KFrom {
-    type Err = String;
+    type Err = BadValue;
 
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, BadValue> {
         match s.trim() {
             "importance" => Ok(KFrom::Importance),
             "optimal" => Ok(KFrom::Optimal),
-            other => Err(format!("'{other}': expected importance or optimal")),
+            _ => Err(BadValue {
+                expected: "importance or optimal",
+            }),
         }
     }
 }
@@ -222,48 +377,60 @@ impl Default for MethodOptions {
 }
 
 impl MethodOptions {
-    /// Sets one option by its command-line name (`k`, `budget`, `k-from`, `tail-blend`, …), as
-    /// method specs like `kbuffer:k=8` or `vkbuffer:budget=25%:k-from=optimal` write them. A flag
-    /// given without a value (`kbuffer:tail-blend`) is `true`.
-    pub fn set(&mut self, key: &str, value: Option<&str>) -> Result<(), String> {
-        fn num<T: std::str::FromStr>(key: &str, v: Option<&str>) -> Result<T, String> {
-            let v = v.ok_or_else(|| format!("{key} needs a value ({key}=…)"))?;
-            v.trim()
-                .parse()
-                .map_err(|_| format!("{key}={v}: not a valid number"))
-        }
-        fn flag(key: &str, v: Option<&str>) -> Result<bool, String> {
-            match v.map(str::trim) {
-                None | Some("true" | "yes" | "on" | "1") => Ok(true),
-                Some("false" | "no" | "off" | "0") => Ok(false),
-                Some(v) => Err(format!("{key}={v}: expected true or false")),
+    /// Sets one option by its name (`k`, `budget`, `k-from`, `tail-blend`, …; see
+    /// [`OPTION_NAMES`]), as method specs like `kbuffer:k=8` or `vkbuffer:budget=25%:k-from=optimal`
+    /// write them, checking its range as the command line does. A flag given without a value
+    /// (`kbuffer:tail-blend`) is `true`. Returns the option's name (the canonical one for the
+    /// short aliases `a`, `d` and `lambda`).
+    pub fn set(&mut self, key: &str, value: Option<&str>) -> Result<&'static str, OptionError> {
+        let option = canonical_name(key.trim()).ok_or_else(|| OptionError::Unknown {
+            option: key.trim().to_owned(),
+        })?;
+        let bad = |reason: BadValue| OptionError::BadValue {
+            option,
+            value: value.unwrap_or_default().to_owned(),
+            reason,
+        };
+        if matches!(option, "tail-blend" | "leading-zeros") {
+            let on = parse_flag(value).map_err(bad)?;
+            match option {
+                "tail-blend" => self.tail_blend = on,
+                _ => self.leading_zeros = on,
             }
+            return Ok(option);
         }
-        let val = |key: &str| value.ok_or_else(|| format!("{key} needs a value ({key}=…)"));
-        match key.trim() {
-            "pool" => self.pool = val(key)?.parse()?,
-            "array-size" | "a" => self.array_size = num(key, value)?,
-            "k" => self.k = num(key, value)?,
-            "tail-blend" => self.tail_blend = flag(key, value)?,
-            "budget" => self.budget = val(key)?.parse()?,
-            "k-from" => self.k_from = val(key)?.parse()?,
-            "periphery-exponent" | "d" => self.importance.periphery_exponent = num(key, value)?,
-            "alpha" => self.importance.alpha = num(key, value)?,
-            "n-limit" => self.importance.n_limit = Some(num(key, value)?),
-            "noise" | "lambda" => self.importance.noise = num(key, value)?,
-            "seed" => self.importance.seed = num(key, value)?,
-            "l-num" => self.l_num = num(key, value)?,
-            "leading-zeros" => self.leading_zeros = flag(key, value)?,
-            "max-layers" => self.max_layers = num(key, value)?,
-            other => {
-                return Err(format!(
-                    "unknown option '{other}' (known: pool, array-size, k, tail-blend, budget, k-from, \
-                     periphery-exponent, alpha, n-limit, noise, seed, l-num, leading-zeros, max-layers)"
-                ));
+        let v = value.ok_or(OptionError::MissingValue { option })?;
+        let i = &mut self.importance;
+        match option {
+            "pool" => self.pool = v.parse().map_err(bad)?,
+            "array-size" => self.array_size = parse_array_size(v).map_err(bad)?,
+            "k" => self.k = parse_k(v).map_err(bad)?,
+            "budget" => self.budget = v.parse().map_err(bad)?,
+            "k-from" => self.k_from = v.parse().map_err(bad)?,
+            "periphery-exponent" => {
+                i.periphery_exponent = parse_periphery_exponent(v).map_err(bad)?
             }
+            "range-bias" => i.alpha = parse_range_bias(v).map_err(bad)?,
+            "n-limit" => i.n_limit = Some(parse_n_limit(v).map_err(bad)?),
+            "noise" => i.noise = parse_noise(v).map_err(bad)?,
+            "point-of-interest" => i.point_of_interest = parse_point_of_interest(v).map_err(bad)?,
+            "seed" => i.seed = parse_seed(v).map_err(bad)?,
+            "l-num" => self.l_num = parse_l_num(v).map_err(bad)?,
+            _ => self.max_layers = parse_max_layers(v).map_err(bad)?,
         }
-        Ok(())
+        Ok(option)
     }
+}
+
+/// The option called `key`, by its name or a short alias (`a`, `d`, `lambda`, the seed's symbols).
+fn canonical_name(key: &str) -> Option<&'static str> {
+    let key = match key {
+        "a" => "array-size",
+        "d" => "periphery-exponent",
+        "lambda" => "noise",
+        other => other,
+    };
+    OPTION_NAMES.iter().copied().find(|&n| n == key)
 }
 
 #[cfg(test)]
@@ -288,7 +455,8 @@ mod tests {
         assert_eq!("20MB".parse(), Ok(Budget::Bytes(20_000_000)));
         assert_eq!("16 MiB".parse(), Ok(Budget::Bytes(16 << 20)));
         assert_eq!("1000".parse(), Ok(Budget::Fragments(1000)));
-        for bad in ["", "0%", "-1x", "MB", "lots", "0"] {
+        assert_eq!("100%".parse(), Ok(Budget::SceneShare(1.0)));
+        for bad in ["", "0%", "100.5%", "-1x", "MB", "lots", "0"] {
             assert!(bad.parse::<Budget>().is_err(), "{bad:?}");
         }
         assert_eq!(Budget::SceneShare(0.25).fragments(100, 1000), 250);
@@ -308,13 +476,73 @@ mod tests {
             (o.k, o.budget, o.k_from, o.tail_blend, o.leading_zeros),
             (8, Budget::SceneShare(0.25), KFrom::Optimal, true, false)
         );
-        assert!(o.set("k", Some("many")).unwrap_err().contains("k=many"));
-        assert!(o.set("k", None).is_err());
-        assert!(
-            o.set("colour", Some("red"))
-                .unwrap_err()
-                .contains("unknown option 'colour'")
+        let err = |o: &mut MethodOptions, k, v| o.set(k, v).unwrap_err().to_string();
+        assert_eq!(
+            err(&mut o, "k", Some("many")),
+            "k=many: expected a whole number from 1 to 1024"
         );
+        assert_eq!(err(&mut o, "k", None), "k needs a value (k=…)");
+        assert!(
+            err(&mut o, "colour", Some("red")).starts_with("unknown option 'colour' (known: pool,")
+        );
+        assert_eq!(o.set("lambda", Some("0.5")), Ok("noise"));
+        assert_eq!(o.importance.noise, 0.5);
+        o.set("point-of-interest", Some("0.25, 1")).unwrap();
+        assert_eq!(o.importance.point_of_interest, [0.25, 1.0]);
+    }
+
+    /// Every range the help promises is checked, with the value and the option in the message.
+    #[test]
+    fn out_of_range_values_are_refused() {
+        let mut o = MethodOptions::default();
+        for (key, value) in [
+            ("range-bias", "2"),
+            ("range-bias", "-0.1"),
+            ("range-bias", "NaN"),
+            ("noise", "-1"),
+            ("noise", "inf"),
+            ("point-of-interest", "5,5"),
+            ("point-of-interest", "0.5"),
+            ("point-of-interest", "0.5,-0.5"),
+            ("n-limit", "0"),
+            ("periphery-exponent", "0"),
+            ("periphery-exponent", "-2"),
+            ("k", "0"),
+            ("k", "1025"),
+            ("array-size", "0"),
+            ("l-num", "65"),
+            ("max-layers", "-1"),
+            ("budget", "150%"),
+            ("budget", "0x"),
+            ("pool", "0"),
+            ("k-from", "best"),
+            ("tail-blend", "maybe"),
+        ] {
+            let e = o.set(key, Some(value)).unwrap_err();
+            assert!(
+                matches!(&e, OptionError::BadValue { option, value: v, .. } if *option == key && v == value),
+                "{key}={value}: {e}"
+            );
+            assert!(
+                e.to_string()
+                    .starts_with(&format!("{key}={value}: expected ")),
+                "{e}"
+            );
+        }
+        assert_eq!(
+            o,
+            MethodOptions::default(),
+            "a refused value changes nothing"
+        );
+        for (key, value) in [
+            ("range-bias", "0"),
+            ("range-bias", "1"),
+            ("noise", "0"),
+            ("k", "1024"),
+            ("budget", "100%"),
+        ] {
+            o.set(key, Some(value)).unwrap();
+        }
     }
 
     #[test]

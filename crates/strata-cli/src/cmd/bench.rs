@@ -6,19 +6,23 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
+use strata_core::stats::median;
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::{FrameResult, render_frame};
 
 use crate::options::{
     MethodParams, check_output, default_threads, open_scene, search_path, thread_pool,
 };
-use crate::report::bytes_per_fragment;
+use crate::report::{bytes_per_fragment, cpu_model};
 
 /// Time each pass of a method on a scene: median, min and max over repeated runs.
 ///
 /// Every run is a full frame (clear, capture, resolve) with buffers reused from the previous run,
 /// as in an animation. Give several thread counts (`--threads 1,2`) to see the scaling. Timings are
-/// wall-clock on a possibly shared machine: compare medians from one invocation.
+/// wall-clock on a possibly shared machine, measured on the CPU named in the output: compare
+/// medians from one invocation. Where a figure measured elsewhere exists for the scene and method
+/// (the full dragon with abuffer), it is printed after the results as a reference, with the
+/// machine it comes from.
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
@@ -56,15 +60,34 @@ pub(crate) struct Args {
     pub(crate) json: Option<PathBuf>,
 }
 
-/// The anchors of DESIGN §4 that a benchmark prints its figures beside.
-fn anchor(scene: &str, method: &str) -> Option<(&'static str, f64)> {
-    match (scene, method) {
-        ("dragon", "abuffer") => Some((
-            "Mesa llvmpipe running the seed's GLSL linked-list shaders on this 2-core machine kind: \
-             ~240 ms capture + ~17 ms resolve",
-            257.0,
-        )),
-        _ => None,
+/// A figure measured elsewhere that a benchmark is printed beside, for scale: what ran, on which
+/// machine, and how long it took.
+struct ReferenceFigure {
+    what: &'static str,
+    cpu: &'static str,
+    ms: f64,
+}
+
+/// The reference figures for `method` on `scene` (width × height), if there are any: the
+/// linked-list A-buffer on the full dragon at 1280×720 as GLSL shaders on a software GPU.
+fn reference_figures(scene: &str, size: (u32, u32), method: &str) -> &'static [ReferenceFigure] {
+    const WHAT: &str = "the linked-list A-buffer GLSL shaders of the thesis strata follows, run by \
+                        Mesa llvmpipe (a software GPU driver), full dragon at 1280x720";
+    const DRAGON: &[ReferenceFigure] = &[
+        ReferenceFigure {
+            what: WHAT,
+            cpu: "AMD EPYC, 2 cores",
+            ms: 257.0,
+        },
+        ReferenceFigure {
+            what: WHAT,
+            cpu: "Intel Xeon, 2 cores",
+            ms: 347.0,
+        },
+    ];
+    match (scene, size, method) {
+        ("dragon", (1280, 720), "abuffer") => DRAGON,
+        _ => &[],
     }
 }
 
@@ -87,17 +110,12 @@ impl Samples {
     }
 }
 
-/// Median, min, max in milliseconds.
+/// Median, min, max in milliseconds (zeros for no samples).
 fn stats(v: &[Duration]) -> (f64, f64, f64) {
-    let mut ms: Vec<f64> = v.iter().map(|d| d.as_secs_f64() * 1e3).collect();
-    ms.sort_by(f64::total_cmp);
-    let n = ms.len();
-    let median = if n % 2 == 1 {
-        ms[n / 2]
-    } else {
-        (ms[n / 2 - 1] + ms[n / 2]) / 2.0
-    };
-    (median, ms[0], ms[n - 1])
+    let ms = || v.iter().map(|d| d.as_secs_f64() * 1e3);
+    let min = ms().reduce(f64::min).unwrap_or(0.0);
+    let max = ms().reduce(f64::max).unwrap_or(0.0);
+    (median(ms()).unwrap_or(0.0), min, max)
 }
 
 /// Runs `strata bench`.
@@ -117,14 +135,14 @@ pub(crate) fn run(args: Args) -> Result<()> {
     if let Some(path) = &args.json {
         check_output(path)?;
     }
+    let options = args.params.checked_for(&args.method)?;
+    let cpu = cpu_model();
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
-    let options = args.params.method_options();
-    strata_stores::create(&args.method, &options)?; // fail early on a bad name
 
     outln!(
-        "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up",
+        "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up; measured on {cpu}",
         scene.name,
         scene.triangle_count(),
         scene.width,
@@ -195,7 +213,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         )?;
         let fps = fragments as f64 / (total_med / 1e3);
         outln!(
-            "  {:.1} M fragments/s (fragments / median total)",
+            "  {:.1} M fragments/s (fragments / median total), on {cpu}",
             fps / 1e6
         )?;
         medians.push((n, total_med));
@@ -220,16 +238,20 @@ pub(crate) fn run(args: Args) -> Result<()> {
             .map(|&(n, t)| format!("{n} thread(s) {t:.2} ms ({:.2}x)", t0 / t))
             .collect();
         outln!(
-            "\nscaling (median total, relative to {n0} thread(s)): {}",
+            "\nscaling (median total, relative to {n0} thread(s)), on {cpu}: {}",
             parts.join(", ")
         )?;
     }
-    let anchor = anchor(&scene.name, &args.method);
-    if let (Some((text, anchor_ms)), Some(&(n, best))) = (anchor, medians.last()) {
+    let figures = reference_figures(&scene.name, (scene.width, scene.height), &args.method);
+    if let (Some(first), Some(&(n, best))) = (figures.first(), medians.last()) {
         outln!(
-            "\nanchor (DESIGN §4): {text} = {anchor_ms:.0} ms; strata with {n} thread(s): {best:.2} ms = {:.1}x faster",
-            anchor_ms / best
+            "\nreference figures, measured elsewhere and not by this run: {}:",
+            first.what
         )?;
+        for f in figures {
+            outln!("  {:.0} ms on {}", f.ms, f.cpu)?;
+        }
+        outln!("  strata, this run: {best:.2} ms with {n} thread(s) on {cpu}")?;
     }
     if let Some(path) = &args.json {
         let doc = json!({
@@ -241,11 +263,41 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "triangles": scene.triangle_count(),
             "runs": args.runs,
             "warmup": args.warmup,
+            "cpu": cpu,
             "results": per_threads,
-            "anchor_ms": anchor.map(|a| a.1),
+            "reference_figures": figures
+                .iter()
+                .map(|f| json!({"what": f.what, "cpu": f.cpu, "ms": f.ms, "measured_by_this_run": false}))
+                .collect::<Vec<_>>(),
         });
         std::fs::write(path, serde_json::to_string_pretty(&doc)? + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_figures_only_for_the_full_dragon_with_the_a_buffer() {
+        let f = reference_figures("dragon", (1280, 720), "abuffer");
+        let by_cpu: Vec<(&str, f64)> = f.iter().map(|f| (f.cpu, f.ms)).collect();
+        assert_eq!(
+            by_cpu,
+            [("AMD EPYC, 2 cores", 257.0), ("Intel Xeon, 2 cores", 347.0)]
+        );
+        assert!(f.iter().all(|f| f.what.contains("llvmpipe")));
+        assert!(reference_figures("dragon", (640, 360), "abuffer").is_empty());
+        assert!(reference_figures("dragon", (1280, 720), "sbuffer").is_empty());
+        assert!(reference_figures("bunny", (1280, 720), "abuffer").is_empty());
+    }
+
+    #[test]
+    fn stats_are_median_min_max_in_milliseconds() {
+        let d = |ms| Duration::from_millis(ms);
+        assert_eq!(stats(&[d(5), d(1), d(3), d(10)]), (4.0, 1.0, 10.0));
+        assert_eq!(stats(&[]), (0.0, 0.0, 0.0));
+    }
 }

@@ -16,9 +16,9 @@ use crate::options::{check_output, open_scene, search_path, thread_pool};
 ///
 /// Renders frames spread over the scene's animation with the A-buffer, encodes each DeepFrame
 /// with every codec, decodes it again and checks the round trip is bit-exact. Sizes are compared
-/// with 16 bytes per fragment (DESIGN §4's denominator: seed 000's 12-byte node padded to 16) and
-/// with the seed layout under LZ4 (seed 000 Table A.1). Times are medians over frames and runs,
-/// wall-clock on a possibly shared machine.
+/// with 16 bytes per fragment (a 12-byte fragment node padded to 16) and with the plain fragment
+/// layout under LZ4, the codec the original remote-rendering work used. Times are medians over
+/// frames and runs, wall-clock on a possibly shared machine, on the CPU named in the output.
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
@@ -60,15 +60,9 @@ struct Tally {
     sections: Vec<(&'static str, u64)>,
 }
 
+/// The median of `v` in milliseconds (0 for no samples).
 fn median_ms(v: &[Duration]) -> f64 {
-    let mut ms: Vec<f64> = v.iter().map(|d| d.as_secs_f64() * 1e3).collect();
-    ms.sort_by(f64::total_cmp);
-    let n = ms.len();
-    match n {
-        0 => 0.0,
-        _ if n % 2 == 1 => ms[n / 2],
-        _ => (ms[n / 2 - 1] + ms[n / 2]) / 2.0,
-    }
+    strata_core::stats::median(v.iter().map(|d| d.as_secs_f64() * 1e3)).unwrap_or(0.0)
 }
 
 /// `count` frames spread evenly over `0..total` (all of them when `count >= total`).
@@ -122,7 +116,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let options = DecodeOptions::default();
 
     outln!(
-        "strata codecs: {} ({} triangles, {}x{}), {} frame(s) {:?} rendered with abuffer, {} thread(s), {} run(s) each",
+        "strata codecs: {} ({} triangles, {}x{}), {} frame(s) {:?} rendered with abuffer, {} thread(s), {} run(s) each, on {}",
         scene.name,
         scene.triangle_count(),
         scene.width,
@@ -130,7 +124,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
         frames.len(),
         frames,
         threads,
-        args.runs
+        args.runs,
+        crate::report::cpu_model()
     )?;
     let mut tallies: Vec<Tally> = codecs
         .iter()
@@ -238,7 +233,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
         }));
     }
     outln!(
-        "\nanchor (DESIGN §4, seed 000 Table A.1): LZ4 kept 64–70 % of the seed's bytes; target: lossless codec ≤ 35 % of 16·N"
+        "\nfor scale: LZ4 on the plain layout kept 64–70 % of the bytes in the original remote-rendering \
+         work; strata's goal for a lossless codec is at most 35 % of 16·N"
     )?;
     if let Some(path) = &args.json {
         let doc = json!({
@@ -249,6 +245,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "frames": frames,
             "runs": args.runs,
             "threads": threads,
+            "cpu": crate::report::cpu_model(),
             "fragments_per_frame": fragments,
             "seed_lz4_bytes_per_frame": seed_lz4,
             "codecs": rows,

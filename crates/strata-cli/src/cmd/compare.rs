@@ -6,18 +6,22 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use strata_core::metrics::{self, BadPixels};
+use strata_core::stats::median;
 use strata_raster::{FrameInput, Rasterizer};
-use strata_stores::{FrameResult, MethodOptions, render_frame};
+use strata_stores::{Fidelity, FrameResult, MethodOptions, render_frame};
 
+use crate::flip;
 use crate::options::{MethodParams, open_scene, search_path, thread_pool};
-use crate::report::ms;
+use crate::report::{colour_bar_html, html_escape, ms};
 
-/// Render a scene with several methods and compare them with a reference, the way seed 001's
-/// demo application does: per-pass times, memory, fragments kept and lost, RMSE, mean FLIP and
+/// Render a scene with several methods and compare them with a reference: per-pass times, memory, fragments kept and lost, RMSE, mean FLIP and
 /// bad pixels, side by side with FLIP heat maps.
 ///
 /// A method may carry its own options after colons, overriding the method options given on the
 /// command line: `kbuffer:k=8`, `vkbuffer:budget=25%:k-from=optimal`, `kbuffer:k=2:tail-blend`.
+/// The values are checked as on the command line, and an option the method does not read is an
+/// error; a method option given on the command line applies to every method that reads it, and
+/// must be read by at least one of them.
 /// Writes OUT_DIR/report.json, report.md, report.html, one PNG per method and one FLIP heat map
 /// per method (`<name>-flip.png`), and prints the table.
 #[derive(clap::Args, Debug)]
@@ -29,7 +33,8 @@ pub(crate) struct Args {
     #[arg(long, value_delimiter = ',', required = true)]
     pub(crate) methods: Vec<String>,
 
-    /// The method whose image the others are measured against (an exact method).
+    /// The method whose image the others are measured against: an exact one (abuffer, sbuffer,
+    /// wf, tfss, depth-peeling, dual-depth-peeling; not with a fixed --pool or --max-layers).
     #[arg(long, default_value = "abuffer")]
     pub(crate) reference: String,
 
@@ -57,12 +62,12 @@ pub(crate) struct Args {
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
 
-    /// FLIP's pixels per degree (viewing distance and screen density).
-    #[arg(long, default_value_t = metrics::DEFAULT_PIXELS_PER_DEGREE)]
+    /// FLIP's pixels per degree (viewing distance and screen density), a positive number.
+    #[arg(long, default_value_t = flip::DEFAULT_PIXELS_PER_DEGREE, value_parser = parse_ppd)]
     pub(crate) ppd: f32,
 
     /// A pixel is bad if some channel differs from the reference by more than this many 8-bit
-    /// steps (DESIGN: 2).
+    /// steps.
     #[arg(long, default_value_t = metrics::DEFAULT_BAD_PIXEL_THRESHOLD)]
     pub(crate) threshold: u8,
 
@@ -75,24 +80,42 @@ struct Spec {
     label: String,
     method: String,
     options: MethodOptions,
+    fidelity: Fidelity,
     file: String,
 }
 
-/// `name[:key=value[:key]…]` on top of the command line's options.
+/// `--ppd`: a positive, finite number.
+fn parse_ppd(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err("expected a positive number of pixels per degree, such as 67".to_owned()),
+    }
+}
+
+/// `name[:key=value[:key]…]` on top of the command line's options; every option it sets must be
+/// one the method reads.
 fn parse_spec(spec: &str, base: &MethodOptions) -> Result<Spec> {
     let mut parts = spec.split(':');
     let method = parts.next().unwrap_or_default().trim().to_owned();
     if method.is_empty() {
         bail!("'{spec}': a method spec starts with the method's name (strata methods lists them)");
     }
+    let info = strata_stores::find(&method)?;
     let mut options = base.clone();
+    let mut set = Vec::new();
     for part in parts {
         let (key, value) = match part.split_once('=') {
             Some((k, v)) => (k, Some(v)),
             None => (part, None),
         };
-        options
+        let option = options
             .set(key, value)
+            .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
+        set.push((option, key.trim()));
+    }
+    // After every option is set: `k-from` decides whether the importance options are read.
+    for (option, shown) in set {
+        strata_stores::check_option(&method, option, shown, &options)
             .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
     }
     let file: String = spec
@@ -107,10 +130,56 @@ fn parse_spec(spec: &str, base: &MethodOptions) -> Result<Spec> {
         .collect();
     Ok(Spec {
         label: spec.trim().to_owned(),
+        fidelity: info.fidelity(&options),
         method,
         options,
         file,
     })
+}
+
+/// Refuses a method option the command line set that none of the compared methods (the
+/// reference included) reads under its own options.
+fn check_given_options(args: &Args, specs: &[Spec], base: &MethodOptions) -> Result<()> {
+    for &option in &args.params.given {
+        let read = |method: &str, options: &MethodOptions| {
+            strata_stores::check_option(method, option, option, options).is_ok()
+        };
+        if read(&args.reference, base) || specs.iter().any(|s| read(&s.method, &s.options)) {
+            continue;
+        }
+        let compared: Vec<&str> = specs.iter().map(|s| s.method.as_str()).collect();
+        bail!(
+            "--{option} is not an option of any method compared ({}, and the reference {}); the methods that take it: {}",
+            compared.join(", "),
+            args.reference,
+            strata_stores::methods_taking(option).join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// Refuses a reference that is not exact under the command line's options, naming the exact ones.
+fn check_reference(args: &Args, base: &MethodOptions) -> Result<()> {
+    let info = strata_stores::find(&args.reference)?;
+    let fidelity = info.fidelity(base);
+    if fidelity != Fidelity::Exact {
+        // Exact by default: the command line's options made it bounded (a fixed --pool, say).
+        let hint = if info.fidelity(&MethodOptions::default()) == Fidelity::Exact {
+            " (method options on the command line apply to the reference too; give them to a \
+             compared method in its spec instead, such as abuffer:pool=4x)"
+                .to_owned()
+        } else {
+            String::new()
+        };
+        bail!(
+            "--reference {}: the reference must be an exact method, and {} is {}; exact methods: {}{hint}",
+            info.name,
+            info.name,
+            fidelity.describe(),
+            strata_stores::exact_methods(base).join(", ")
+        );
+    }
+    Ok(())
 }
 
 /// What one method measured.
@@ -122,16 +191,6 @@ struct Measured {
     rmse: f64,
     flip: f64,
     bad: BadPixels,
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    }
 }
 
 /// Runs `strata compare`.
@@ -151,21 +210,21 @@ pub(crate) fn run(args: Args) -> Result<()> {
     }
     let mut seen = std::collections::HashSet::new();
     for s in &specs {
-        strata_stores::create(&s.method, &s.options)?;
         if !seen.insert(s.file.clone()) {
             bail!("'{}' is listed twice", s.label);
         }
     }
-    strata_stores::create(&args.reference, &base)?;
-    // Create the output folder before the (long) measuring, so a bad path fails at once.
-    let dir = &args.out_dir;
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-
+    check_reference(&args, &base)?;
+    check_given_options(&args, &specs, &base)?;
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
+    // Everything is checked; create the output folder before the (long) measuring, so a bad
+    // path fails at once.
+    let dir = &args.out_dir;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut raster = Rasterizer::default();
 
     eprintln!("reference: {} …", args.reference);
@@ -206,7 +265,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         }
         let last = last.context("no run")?;
         let rmse = metrics::rmse(&reference_image, &last.image)?;
-        let flip = metrics::flip(&reference_image, &last.image, args.ppd)?;
+        let flip = flip::flip(&reference_image, &last.image, args.ppd)?;
         let bad = metrics::bad_pixels(&reference_image, &last.image, args.threshold)?;
         last.image
             .write_png(dir.join(format!("{}.png", spec.file)))?;
@@ -216,9 +275,9 @@ pub(crate) fn run(args: Args) -> Result<()> {
             spec_index: i,
             passes: per_pass
                 .into_iter()
-                .map(|(n, mut v)| (n, median(&mut v)))
+                .map(|(n, v)| (n, median(v).unwrap_or(0.0)))
                 .collect(),
-            total_ms: median(&mut totals),
+            total_ms: median(totals).unwrap_or(0.0),
             last,
             rmse,
             flip: flip.mean,
@@ -273,7 +332,11 @@ fn cells(spec: &Spec, m: &Measured) -> [String; 11] {
         format!("{:.2}", pass(m, "resolve")),
         format!("{:.1}", mib(m.last.memory_bytes)),
         format!("{:.1}", mib(m.last.used_memory_bytes)),
-        c.fragments_stored.to_string(),
+        if spec.fidelity == Fidelity::Approximate {
+            "none (blended)".to_owned()
+        } else {
+            c.fragments_stored.to_string()
+        },
         c.dropped.to_string(),
         format!("{:.5}", m.rmse),
         format!("{:.5}", m.flip),
@@ -289,9 +352,10 @@ fn print_table(
     threads: usize,
 ) -> Result<()> {
     outln!(
-        "strata compare: {scene}, frame {}, {threads} thread(s), medians of {} runs; reference {}; \
+        "strata compare: {scene}, frame {}, {threads} thread(s) on {}, medians of {} runs; reference {}; \
          bad pixels: a channel off by more than {}/255; FLIP at {} pixels per degree",
         args.frame,
+        crate::report::cpu_model(),
         args.runs,
         args.reference,
         args.threshold,
@@ -351,6 +415,7 @@ fn report_json(
             json!({
                 "label": spec.label,
                 "method": spec.method,
+                "fidelity": spec.fidelity.describe(),
                 "passes_ms": Value::Object(passes),
                 "total_ms": m.total_ms,
                 "memory_bytes": m.last.memory_bytes,
@@ -379,6 +444,7 @@ fn report_json(
         "frame": args.frame,
         "triangles": scene.triangle_count(),
         "threads": threads,
+        "cpu": crate::report::cpu_model(),
         "runs": args.runs,
         "warmup": args.warmup,
         "reference": args.reference,
@@ -386,13 +452,6 @@ fn report_json(
         "pixels_per_degree": args.ppd,
         "methods": methods,
     })
-}
-
-fn html_escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
 }
 
 fn write_pages(
@@ -404,10 +463,17 @@ fn write_pages(
     threads: usize,
 ) -> Result<()> {
     let intro = format!(
-        "Scene {scene}, frame {}, {threads} thread(s), medians of {} timed runs after {} warm-up. \
+        "Scene {scene}, frame {}, {threads} thread(s) on {}, medians of {} timed runs after {} warm-up. \
          Errors against {} (reference.png): RMSE over RGB in [0, 1], mean FLIP at {} pixels per degree, \
-         bad pixels = a channel off by more than {}/255. \"lost\" counts fragments a method dropped or evicted.",
-        args.frame, args.runs, args.warmup, args.reference, args.ppd, args.threshold
+         bad pixels = a channel off by more than {}/255. \"lost\" counts fragments a method dropped or evicted; \
+         an approximate method (weighted blending) keeps no fragments, so it has none to count.",
+        args.frame,
+        crate::report::cpu_model(),
+        args.runs,
+        args.warmup,
+        args.reference,
+        args.ppd,
+        args.threshold
     );
     let mut md = String::new();
     writeln!(md, "# strata compare: {scene}\n\n{intro}\n")?;
@@ -416,7 +482,11 @@ fn write_pages(
     for m in measured {
         writeln!(md, "| {} |", cells(&specs[m.spec_index], m).join(" | "))?;
     }
-    writeln!(md)?;
+    writeln!(
+        md,
+        "\nFLIP heat maps use FLIP's magma colour map: black for no error, through purple and orange, \
+         to pale yellow for the largest error (1); report.html shows the colour bar.\n"
+    )?;
     for m in measured {
         let s = &specs[m.spec_index];
         writeln!(
@@ -451,14 +521,24 @@ fn write_pages(
     }
     writeln!(
         h,
-        "</table><div class=\"grid\"><figure><img src=\"reference.png\" alt=\"reference\"><figcaption><b>reference</b>: {}</figcaption></figure>",
+        "</table><p>FLIP heat maps (right of each image):</p>{}",
+        colour_bar_html(
+            "per-pixel FLIP error against the reference: 0 (identical) to 1 (most different)",
+            &flip::magma_stops(17),
+            &[0.0, 0.25, 0.5, 0.75, 1.0]
+        )
+    )?;
+    writeln!(
+        h,
+        "<div class=\"grid\"><figure><img src=\"reference.png\" alt=\"reference\"><figcaption><b>reference</b>: {}</figcaption></figure>",
         html_escape(&args.reference)
     )?;
     for m in measured {
         let s = &specs[m.spec_index];
         writeln!(
             h,
-            "<figure><img src=\"{f}.png\" alt=\"{l}\"><img src=\"{f}-flip.png\" alt=\"FLIP of {l}\"><figcaption><b>{l}</b>: RMSE {:.5}, mean FLIP {:.5}, {:.3} % bad pixels</figcaption></figure>",
+            "<figure><img src=\"{f}.png\" alt=\"{l}\"><img src=\"{f}-flip.png\" alt=\"FLIP of {l}\"><figcaption><b>{l}</b>, {}: RMSE {:.5}, mean FLIP {:.5}, {:.3} % bad pixels</figcaption></figure>",
+            s.fidelity.describe(),
             m.rmse,
             m.flip,
             100.0 * m.bad.share(),

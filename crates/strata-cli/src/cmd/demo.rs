@@ -7,10 +7,10 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::builtin;
-use strata_stores::render_frame;
+use strata_stores::{Fidelity, render_frame};
 
 use crate::options::{RenderOptions, thread_pool};
-use crate::report::{ms, stats_json, summary_line};
+use crate::report::{html_escape, ms, stats_json, summary_line};
 
 /// Render every built-in scene (and the Stanford/Khronos meshes when they are found) into a
 /// folder: one PNG and one statistics JSON per scene, and report.md / report.html showing them.
@@ -35,15 +35,36 @@ struct Row {
     memory: u64,
     capture_ms: f64,
     resolve_ms: f64,
-    deep_frame_ok: bool,
+    /// Whether the DeepFrame resolves to the image; `None` for a method that exports none.
+    deep_frame_ok: Option<bool>,
+}
+
+/// What the report says about the method: how faithful it is, and how it composites.
+fn method_sentence(method: &str, fidelity: Fidelity) -> String {
+    let how = match fidelity {
+        Fidelity::Exact => {
+            "every pixel keeps all its fragments, sorted and composited front to back with OVER"
+        }
+        Fidelity::Bounded => {
+            "every pixel keeps a limited number of its fragments, sorted and composited front to \
+             back with OVER; the fragments it could not keep are counted as lost"
+        }
+        Fidelity::Approximate => {
+            "every fragment is blended in with a weight instead of being sorted, and none is kept, \
+             so the fragments column counts none and there is no DeepFrame to check"
+        }
+    };
+    format!("Method {method}: {}: {how}.", fidelity.describe())
 }
 
 /// Runs `strata demo`.
 pub(crate) fn run(args: Args) -> Result<()> {
+    let options = args.render.checked_method_options()?;
+    let fidelity = strata_stores::find(&args.render.method)?.fidelity(&options);
+    let pool = thread_pool(args.render.threads)?;
     let dir = &args.out_dir;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let search = args.render.search_path();
-    let pool = thread_pool(args.render.threads)?;
     let threads = pool.current_num_threads();
     let mut raster = Rasterizer::default();
     let (available, skipped): (Vec<&builtin::BuiltinScene>, Vec<_>) =
@@ -54,14 +75,14 @@ pub(crate) fn run(args: Args) -> Result<()> {
         eprint!("[{}/{}] {}: loading… ", i + 1, available.len(), b.name);
         let scene = b.load(&search)?;
         eprint!("rendering… ");
-        let mut method = strata_stores::create(&args.render.method, &args.render.method_options())?;
+        let mut method = strata_stores::create(&args.render.method, &options)?;
         let input = FrameInput::from_scene(&scene, 0);
         let result =
             pool.install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))?;
         // Check the exchange format on every demo frame: the DeepFrame must resolve to the same image.
         let deep_frame_ok = match method.deep_frame() {
-            Some(df) => df?.resolve(scene.background) == result.image,
-            None => false,
+            Some(df) => Some(df?.resolve(scene.background) == result.image),
+            None => None,
         };
         let png = dir.join(format!("{}.png", b.name));
         result.image.write_png(&png)?;
@@ -91,8 +112,9 @@ pub(crate) fn run(args: Args) -> Result<()> {
         .iter()
         .map(|s| format!("{} (needs {})", s.name, s.meshes.join(", ")))
         .collect();
-    write_markdown(dir, &rows, &skipped, &args.render.method, threads)?;
-    write_html(dir, &rows, &skipped, &args.render.method, threads)?;
+    let about = method_sentence(&args.render.method, fidelity);
+    write_markdown(dir, &rows, &skipped, &about, threads)?;
+    write_html(dir, &rows, &skipped, &about, threads)?;
     eprintln!(
         "rendered {} scenes in {:.1} s into {}; open {}",
         rows.len(),
@@ -132,14 +154,22 @@ fn cells(r: &Row) -> [String; 10] {
     [
         r.name.to_owned(),
         r.triangles.to_string(),
-        r.fragments.to_string(),
+        match r.deep_frame_ok {
+            None if r.fragments == 0 => "none (blended)".to_owned(),
+            _ => r.fragments.to_string(),
+        },
         r.covered.to_string(),
         r.max_depth.to_string(),
         format!("{:.2}", r.mean_depth),
         format!("{:.1}", mib(r.memory)),
         format!("{:.2}", r.capture_ms),
         format!("{:.2}", r.resolve_ms),
-        (if r.deep_frame_ok { "yes" } else { "NO" }).to_owned(),
+        match r.deep_frame_ok {
+            Some(true) => "yes",
+            Some(false) => "NO",
+            None => "n/a (no DeepFrame)",
+        }
+        .to_owned(),
     ]
 }
 
@@ -147,15 +177,14 @@ fn write_markdown(
     dir: &std::path::Path,
     rows: &[Row],
     skipped: &[String],
-    method: &str,
+    about: &str,
     threads: usize,
 ) -> Result<()> {
     let mut md = String::new();
     writeln!(md, "# strata demo\n")?;
     writeln!(
         md,
-        "Method `{method}`, {threads} thread(s), frame 0 of each scene. Every pixel keeps all its fragments, \
-         sorted and composited front to back with OVER. Times are one run's wall clock (use `strata bench` for medians).\n"
+        "{about} {threads} thread(s), frame 0 of each scene. Times are one run's wall clock (use `strata bench` for medians).\n"
     )?;
     writeln!(md, "| {} |", COLUMNS.join(" | "))?;
     writeln!(
@@ -181,17 +210,11 @@ fn write_markdown(
         .with_context(|| format!("cannot write {}", dir.join("report.md").display()))
 }
 
-fn html_escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
 fn write_html(
     dir: &std::path::Path,
     rows: &[Row],
     skipped: &[String],
-    method: &str,
+    about: &str,
     threads: usize,
 ) -> Result<()> {
     let mut h = String::new();
@@ -206,8 +229,8 @@ fn write_html(
     writeln!(h, "</style></head><body><h1>strata demo</h1>")?;
     writeln!(
         h,
-        "<p>Method <code>{}</code>, {threads} thread(s), frame 0 of each scene. Every pixel keeps all its fragments, sorted and composited front to back with OVER. Times are one run's wall clock (use <code>strata bench</code> for medians).</p>",
-        html_escape(method)
+        "<p>{} {threads} thread(s), frame 0 of each scene. Times are one run's wall clock (use <code>strata bench</code> for medians).</p>",
+        html_escape(about)
     )?;
     writeln!(h, "<table><tr><th>{}</th></tr>", COLUMNS.join("</th><th>"))?;
     for r in rows {
@@ -219,9 +242,9 @@ fn write_html(
         writeln!(
             h,
             "<figure><img src=\"{0}.png\" alt=\"{0}\"><figcaption><b>{0}</b>: {1} ({2} fragments, depth up to {3}; <a href=\"{0}.json\">statistics</a>)</figcaption></figure>",
-            r.name,
+            html_escape(r.name),
             html_escape(r.description),
-            r.fragments,
+            cells(r)[2],
             r.max_depth
         )?;
     }

@@ -17,19 +17,19 @@ use strata_stores::{Method, MethodOptions, render_frame};
 
 use crate::options::{check_output, open_scene, search_path, thread_pool};
 
-/// The long `--help` of `strata tfss-sim`: what every column means, with the seed's sections.
+/// The long `--help` of `strata tfss-sim`: what every column means, with the thesis's sections.
 pub(crate) const LONG_ABOUT: &str =
-    "Reproduce seed 002's TFSS evaluation (Lin 2007, ch. 4) on a scene's frames.
+    "Reproduce the TFSS evaluation of Lin 2007 (ch. 4) on a scene's frames.
 
 Each frame is rendered with the exact linked-list A-buffer; its DeepFrame gives each pixel's
-fragments, which feed the seed's models (every fragment counts as transparent unless
+fragments, which feed the thesis's models (every fragment counts as transparent unless
 --opaque-split). Printed per frame:
 
 DISTRIBUTION (Table 4-1): `fragments` all fragments of the frame; `transparent` transparent
 fragments N_f; `per pixel` transparent fragments per pixel that has any; `density` transparent
 pixels over W·H; `N=i` pixels holding exactly i transparent fragments. Below it, `colour bits`:
 fragments whose colour keeps len = 0..8 bits per component after leading-zeros elimination
-(§3.3, our Figure 3-10), lossless and after the seed's lossy alpha shift.
+(§3.3, our Figure 3-10), lossless and after the thesis's lossy alpha shift.
 
 MEMORY (Table 4-2, Figures 4-3 to 4-6): `bytes` and `MiB` of each technique, `vs R-buffer` and
 `vs WF` the reduction rate 1 − bytes / theirs (positive: smaller), as Figures 4-4 and 4-6
@@ -38,7 +38,7 @@ print them. Rows: R-buffer = N_f·S_f + second z-buffer W·H·Z + 3-bit state me
 8·L·N_S + S_A·(W·H + N_S) with N_S = Σ⌈n_p/L⌉; TFSS(L, M) LZ = sections of M bytes holding L
 fragments with leading-zeros-eliminated colours, packed exactly as the store packs them from
 this frame's colours, M chosen as the cheapest, plus a 4-bit Length-table entry per slot;
-the `LZ+shift` rows add the seed's alpha shift, which is LOSSY — strata's store never applies
+the `LZ+shift` rows add the thesis's alpha shift, which is LOSSY — strata's store never applies
 it, it changes colours. Then strata's layouts: DeepFrame (offsets + 12-byte fragments), S-buffer
 regions (offsets + fill + 12-byte slots), linked list (heads + 16-byte nodes), compact runs
 (1-byte counts + an offset per 64 pixels + 8-byte fragments: no NSA, no half-empty sections;
@@ -54,20 +54,20 @@ left on every pass (Σ N_i·i(i+1)/2), the same for the second z-buffer, plus on
 access per fragment; WF and TFSS read each fragment once, TFSS plus one SSA read per pixel
 holding fragments. `computation`: Σ N_i·i(i+1)/2 for R-buffer, Σ N_i·(i(i−1)/2 + 1) for WF and
 TFSS. `cycles` = accesses + computation, with reduction rates. `store accesses`: the TFSS store
-flow's reads and writes per L (beyond the seed).
+flow's reads and writes per L (beyond the thesis).
 
 Sizes (bytes): S_f = 12 (x, y, z, RGBA), fragment 8 (z, RGBA), Z = 4, S_A = --address-bytes
-(4; the seed's own figures fit 2), state 3 bits, Length entry 4 bits. With --frames N, the
+(4; the thesis's own figures fit 2), state 3 bits, Length entry 4 bits. With --frames N, the
 averages over the frames follow (Figures 4-4, 4-6, 4-7 print averages).";
 
-/// Reproduce seed 002's TFSS evaluation on a scene's frames (see [`LONG_ABOUT`]).
+/// Reproduce the TFSS evaluation of Lin 2007 on a scene's frames (see [`LONG_ABOUT`]).
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
     pub(crate) scene: String,
 
     /// Evaluate N frames spread evenly over the animation (0, F/N, 2F/N, … of F frames), as the
-    /// seed dumps every 60th frame.
+    /// thesis dumps every 60th frame.
     #[arg(long, conflicts_with = "frame", value_parser = clap::value_parser!(u32).range(1..))]
     pub(crate) frames: Option<u32>,
 
@@ -75,11 +75,11 @@ pub(crate) struct Args {
     #[arg(long, default_value_t = 0)]
     pub(crate) frame: u32,
 
-    /// Evaluate TFSS with L_num = 1 ..= this (the seed evaluates 1 to 4).
+    /// Evaluate TFSS with L_num = 1 ..= this (the thesis evaluates 1 to 4).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub(crate) l_num_max: u32,
 
-    /// S_A: bytes of a section address in the seed's models (2 reproduces the seed's averages on
+    /// S_A: bytes of a section address in the thesis's models (2 reproduces the thesis's averages on
     /// its own frames; our 1280×720 frames need 4).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=8))]
     pub(crate) address_bytes: u64,
@@ -131,11 +131,11 @@ struct Row<'a> {
     memory: &'a Memory,
 }
 
-const SEED: &str = "seed 002 techniques (Table 4-2)";
+const SEED: &str = "Lin 2007 techniques (Table 4-2)";
 const SEED_LZ: &str =
     "TFSS(L_num, M_section) with leading-zeros elimination, colour lengths measured";
 const LOSSY: &str =
-    "  ... plus the seed's alpha shift (LOSSY: changes colours; never used by the store)";
+    "  ... plus the thesis's alpha shift (LOSSY: changes colours; never used by the store)";
 const STRATA: &str = "strata's layouts (12-byte fragments with object id)";
 const STRATA_TFSS: &str = "strata's TFSS store, by the model (used bytes)";
 const BETTER: &str = "a layout that beats TFSS (8-byte fragments, needs a counting pass)";
@@ -239,7 +239,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         Transparency::All
     };
     outln!(
-        "strata tfss-sim: {} ({}x{}, {} triangles), frame(s) {:?}, L_num 1..={}, S_A {} B, {} (seed 002 ch. 4)",
+        "strata tfss-sim: {} ({}x{}, {} triangles), frame(s) {:?}, L_num 1..={}, S_A {} B, {} (Lin 2007, ch. 4)",
         scene.name,
         scene.width,
         scene.height,
@@ -444,7 +444,7 @@ fn print_frame(frame: u32, e: &Evaluation, trace: &ColourTrace, store: &[StoreRu
         .map(|t| format!("L{} {}", t.l_num, t.store_accesses))
         .collect();
     outln!(
-        "  TFSS store-flow accesses (beyond the seed): {}",
+        "  TFSS store-flow accesses (beyond the thesis): {}",
         accesses.join(", ")
     )?;
     Ok(())
