@@ -1,15 +1,17 @@
 //! Nodes that misbehave: the display reports them, keeps composing with the others, never
-//! panics and never waits longer than its timeout.
+//! panics and never waits longer than its timeout — checked by counting what it did (frames
+//! composed, incidents, timeouts waited), not with a clock.
 
 use std::io::{Read, Write};
 use std::net::TcpListener;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use strata_remote::Transfer;
 use strata_remote::display::{self, DisplayConfig, OnFault};
 use strata_remote::node::{NodeConfig, serve};
 use strata_remote::reference::exact_image;
+use strata_remote::report::NodeStatus;
 use strata_scene::{Animation, Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
 use strata_wire::{
@@ -94,21 +96,47 @@ fn config(scene: &Arc<Scene>, nodes: Vec<String>, on_fault: OnFault) -> DisplayC
 }
 
 /// Runs the display against a real node and `bad`; returns the incidents' texts.
+///
+/// The display must not hang on a bad node: every frame is composed once, in order, and the bad
+/// node costs at most one wait of the timeout per frame (one "stalled" incident at most per
+/// frame), so the run's length is bounded by frames × timeout whatever the node does.
 fn run_against(bad: String, on_fault: OnFault) -> Vec<String> {
     let s = scene();
     let (good, _rt) = real_node(&s);
-    let start = Instant::now();
-    let r = display::run(config(&s, vec![good, bad], on_fault), &mut ()).unwrap();
-    assert!(
-        start.elapsed() < Duration::from_secs(20),
-        "the display must not hang on a bad node"
-    );
-    assert_eq!(r.per_frame.len(), 3, "every frame is composed");
+    let c = config(&s, vec![good, bad.clone()], on_fault);
+    let r = display::run(c.clone(), &mut ()).unwrap();
+    let frames: Vec<u64> = r.per_frame.iter().map(|f| f.frame).collect();
+    assert_eq!(frames, [0, 1, 2], "every frame is composed once, in order");
+    let missing = match on_fault {
+        OnFault::Hold => NodeStatus::Held,
+        OnFault::Drop => NodeStatus::Dropped,
+    };
     for f in &r.per_frame {
-        assert_eq!(f.nodes[0].status, "ok", "the good node keeps contributing");
+        assert_eq!(
+            f.nodes[0].status,
+            NodeStatus::Ok,
+            "the good node keeps contributing"
+        );
         assert!(f.nodes[0].fragments_sent > 0);
-        assert_ne!(f.nodes[1].status, "ok");
+        assert_eq!(f.nodes[1].status, missing);
     }
+    for t in 0..c.frames {
+        let waits = r
+            .incidents
+            .iter()
+            .filter(|i| i.frame == t && i.what.contains("stalled"))
+            .count();
+        assert!(
+            waits <= 1,
+            "frame {t}: waited {waits} times: {:?}",
+            r.incidents
+        );
+    }
+    assert!(
+        r.incidents.iter().all(|i| i.node == bad),
+        "only the bad node has incidents: {:?}",
+        r.incidents
+    );
     r.incidents.iter().map(|i| i.what.clone()).collect()
 }
 
@@ -332,7 +360,7 @@ fn a_diverged_reprojection_state_is_reported_and_the_node_starts_over_cleanly() 
     let back = r
         .per_frame
         .iter()
-        .rposition(|f| f.nodes[0].status != "ok")
+        .rposition(|f| f.nodes[0].status != NodeStatus::Ok)
         .expect("frame 3 was held")
         + 1;
     assert!(back < 48, "the node came back");

@@ -66,6 +66,8 @@ pub const MAGIC: [u8; 4] = *b"STRW";
 pub const VERSION: u16 = 1;
 /// Bytes in the prefix.
 pub const PREFIX_LEN: usize = 20;
+/// Offset of the prefix's `type` byte.
+pub const TYPE_OFFSET: usize = 6;
 /// Bytes of a frame message before its section table.
 pub const FRAME_HEADER_LEN: usize = 188;
 /// Bytes per section-table entry.
@@ -102,6 +104,15 @@ impl MessageType {
         };
         Err(WireError::UnsupportedMessageType { found: b, what })
     }
+}
+
+/// The type of the message `bytes` starts with, read from its prefix's `type` byte without
+/// checking anything else (`None` for a short prefix or an unknown type): what a writer that
+/// queued the message needs to know, not a decoder.
+pub fn message_type(bytes: &[u8]) -> Option<MessageType> {
+    bytes
+        .get(TYPE_OFFSET)
+        .and_then(|&b| MessageType::from_byte(b).ok())
 }
 
 /// What a decoder accepts; every limit is checked before the allocation it guards.
