@@ -7,6 +7,7 @@ use std::net::TcpListener;
 use std::sync::Arc;
 use std::time::Duration;
 
+use strata_core::DeepFrame;
 use strata_remote::Transfer;
 use strata_remote::display::{self, DisplayConfig, OnFault};
 use strata_remote::node::{NodeConfig, serve};
@@ -15,8 +16,8 @@ use strata_remote::report::NodeStatus;
 use strata_scene::{Animation, Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
 use strata_wire::{
-    Codec, DecodeOptions, Hello, MessageType, PREFIX_LEN, decode_frame, encode_reprojection_into,
-    parse_prefix,
+    Codec, DecodeOptions, FrameHeader, Hello, MessageType, PREFIX_LEN, decode_frame, encode_frame,
+    encode_reprojection_into, parse_prefix,
 };
 
 fn scene() -> Arc<Scene> {
@@ -156,11 +157,16 @@ fn garbage_mid_stream_is_reported() {
     let bad = fake_node(|mut s| {
         let mut buf = [0u8; 4096];
         let _ = s.read(&mut buf);
-        // A frame prefix announcing 64 bytes of body that are not a frame.
-        let mut msg = b"STRW\x01\x00\x01\x00".to_vec();
-        msg.extend_from_slice(&64u64.to_le_bytes());
-        msg.extend_from_slice(&[0; 4]);
-        msg.extend_from_slice(&[0xAB; 64]);
+        // A real frame message whose body is then spoiled: its prefix is fine, its checksum
+        // no longer matches.
+        let header = FrameHeader {
+            node_id: 1,
+            ..FrameHeader::default()
+        };
+        let mut msg = encode_frame(&header, &DeepFrame::empty(64, 36), Codec::Lz4).unwrap();
+        for b in &mut msg[PREFIX_LEN..] {
+            *b ^= 0xAB;
+        }
         let _ = s.write_all(&msg);
         // A stats message follows so the frame is decoded (and fails its checksum).
         let mut stats = Vec::new();
