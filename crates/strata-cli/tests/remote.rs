@@ -121,6 +121,10 @@ fn display_errors_are_clear() {
         (&["--frames", "0"], "--frames must be at least 1"),
         (&["--codec", "gzip"], "unknown codec"),
         (&["--timeout", "0"], "--timeout"),
+        (
+            &["--first-frame", "4294967295", "--frames", "2"],
+            "frame 4294967296 is beyond the last animation frame",
+        ),
     ];
     for (args, want) in cases {
         let out = strata()

@@ -39,7 +39,7 @@ use strata_wire::{
 };
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
-use tokio::net::tcp::OwnedReadHalf;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::sync::mpsc;
 use tokio::time::{timeout, timeout_at};
 
@@ -935,35 +935,10 @@ async fn link(
     // Report a failure to connect once, not on every retry.
     let mut announced = false;
     loop {
-        let connected = async {
-            let stream = timeout(wait, TcpStream::connect(&addr))
-                .await
-                .map_err(|_| format!("no connection within {:.1} s", wait.as_secs_f64()))?
-                .map_err(|e| format!("cannot connect: {e}"))?;
-            stream.set_nodelay(true).ok();
-            let (mut rd, wr) = stream.into_split();
-            let m = timeout(wait, read_message(&mut rd, &limits))
-                .await
-                .map_err(|_| "connected, but no hello from the node".to_string())?
-                .map_err(|e| format!("reading the hello: {e}"))?;
-            let hello = match m.kind {
-                MessageType::Hello => {
-                    Hello::decode(&m.bytes, &limits).map_err(|e| e.to_string())?
-                }
-                MessageType::Error => {
-                    return Err(format!(
-                        "node reported: {}",
-                        decode_error(&m.bytes, &limits).unwrap_or_else(|e| e.to_string())
-                    ));
-                }
-                k => return Err(format!("expected a hello, got a {k:?} message")),
-            };
-            Ok::<_, String>((rd, wr, hello))
-        }
-        .await;
+        let connected = connect(&addr, &limits, wait).await;
         let reason = match connected {
             Err(reason) => reason,
-            Ok((rd, mut wr, hello)) => {
+            Ok((rd, wr, hello)) => {
                 generation += 1;
                 announced = false;
                 backoff = Duration::from_millis(100);
@@ -974,38 +949,10 @@ async fn link(
                 {
                     return;
                 }
-                let (in_tx, mut in_rx) = mpsc::channel(4);
-                let reader = tokio::spawn(read_frames(rd, limits.clone(), in_tx));
-                let reason = loop {
-                    tokio::select! {
-                        cmd = cmds.recv() => match cmd {
-                            None => {
-                                reader.abort();
-                                wr.shutdown().await.ok();
-                                return;
-                            }
-                            Some(LinkCmd::Send(g, bytes)) if g == generation => {
-                                if let Err(e) = wr.write_all(&bytes).await {
-                                    break format!("sending a request: {e}");
-                                }
-                            }
-                            Some(LinkCmd::Send(..)) => {}
-                            Some(LinkCmd::Reconnect) => break "disconnected by the display".to_string(),
-                        },
-                        got = in_rx.recv() => match got {
-                            Some(Ok(a)) => {
-                                if events.send(LinkEvent::Arrived(node, generation, a)).await.is_err() {
-                                    reader.abort();
-                                    return;
-                                }
-                            }
-                            Some(Err(reason)) => break reason,
-                            None => break "the connection's reader stopped".to_string(),
-                        },
-                    }
-                };
-                reader.abort();
-                reason
+                match carry(node, generation, rd, wr, &mut cmds, &events, &limits).await {
+                    ConnectionEnd::Lost(reason) => reason,
+                    ConnectionEnd::Finished => return,
+                }
             }
         };
         if !announced {
@@ -1029,6 +976,91 @@ async fn link(
         }
         backoff = (backoff * 2).min(Duration::from_secs(2));
     }
+}
+
+/// How a link's connection ended.
+enum ConnectionEnd {
+    /// It was lost, for this reason: reconnect.
+    Lost(String),
+    /// The driver is done with the link.
+    Finished,
+}
+
+/// Writes the driver's requests for connection `generation` and hands the frames that arrive
+/// to the driver, until the connection is lost or the driver is done.
+async fn carry(
+    node: usize,
+    generation: u64,
+    rd: OwnedReadHalf,
+    mut wr: OwnedWriteHalf,
+    cmds: &mut mpsc::Receiver<LinkCmd>,
+    events: &mpsc::Sender<LinkEvent>,
+    limits: &DecodeOptions,
+) -> ConnectionEnd {
+    let (in_tx, mut in_rx) = mpsc::channel(4);
+    let reader = tokio::spawn(read_frames(rd, limits.clone(), in_tx));
+    let end = loop {
+        tokio::select! {
+            cmd = cmds.recv() => match cmd {
+                None => {
+                    // The node may already have closed its end; the run is over either way.
+                    let _ = wr.shutdown().await;
+                    break ConnectionEnd::Finished;
+                }
+                Some(LinkCmd::Send(g, bytes)) if g == generation => {
+                    if let Err(e) = wr.write_all(&bytes).await {
+                        break ConnectionEnd::Lost(format!("sending a request: {e}"));
+                    }
+                }
+                Some(LinkCmd::Send(..)) => {}
+                Some(LinkCmd::Reconnect) => {
+                    break ConnectionEnd::Lost("disconnected by the display".to_string());
+                }
+            },
+            got = in_rx.recv() => match got {
+                Some(Ok(a)) => {
+                    if events.send(LinkEvent::Arrived(node, generation, a)).await.is_err() {
+                        break ConnectionEnd::Finished;
+                    }
+                }
+                Some(Err(reason)) => break ConnectionEnd::Lost(reason),
+                None => break ConnectionEnd::Lost("the connection's reader stopped".to_string()),
+            },
+        }
+    };
+    reader.abort();
+    end
+}
+
+/// Connects to the node at `addr` and reads its hello, each within `wait`; the error says why
+/// the node cannot be used.
+async fn connect(
+    addr: &str,
+    limits: &DecodeOptions,
+    wait: Duration,
+) -> Result<(OwnedReadHalf, OwnedWriteHalf, Hello), String> {
+    let stream = timeout(wait, TcpStream::connect(addr))
+        .await
+        .map_err(|_| format!("no connection within {:.1} s", wait.as_secs_f64()))?
+        .map_err(|e| format!("cannot connect: {e}"))?;
+    // Only latency depends on it.
+    let _ = stream.set_nodelay(true);
+    let (mut rd, wr) = stream.into_split();
+    let m = timeout(wait, read_message(&mut rd, limits))
+        .await
+        .map_err(|_| "connected, but no hello from the node".to_string())?
+        .map_err(|e| format!("reading the hello: {e}"))?;
+    let hello = match m.kind {
+        MessageType::Hello => Hello::decode(&m.bytes, limits).map_err(|e| e.to_string())?,
+        MessageType::Error => {
+            return Err(format!(
+                "node reported: {}",
+                decode_error(&m.bytes, limits).unwrap_or_else(|e| e.to_string())
+            ));
+        }
+        k => return Err(format!("expected a hello, got a {k:?} message")),
+    };
+    Ok((rd, wr, hello))
 }
 
 /// Reads frame + stats message pairs and decodes them on the blocking pool, in order.

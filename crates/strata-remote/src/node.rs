@@ -25,10 +25,10 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use strata_core::{DeepFrame, ObjectId, PassTimings};
+use strata_core::{DeepFrame, DeepFrameError, ObjectId, PassTimings};
 use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
-use strata_stores::{Method, MethodOptions};
+use strata_stores::{Method, MethodOptions, StoreError};
 use strata_wire::{
     DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
     TransferMethod, WireError, encode_delta_into, encode_error_into, encode_frame_into,
@@ -39,11 +39,11 @@ use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 
-use crate::animation_frame;
 use crate::difference::DiffEncoder;
-use crate::reprojection::{ReprojEncoder, View};
+use crate::reprojection::{ReprojEncoder, TooDeep, View};
 use crate::select::{depth_limit, restrict};
 use crate::stream::{ReadError, read_message};
+use crate::{FrameOutOfRange, animation_frame};
 
 /// Stores that keep every fragment whatever its colour bytes hold: the ones a node can render
 /// normal fragments with (the others read alpha, which a packed normal does not have, or drop
@@ -452,72 +452,100 @@ async fn serve_requests(
     }
 }
 
+/// Sends `text` to the display as an error message (after which the writer closes the
+/// connection).
+fn send_error(out: &mpsc::Sender<Vec<u8>>, text: &str) {
+    let mut bytes = Vec::new();
+    encode_error_into(&mut bytes, &format!("render node: {text}"));
+    // A closed channel means the connection is already over.
+    let _ = out.blocking_send(bytes);
+}
+
+/// Why a frame could not be rendered.
+#[derive(Debug, thiserror::Error)]
+enum RenderError {
+    /// The frame number cannot pose the scene.
+    #[error(transparent)]
+    Frame(#[from] FrameOutOfRange),
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// Reprojection: the store lost fragments.
+    #[error(
+        "the store dropped {0} fragments; the reprojection transfer needs every one (use a \
+         growing pool: --pool auto)"
+    )]
+    Dropped(u64),
+    /// The store's fragments do not form a DeepFrame.
+    #[error(transparent)]
+    DeepFrame(#[from] DeepFrameError),
+    /// The store keeps no fragment lists.
+    #[error("method '{0}' exports no DeepFrame")]
+    NoDeepFrame(String),
+}
+
+/// Renders each requested frame with the node's store and hands it to the encode thread.
 fn render_thread(
     config: NodeConfig,
     mut jobs: mpsc::Receiver<RenderJob>,
     encode: mpsc::Sender<EncodeJob>,
     out: mpsc::Sender<Vec<u8>>,
 ) {
-    let fail = |e: String| {
-        let mut bytes = Vec::new();
-        encode_error_into(&mut bytes, &format!("render node: {e}"));
-        // A closed channel means the connection is already over.
-        let _ = out.blocking_send(bytes);
-    };
     let mut method = match config.store() {
         Ok(m) => m,
-        Err(e) => return fail(e.to_string()),
+        Err(e) => return send_error(&out, &e.to_string()),
     };
     let mut raster = Rasterizer::default();
     while let Some(RenderJob { request }) = jobs.blocking_recv() {
         let start = Instant::now();
-        let pose = match animation_frame(request.frame_number) {
-            Ok(p) => p,
-            Err(e) => return fail(e.to_string()),
-        };
-        let mut input = FrameInput::from_scene(&config.scene, pose);
-        input.objects.retain(|o| config.objects.contains(&o.id));
-        input.width = request.width;
-        input.height = request.height;
-        input.view = glam::Mat4::from_cols_array(&request.view);
-        input.projection = glam::Mat4::from_cols_array(&request.projection);
-        if request.transfer == TransferMethod::Reprojection {
-            input.output = FragmentOutput::PackedNormal;
-        }
-        let frame = method
-            .clear(input.width, input.height)
-            .and_then(|()| method.capture(&mut raster, &input, &mut PassTimings::new()))
-            .map_err(|e| e.to_string())
-            .and_then(|report| {
-                // Reprojection: the display must be able to hold exactly what was rendered.
-                if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
-                    return Err(format!(
-                        "the store dropped {} fragments; the reprojection transfer needs every \
-                         one (use a growing pool: --pool auto)",
-                        report.dropped
-                    ));
-                }
-                Ok(())
-            })
-            .and_then(|()| match method.deep_frame() {
-                Some(Ok(f)) => Ok(f),
-                Some(Err(e)) => Err(e.to_string()),
-                None => Err(format!("method '{}' exports no DeepFrame", config.method)),
+        let rendered = animation_frame(request.frame_number)
+            .map_err(RenderError::from)
+            .and_then(|pose| {
+                render(&config, method.as_mut(), &mut raster, &request, pose).map(|f| (pose, f))
             });
-        match frame {
-            Ok(frame) => {
-                let job = EncodeJob {
-                    request,
-                    pose,
-                    frame,
-                    render_us: start.elapsed().as_micros() as u64,
-                };
-                if encode.blocking_send(job).is_err() {
-                    return;
-                }
-            }
-            Err(e) => return fail(format!("frame {}: {e}", request.frame_number)),
+        let (pose, frame) = match rendered {
+            Ok(r) => r,
+            Err(e) => return send_error(&out, &format!("frame {}: {e}", request.frame_number)),
+        };
+        let job = EncodeJob {
+            request,
+            pose,
+            frame,
+            render_us: start.elapsed().as_micros() as u64,
+        };
+        if encode.blocking_send(job).is_err() {
+            return;
         }
+    }
+}
+
+/// Renders the node's objects posed at `pose` with the request's camera and size: clear,
+/// capture, export the DeepFrame.
+fn render(
+    config: &NodeConfig,
+    method: &mut dyn Method,
+    raster: &mut Rasterizer,
+    request: &Request,
+    pose: u32,
+) -> Result<DeepFrame, RenderError> {
+    let mut input = FrameInput::from_scene(&config.scene, pose);
+    input.objects.retain(|o| config.objects.contains(&o.id));
+    input.width = request.width;
+    input.height = request.height;
+    input.view = glam::Mat4::from_cols_array(&request.view);
+    input.projection = glam::Mat4::from_cols_array(&request.projection);
+    if request.transfer == TransferMethod::Reprojection {
+        input.output = FragmentOutput::PackedNormal;
+    }
+    method.clear(input.width, input.height)?;
+    let report = method.capture(raster, &input, &mut PassTimings::new())?;
+    // Reprojection: the display must be able to hold exactly what was rendered.
+    if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
+        return Err(RenderError::Dropped(report.dropped));
+    }
+    match method.deep_frame() {
+        Some(f) => Ok(f?),
+        None => Err(RenderError::NoDeepFrame(config.method.clone())),
     }
 }
 
@@ -532,6 +560,117 @@ fn header_for(request: &Request, fixup: bool) -> FrameHeader {
     }
 }
 
+/// Why a frame could not be encoded.
+#[derive(Debug, thiserror::Error)]
+enum EncodeError {
+    /// The wire encoder refused it.
+    #[error(transparent)]
+    Wire(#[from] WireError),
+    /// The reprojection delta does not fit the wire format.
+    #[error(transparent)]
+    Reprojection(#[from] TooDeep),
+}
+
+/// The encode thread's state across frames: what the difference and reprojection transfers
+/// remember of the frames before.
+struct Encoders {
+    background: [f32; 3],
+    diff: DiffEncoder,
+    reproj: ReprojEncoder,
+}
+
+/// What selecting and encoding one frame did.
+struct Encoded {
+    /// Fragments in the message.
+    sent: u64,
+    select_us: u64,
+    encode_us: u64,
+}
+
+/// Selects fragments of `frame` with the request's transfer and encodes them into `bytes`.
+fn select_and_encode(
+    enc: &mut Encoders,
+    config: &NodeConfig,
+    request: &Request,
+    pose: u32,
+    frame: &Arc<DeepFrame>,
+    bytes: &mut Vec<u8>,
+) -> Result<Encoded, EncodeError> {
+    let header = header_for(request, false);
+    let reset = matches!(request.kind, RequestKind::Render { reset: true });
+    let select_start = Instant::now();
+    let micros = |t: Instant| t.elapsed().as_micros() as u64;
+    match request.transfer {
+        TransferMethod::Difference => {
+            if reset {
+                enc.diff = DiffEncoder::new(enc.background, request.tolerance);
+            }
+            let d = enc.diff.diff(frame.clone());
+            let select_us = micros(select_start);
+            let t = Instant::now();
+            encode_delta_into(bytes, &header, &d.changed, &d.stale, &d.runs, request.codec)?;
+            Ok(Encoded {
+                sent: d.runs.fragment_count() as u64,
+                select_us,
+                encode_us: micros(t),
+            })
+        }
+        TransferMethod::DepthLimited {
+            layers,
+            opacity_threshold,
+        } => {
+            let chosen = depth_limit(frame, layers, opacity_threshold);
+            let select_us = micros(select_start);
+            let t = Instant::now();
+            encode_frame_into(bytes, &header, &chosen, request.codec)?;
+            Ok(Encoded {
+                sent: chosen.fragment_count() as u64,
+                select_us,
+                encode_us: micros(t),
+            })
+        }
+        TransferMethod::Reprojection => {
+            if reset {
+                enc.reproj = ReprojEncoder::new(request.tolerance);
+            }
+            let view = View::new(
+                &config.scene,
+                &config.objects,
+                pose,
+                (request.width, request.height),
+                glam::Mat4::from_cols_array(&request.view),
+                glam::Mat4::from_cols_array(&request.projection),
+            );
+            let d = enc.reproj.encode(&view, frame)?;
+            let select_us = micros(select_start);
+            let t = Instant::now();
+            encode_reprojection_into(
+                bytes,
+                &header,
+                &d.touched,
+                &d.removals,
+                &d.inserts,
+                request.codec,
+            )?;
+            Ok(Encoded {
+                sent: d.inserts.fragment_count() as u64,
+                select_us,
+                encode_us: micros(t),
+            })
+        }
+        TransferMethod::Full => {
+            let t = Instant::now();
+            encode_frame_into(bytes, &header, frame, request.codec)?;
+            Ok(Encoded {
+                sent: frame.fragment_count() as u64,
+                select_us: 0,
+                encode_us: micros(t),
+            })
+        }
+    }
+}
+
+/// Selects, encodes and sends each rendered frame with its stats, and keeps it for fixups.
 fn encode_thread(
     config: NodeConfig,
     mut jobs: mpsc::Receiver<EncodeJob>,
@@ -539,8 +678,11 @@ fn encode_thread(
     recent: Recent,
 ) {
     let background = config.scene.background;
-    let mut diff = DiffEncoder::new(background, 0);
-    let mut reproj = ReprojEncoder::new(0);
+    let mut enc = Encoders {
+        background,
+        diff: DiffEncoder::new(background, 0),
+        reproj: ReprojEncoder::new(0),
+    };
     while let Some(EncodeJob {
         request,
         pose,
@@ -549,101 +691,20 @@ fn encode_thread(
     }) = jobs.blocking_recv()
     {
         let frame = Arc::new(frame);
-        let pixels = u64::from(request.width) * u64::from(request.height);
-        let rendered = frame.fragment_count() as u64;
-        let header = header_for(&request, false);
         let mut bytes = Vec::new();
-        let select_start = Instant::now();
-        let (sent, select_us, encode_us, result) = match request.transfer {
-            TransferMethod::Difference => {
-                if matches!(request.kind, RequestKind::Render { reset: true }) {
-                    diff = DiffEncoder::new(background, request.tolerance);
-                }
-                let d = diff.diff(frame.clone());
-                let select_us = select_start.elapsed().as_micros() as u64;
-                let t = Instant::now();
-                let r = encode_delta_into(
-                    &mut bytes,
-                    &header,
-                    &d.changed,
-                    &d.stale,
-                    &d.runs,
-                    request.codec,
-                );
-                (
-                    d.runs.fragment_count() as u64,
-                    select_us,
-                    t.elapsed().as_micros() as u64,
-                    r,
-                )
-            }
-            TransferMethod::DepthLimited {
-                layers,
-                opacity_threshold,
-            } => {
-                let chosen = depth_limit(&frame, layers, opacity_threshold);
-                let select_us = select_start.elapsed().as_micros() as u64;
-                let t = Instant::now();
-                let r = encode_frame_into(&mut bytes, &header, &chosen, request.codec);
-                (
-                    chosen.fragment_count() as u64,
-                    select_us,
-                    t.elapsed().as_micros() as u64,
-                    r,
-                )
-            }
-            TransferMethod::Reprojection => {
-                if matches!(request.kind, RequestKind::Render { reset: true }) {
-                    reproj = ReprojEncoder::new(request.tolerance);
-                }
-                let view = View::new(
-                    &config.scene,
-                    &config.objects,
-                    pose,
-                    (request.width, request.height),
-                    glam::Mat4::from_cols_array(&request.view),
-                    glam::Mat4::from_cols_array(&request.projection),
-                );
-                match reproj.encode(&view, &frame) {
-                    Ok(d) => {
-                        let select_us = select_start.elapsed().as_micros() as u64;
-                        let t = Instant::now();
-                        let r = encode_reprojection_into(
-                            &mut bytes,
-                            &header,
-                            &d.touched,
-                            &d.removals,
-                            &d.inserts,
-                            request.codec,
-                        );
-                        (
-                            d.inserts.fragment_count() as u64,
-                            select_us,
-                            t.elapsed().as_micros() as u64,
-                            r,
-                        )
-                    }
-                    Err(e) => (0, 0, 0, Err(WireError::Encode(e.to_string()))),
-                }
-            }
-            TransferMethod::Full => {
-                let t = Instant::now();
-                let r = encode_frame_into(&mut bytes, &header, &frame, request.codec);
-                (rendered, 0, t.elapsed().as_micros() as u64, r)
+        let encoded = match select_and_encode(&mut enc, &config, &request, pose, &frame, &mut bytes)
+        {
+            Ok(e) => e,
+            Err(e) => {
+                let text = format!("encoding frame {}: {e}", request.frame_number);
+                return send_error(&out, &text);
             }
         };
-        if let Err(e) = result {
-            encode_error_into(
-                &mut bytes,
-                &format!("render node: encoding frame {}: {e}", request.frame_number),
-            );
-            // A closed channel means the connection is already over.
-            let _ = out.blocking_send(bytes);
-            return;
-        }
+        let pixels = u64::from(request.width) * u64::from(request.height);
+        let sent = encoded.sent;
         let stats = NodeStats {
             frame_number: request.frame_number,
-            fragments_rendered: rendered,
+            fragments_rendered: frame.fragment_count() as u64,
             fragments_sent: sent,
             // The seed's layout: 4-byte heads, 12-byte colour or 24-byte normal fragments.
             raw_bytes: if request.transfer == TransferMethod::Reprojection {
@@ -652,22 +713,25 @@ fn encode_thread(
                 seed_layout_bytes(pixels, sent)
             },
             render_us,
-            select_us,
-            encode_us,
+            select_us: encoded.select_us,
+            encode_us: encoded.encode_us,
             fixup: false,
         };
         append_stats(&mut bytes, &stats);
-        {
-            let mut r = recent.lock().unwrap_or_else(|e| e.into_inner());
-            if r.len() == RECENT_FRAMES {
-                r.pop_front();
-            }
-            r.push_back((request.frame_number, frame));
-        }
+        keep_recent(&recent, request.frame_number, frame);
         if out.blocking_send(bytes).is_err() {
             return;
         }
     }
+}
+
+/// Keeps `frame` among the recent frames fixup requests are answered from.
+fn keep_recent(recent: &Recent, frame_number: u64, frame: Arc<DeepFrame>) {
+    let mut r = recent.lock().unwrap_or_else(|e| e.into_inner());
+    if r.len() == RECENT_FRAMES {
+        r.pop_front();
+    }
+    r.push_back((frame_number, frame));
 }
 
 fn append_stats(bytes: &mut Vec<u8>, stats: &NodeStats) {

@@ -9,15 +9,15 @@ use std::time::Duration;
 
 use strata_core::DeepFrame;
 use strata_remote::Transfer;
-use strata_remote::display::{self, DisplayConfig, OnFault};
+use strata_remote::display::{self, AddressError, DisplayConfig, DisplayError, OnFault};
 use strata_remote::node::{NodeConfig, serve};
 use strata_remote::reference::exact_image;
 use strata_remote::report::NodeStatus;
 use strata_scene::{Animation, Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
 use strata_wire::{
-    Codec, DecodeOptions, FrameHeader, Hello, MessageType, PREFIX_LEN, decode_frame, encode_frame,
-    encode_reprojection_into, parse_prefix,
+    Codec, DecodeOptions, FrameHeader, Hello, MessageType, PREFIX_LEN, Request, RequestKind,
+    decode_error, decode_frame, encode_frame, encode_reprojection_into, parse_prefix,
 };
 
 fn scene() -> Arc<Scene> {
@@ -238,13 +238,33 @@ fn a_node_serving_another_scene_is_left_out() {
 fn bad_configurations_are_errors() {
     let s = scene();
     let mut c = config(&s, vec![], OnFault::Hold);
-    assert!(display::run(c.clone(), &mut ()).is_err());
+    let run = |c: &DisplayConfig| display::run(c.clone(), &mut ()).map(|_| ());
+    assert!(matches!(run(&c), Err(DisplayError::NoNodes)));
+    c.nodes = vec!["127.0.0.1:1".into(), "127.0.0.1".into()];
+    assert!(matches!(
+        run(&c),
+        Err(DisplayError::Address(AddressError::NoPort(a))) if a == "127.0.0.1"
+    ));
     c.nodes = vec!["127.0.0.1:1".into()];
     c.width = 0;
-    assert!(display::run(c.clone(), &mut ()).is_err());
+    assert!(matches!(run(&c), Err(DisplayError::EmptyFrame)));
     c.width = 64;
     c.in_flight = 0;
-    assert!(display::run(c, &mut ()).is_err());
+    assert!(matches!(run(&c), Err(DisplayError::InFlight)));
+    c.in_flight = 2;
+    // Frames 2^32 - 1 and 2^32: the second cannot pose the scene, and is refused, not clamped.
+    c.first_frame = u64::from(u32::MAX);
+    c.frames = 2;
+    let e = run(&c).unwrap_err();
+    assert!(
+        matches!(&e, DisplayError::FrameRange { source, .. } if source.0 == 1 << 32),
+        "{e}"
+    );
+    c.frames = 1;
+    assert!(
+        !matches!(run(&c), Err(DisplayError::FrameRange { .. })),
+        "the last frame that poses the scene is fine"
+    );
     let bad = NodeConfig {
         scene: s.clone(),
         objects: vec![],
@@ -382,4 +402,44 @@ fn a_diverged_reprojection_state_is_reported_and_the_node_starts_over_cleanly() 
             .unwrap_or(0);
         assert!(worst <= 2, "frame {f}: off by {worst}");
     }
+}
+
+#[test]
+fn a_node_refuses_a_frame_number_it_cannot_pose_instead_of_clamping_it() {
+    let s = scene();
+    let (addr, _rt) = real_node(&s);
+    let mut c = std::net::TcpStream::connect(&addr).unwrap();
+    let limits = DecodeOptions::default();
+    let read = |c: &mut std::net::TcpStream| {
+        let mut msg = vec![0u8; PREFIX_LEN];
+        c.read_exact(&mut msg).unwrap();
+        let prefix = parse_prefix(&msg, &limits).unwrap();
+        let mut body = vec![0u8; prefix.body_len as usize];
+        c.read_exact(&mut body).unwrap();
+        msg.extend_from_slice(&body);
+        (prefix.kind, msg)
+    };
+    assert_eq!(read(&mut c).0, MessageType::Hello);
+    let request = Request {
+        frame_number: 1 << 32,
+        node_id: 0,
+        width: 16,
+        height: 9,
+        view: s.camera.view().to_cols_array(),
+        projection: s.camera.projection(16, 9).to_cols_array(),
+        transfer: Transfer::Full,
+        codec: Codec::Lz4,
+        kind: RequestKind::Render { reset: true },
+        tolerance: 0,
+    };
+    let mut bytes = Vec::new();
+    request.encode_into(&mut bytes).unwrap();
+    c.write_all(&bytes).unwrap();
+    let (kind, msg) = read(&mut c);
+    assert_eq!(kind, MessageType::Error, "no frame for 2^32");
+    let text = decode_error(&msg, &limits).unwrap();
+    assert!(
+        text.contains("frame 4294967296 is beyond the last animation frame"),
+        "{text}"
+    );
 }
