@@ -281,7 +281,7 @@ struct Arrival {
 /// Events from links to the driver.
 enum LinkEvent {
     Up(usize, u64, Hello),
-    Down(usize, u64, String),
+    Down(usize, u64, LinkError),
     Arrived(usize, u64, Box<Arrival>),
 }
 
@@ -981,7 +981,7 @@ async fn link(
 /// How a link's connection ended.
 enum ConnectionEnd {
     /// It was lost, for this reason: reconnect.
-    Lost(String),
+    Lost(LinkError),
     /// The driver is done with the link.
     Finished,
 }
@@ -1009,12 +1009,12 @@ async fn carry(
                 }
                 Some(LinkCmd::Send(g, bytes)) if g == generation => {
                     if let Err(e) = wr.write_all(&bytes).await {
-                        break ConnectionEnd::Lost(format!("sending a request: {e}"));
+                        break ConnectionEnd::Lost(LinkError::Send(e));
                     }
                 }
                 Some(LinkCmd::Send(..)) => {}
                 Some(LinkCmd::Reconnect) => {
-                    break ConnectionEnd::Lost("disconnected by the display".to_string());
+                    break ConnectionEnd::Lost(LinkError::Disconnected);
                 }
             },
             got = in_rx.recv() => match got {
@@ -1024,12 +1024,59 @@ async fn carry(
                     }
                 }
                 Some(Err(reason)) => break ConnectionEnd::Lost(reason),
-                None => break ConnectionEnd::Lost("the connection's reader stopped".to_string()),
+                None => break ConnectionEnd::Lost(LinkError::ReaderStopped),
             },
         }
     };
     reader.abort();
     end
+}
+
+/// Why a link lost (or never got) its connection; reported as "down: …".
+#[derive(Debug, thiserror::Error)]
+enum LinkError {
+    #[error("no connection within {0:.1} s")]
+    ConnectTimeout(f64),
+    #[error("cannot connect: {0}")]
+    Connect(#[source] std::io::Error),
+    #[error("connected, but no hello from the node")]
+    NoHello,
+    #[error("reading the hello: {0}")]
+    ReadHello(#[source] ReadError),
+    #[error("{0}")]
+    Hello(#[source] strata_wire::WireError),
+    #[error("expected a hello, got a {0:?} message")]
+    NotAHello(MessageType),
+    /// The node's error message, as it wrote it.
+    #[error("node reported: {0}")]
+    NodeReported(String),
+    #[error("sending a request: {0}")]
+    Send(#[source] std::io::Error),
+    #[error("disconnected by the display")]
+    Disconnected,
+    #[error("the connection's reader stopped")]
+    ReaderStopped,
+    #[error("the node closed the connection")]
+    Closed,
+    #[error("reading from the node: {0}")]
+    Read(#[source] ReadError),
+    #[error("expected the frame's stats, got a {0:?} message")]
+    NoStats(MessageType),
+    #[error("reading the frame's stats: {0}")]
+    ReadStats(#[source] ReadError),
+    #[error("malformed stats: {0}")]
+    Stats(#[source] strata_wire::WireError),
+    #[error("sent a frame that does not decode: {0}")]
+    Decode(#[source] strata_wire::WireError),
+    #[error("unexpected {0:?} message from a node")]
+    Unexpected(MessageType),
+    #[error("the frame decoder failed: {0}")]
+    Decoder(#[source] tokio::task::JoinError),
+}
+
+/// The text of a node's error message (or why it does not decode).
+fn node_reported(bytes: &[u8], limits: &DecodeOptions) -> LinkError {
+    LinkError::NodeReported(decode_error(bytes, limits).unwrap_or_else(|e| e.to_string()))
 }
 
 /// Connects to the node at `addr` and reads its hello, each within `wait`; the error says why
@@ -1038,116 +1085,113 @@ async fn connect(
     addr: &str,
     limits: &DecodeOptions,
     wait: Duration,
-) -> Result<(OwnedReadHalf, OwnedWriteHalf, Hello), String> {
+) -> Result<(OwnedReadHalf, OwnedWriteHalf, Hello), LinkError> {
     let stream = timeout(wait, TcpStream::connect(addr))
         .await
-        .map_err(|_| format!("no connection within {:.1} s", wait.as_secs_f64()))?
-        .map_err(|e| format!("cannot connect: {e}"))?;
+        .map_err(|_| LinkError::ConnectTimeout(wait.as_secs_f64()))?
+        .map_err(LinkError::Connect)?;
     // Only latency depends on it.
     let _ = stream.set_nodelay(true);
     let (mut rd, wr) = stream.into_split();
     let m = timeout(wait, read_message(&mut rd, limits))
         .await
-        .map_err(|_| "connected, but no hello from the node".to_string())?
-        .map_err(|e| format!("reading the hello: {e}"))?;
+        .map_err(|_| LinkError::NoHello)?
+        .map_err(LinkError::ReadHello)?;
     let hello = match m.kind {
-        MessageType::Hello => Hello::decode(&m.bytes, limits).map_err(|e| e.to_string())?,
-        MessageType::Error => {
-            return Err(format!(
-                "node reported: {}",
-                decode_error(&m.bytes, limits).unwrap_or_else(|e| e.to_string())
-            ));
-        }
-        k => return Err(format!("expected a hello, got a {k:?} message")),
+        MessageType::Hello => Hello::decode(&m.bytes, limits).map_err(LinkError::Hello)?,
+        MessageType::Error => return Err(node_reported(&m.bytes, limits)),
+        k => return Err(LinkError::NotAHello(k)),
     };
     Ok((rd, wr, hello))
 }
+
+/// A frame message's bytes, the stats that followed it, and how long both bodies took to
+/// arrive.
+type RawFrame = (Vec<u8>, NodeStats, Duration);
 
 /// Reads frame + stats message pairs and decodes them on the blocking pool, in order.
 async fn read_frames(
     mut rd: OwnedReadHalf,
     limits: DecodeOptions,
-    out: mpsc::Sender<Result<Box<Arrival>, String>>,
+    out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
 ) {
-    let (raw_tx, mut raw_rx) = mpsc::channel::<(Vec<u8>, NodeStats, Duration)>(2);
-    let decoder = {
-        let limits = limits.clone();
-        let out = out.clone();
-        tokio::spawn(async move {
-            while let Some((bytes, stats, transfer)) = raw_rx.recv().await {
-                let limits = limits.clone();
-                let len = bytes.len() as u64;
-                let start = Instant::now();
-                let decoded =
-                    tokio::task::spawn_blocking(move || decode_frame(&bytes, &limits)).await;
-                let decode = start.elapsed();
-                let item = match decoded {
-                    Ok(Ok(msg)) => Ok(Box::new(Arrival {
-                        msg,
-                        stats,
-                        bytes: len,
-                        transfer,
-                        decode,
-                    })),
-                    Ok(Err(e)) => Err(format!("sent a frame that does not decode: {e}")),
-                    Err(e) => Err(format!("decoding failed: {e}")),
-                };
-                let failed = item.is_err();
-                if out.send(item).await.is_err() || failed {
-                    return;
+    let (raw_tx, raw_rx) = mpsc::channel::<RawFrame>(2);
+    let decoder = tokio::spawn(decode_frames(raw_rx, limits.clone(), out.clone()));
+    let failed = loop {
+        match read_frame_and_stats(&mut rd, &limits).await {
+            Ok(raw) => {
+                if raw_tx.send(raw).await.is_err() {
+                    break None;
                 }
             }
-        })
-    };
-    let fail = |reason: String| {
-        let out = out.clone();
-        async move {
-            // A closed channel means the link has moved on: nobody is left to tell.
-            let _ = out.send(Err(reason)).await;
+            Err(e) => break Some(e),
         }
     };
-    loop {
-        let m = match read_message(&mut rd, &limits).await {
-            Ok(m) => m,
-            Err(ReadError::Closed) => break fail("the node closed the connection".into()).await,
-            Err(e) => break fail(format!("reading from the node: {e}")).await,
-        };
-        match m.kind {
-            MessageType::Frame => {
-                let s = match read_message(&mut rd, &limits).await {
-                    Ok(s) if s.kind == MessageType::Stats => s,
-                    Ok(s) => {
-                        break fail(format!(
-                            "expected the frame's stats, got a {:?} message",
-                            s.kind
-                        ))
-                        .await;
-                    }
-                    Err(e) => break fail(format!("reading the frame's stats: {e}")).await,
-                };
-                let stats = match NodeStats::decode(&s.bytes, &limits) {
-                    Ok(st) => st,
-                    Err(e) => break fail(format!("malformed stats: {e}")).await,
-                };
-                let transfer = m.body_time + s.body_time;
-                if raw_tx.send((m.bytes, stats, transfer)).await.is_err() {
-                    break;
-                }
-            }
-            MessageType::Error => {
-                let text = decode_error(&m.bytes, &limits).unwrap_or_else(|e| e.to_string());
-                break fail(format!("node reported: {text}")).await;
-            }
-            k => break fail(format!("unexpected {k:?} message from a node")).await,
-        }
-    }
     drop(raw_tx);
-    if let Err(e) = decoder.await
-        && e.is_panic()
-    {
-        let _ = out
-            .send(Err(format!("the frame decoder failed: {e}")))
-            .await;
+    // The decoder reports what it decoded before the reader's failure.
+    let failed = match decoder.await {
+        Err(e) if e.is_panic() => Some(LinkError::Decoder(e)),
+        _ => failed,
+    };
+    if let Some(e) = failed {
+        // A closed channel means the link has moved on: nobody is left to tell.
+        let _ = out.send(Err(e)).await;
+    }
+}
+
+/// Reads the next frame message and the stats message that follows it.
+async fn read_frame_and_stats(
+    rd: &mut OwnedReadHalf,
+    limits: &DecodeOptions,
+) -> Result<RawFrame, LinkError> {
+    let m = match read_message(rd, limits).await {
+        Ok(m) => m,
+        Err(ReadError::Closed) => return Err(LinkError::Closed),
+        Err(e) => return Err(LinkError::Read(e)),
+    };
+    match m.kind {
+        MessageType::Frame => {}
+        MessageType::Error => return Err(node_reported(&m.bytes, limits)),
+        k => return Err(LinkError::Unexpected(k)),
+    }
+    let s = read_message(rd, limits)
+        .await
+        .map_err(LinkError::ReadStats)?;
+    if s.kind != MessageType::Stats {
+        return Err(LinkError::NoStats(s.kind));
+    }
+    let stats = NodeStats::decode(&s.bytes, limits).map_err(LinkError::Stats)?;
+    Ok((m.bytes, stats, m.body_time + s.body_time))
+}
+
+/// Decodes each frame on the blocking pool, in order, and hands it on; stops at the first
+/// frame that does not decode.
+async fn decode_frames(
+    mut raw: mpsc::Receiver<RawFrame>,
+    limits: DecodeOptions,
+    out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
+) {
+    while let Some((bytes, stats, transfer)) = raw.recv().await {
+        let limits = limits.clone();
+        let len = bytes.len() as u64;
+        let start = Instant::now();
+        let decoded = tokio::task::spawn_blocking(move || decode_frame(&bytes, &limits)).await;
+        let decode = start.elapsed();
+        let item = match decoded {
+            Ok(Ok(msg)) => Ok(Box::new(Arrival {
+                msg,
+                stats,
+                bytes: len,
+                transfer,
+                decode,
+            })),
+            Ok(Err(e)) => Err(LinkError::Decode(e)),
+            Err(e) => Err(LinkError::Decoder(e)),
+        };
+        let failed = item.is_err();
+        if out.send(item).await.is_err() || failed {
+            return;
+        }
     }
 }
 
