@@ -201,8 +201,14 @@ fn assert_no_figures(stdout: &str, json: &Value) {
 
 #[test]
 fn no_node_listening_is_a_failed_run() {
+    // A port that was free a moment ago: nothing listens on it.
+    let nobody = TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .to_string();
     let dir = TempDir::new().unwrap();
-    let out = display("spheres", "127.0.0.1:9", "2", "0.5", &dir);
+    let out = display("spheres", &nobody, "2", "0.5", &dir);
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
@@ -211,7 +217,7 @@ fn no_node_listening_is_a_failed_run() {
         "{stderr}"
     );
     assert!(
-        stderr.contains("127.0.0.1:9: frame 0: down: cannot connect"),
+        stderr.contains(&format!("{nobody}: frame 0: down: cannot connect")),
         "{stderr}"
     );
     assert!(
