@@ -559,20 +559,12 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
                 "a difference frame holds at most 2^32 - 1 pixels",
             )
         })?;
-    let (changed, stale, removals, sections) = match parsed.info.header.transfer {
-        TransferMethod::Difference => {
-            let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
-            let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
-            (Some(mask), Some(stale), None, &parsed.sections[2..])
-        }
-        TransferMethod::Reprojection => {
-            let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
-            let removals =
-                Removals::decode(&decoded.remove(0), parsed.sections[1].offset, mask.len())?;
-            (Some(mask), None, Some(removals), &parsed.sections[2..])
-        }
-        _ => (None, None, None, &parsed.sections[..]),
-    };
+    let (side, sections) = decode_side_sections(&parsed, &mut decoded, pixels)?;
+    let SideSections {
+        changed,
+        stale,
+        removals,
+    } = side;
     let frame = codec::decode_sections(
         parsed.info.codec,
         parsed.info.width,
@@ -599,6 +591,48 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
         stale,
         removals,
     })
+}
+
+/// What a difference or reprojection frame carries before the codec's sections.
+#[derive(Default)]
+struct SideSections {
+    changed: Option<PixelMask>,
+    stale: Option<PixelMask>,
+    removals: Option<Removals>,
+}
+
+/// Decodes the difference transfer's `mask` and `stale` or the reprojection transfer's `mask`
+/// and `removals` (taking them from the front of `decoded`); returns them with the codec's
+/// sections that follow.
+fn decode_side_sections<'p, 'a>(
+    parsed: &'p ParsedFrame<'a>,
+    decoded: &mut Vec<Vec<u8>>,
+    pixels: u32,
+) -> Result<(SideSections, &'p [SectionRef<'a>]), WireError> {
+    let at = |i: usize| parsed.sections[i].offset;
+    match parsed.info.header.transfer {
+        TransferMethod::Difference => {
+            let mask = PixelMask::decode(&decoded.remove(0), at(0), pixels)?;
+            let stale = PixelMask::decode(&decoded.remove(0), at(1), pixels)?;
+            let side = SideSections {
+                changed: Some(mask),
+                stale: Some(stale),
+                removals: None,
+            };
+            Ok((side, &parsed.sections[2..]))
+        }
+        TransferMethod::Reprojection => {
+            let mask = PixelMask::decode(&decoded.remove(0), at(0), pixels)?;
+            let removals = Removals::decode(&decoded.remove(0), at(1), mask.len())?;
+            let side = SideSections {
+                changed: Some(mask),
+                stale: None,
+                removals: Some(removals),
+            };
+            Ok((side, &parsed.sections[2..]))
+        }
+        _ => Ok((SideSections::default(), &parsed.sections[..])),
+    }
 }
 
 /// Parses and validates a frame message's header and section table without decompressing
