@@ -12,6 +12,23 @@ use std::process::ExitCode;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
+/// An error that ends strata with its own exit status (every other error exits with 2).
+#[derive(Debug)]
+pub(crate) struct Failed {
+    /// The exit status.
+    pub(crate) status: u8,
+    /// What went wrong, for a person.
+    pub(crate) message: String,
+}
+
+impl std::fmt::Display for Failed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for Failed {}
+
 /// strata keeps every fragment of every pixel, so transparency is correct in any draw order.
 ///
 /// SCENE arguments are a scene file (TOML, see `strata scenes --print slabs` for an example) or
@@ -62,6 +79,21 @@ enum Command {
     /// (with a growing pool) or sbuffer.
     Node(cmd::node::Args),
     /// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
+    ///
+    /// Asks every node (`strata node`) for each frame of the scene's animation, receives from
+    /// all of them at once, merges their per-pixel runs, resolves, and prints a summary: bytes
+    /// raw and encoded, node render / select / encode and display transfer / decode / merge /
+    /// resolve times, fragments sent against rendered, display fps, and bad pixels against the
+    /// exact local render of the whole scene (checked after the run, so the check does not slow
+    /// the display). A node that fails is reported, composed without (or from its last frame,
+    /// `--on-fault hold`) and reconnected when it returns. Rates, bytes and times are figures of
+    /// the frames some node delivered.
+    ///
+    /// Exit status: 0 every node delivered every frame; 1 no node delivered any frame (nothing
+    /// listening, every node serving another scene, ...): nothing was displayed; 2 a usage or
+    /// setup error (a bad option, a malformed node address, a scene that does not load), found
+    /// before any connection is tried; 3 the run finished degraded: some node missed frames
+    /// (lost, stalled, failed or left out), and the summary names it.
     Display(cmd::display::Args),
     /// Deep-merge deep OpenEXR images (strata's or any tool's) and flatten them to EXR or PNG.
     Composite(cmd::composite::Args),
@@ -142,6 +174,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if out::is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
+            let status = e.downcast_ref::<Failed>().map_or(2, |f| f.status);
             let mut shown = e.to_string();
             eprintln!("strata: error: {shown}");
             // Print a cause only if the messages so far do not already say it (library errors
@@ -153,7 +186,7 @@ fn main() -> ExitCode {
                     shown.push_str(&text);
                 }
             }
-            ExitCode::from(2)
+            ExitCode::from(status)
         }
     }
 }

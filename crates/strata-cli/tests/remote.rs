@@ -1,12 +1,15 @@
 //! End-to-end tests of `strata node` and `strata display` on loopback: two node processes
-//! holding complementary objects, a display that merges them, its summary and its errors.
+//! holding complementary objects, a display that merges them, its summary, its errors and its
+//! exit statuses (0 complete, 1 nothing delivered, 2 usage, 3 degraded).
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command as StdCommand, Stdio};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{Shutdown, TcpListener, TcpStream};
+use std::process::{Child, Command as StdCommand, Output, Stdio};
 
 use assert_cmd::Command;
 use assert_cmd::cargo::cargo_bin;
 use serde_json::Value;
+use strata_wire::{DecodeOptions, MessageType, PREFIX_LEN, Request, inspect_frame, parse_prefix};
 use tempfile::TempDir;
 
 /// A `strata node` process, killed when dropped.
@@ -118,6 +121,10 @@ fn display_errors_are_clear() {
         (&["--frames", "0"], "--frames must be at least 1"),
         (&["--codec", "gzip"], "unknown codec"),
         (&["--timeout", "0"], "--timeout"),
+        (
+            &["--first-frame", "4294967295", "--frames", "2"],
+            "frame 4294967296 is beyond the last animation frame",
+        ),
     ];
     for (args, want) in cases {
         let out = strata()
@@ -164,26 +171,203 @@ fn node_errors_are_clear() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot listen on not-an-address"));
 }
 
-#[test]
-fn an_absent_node_is_reported_and_the_display_still_finishes() {
-    let out = strata()
-        .args([
-            "display",
-            "--scene",
-            "spheres",
-            "--nodes",
-            "127.0.0.1:9",
-            "--frames",
-            "2",
-        ])
-        .args(["--size", "64x36", "--timeout", "0.5"])
+/// `strata display --scene SCENE --nodes NODES --frames FRAMES --size 64x36 --timeout
+/// TIMEOUT`, writing its summary into `dir`. Nothing here waits for the timeout but a node that
+/// never connects; real nodes get a long one, so a slow machine does not stall them.
+fn display(scene: &str, nodes: &str, frames: &str, timeout: &str, dir: &TempDir) -> Output {
+    strata()
+        .args(["display", "--scene", scene, "--nodes", nodes])
+        .args(["--frames", frames, "--size", "64x36", "--timeout", timeout])
+        .arg("--out-dir")
+        .arg(dir.path())
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+fn summary_json(dir: &TempDir) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap())
+        .unwrap()
+}
+
+/// The run's figures are absent: no rate or byte count of empty frames anywhere.
+fn assert_no_figures(stdout: &str, json: &Value) {
+    for absent in ["display rate", "fps", "bytes per frame", "MB"] {
+        assert!(!stdout.contains(absent), "{absent:?} in {stdout}");
+    }
+    for absent in ["display_fps", "bytes_per_frame", "raw_bytes_per_frame"] {
+        assert!(json.get(absent).is_none(), "{absent} in {json}");
+    }
+}
+
+#[test]
+fn no_node_listening_is_a_failed_run() {
+    // A port that was free a moment ago: nothing listens on it.
+    let nobody = TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .to_string();
+    let dir = TempDir::new().unwrap();
+    let out = display("spheres", &nobody, "2", "0.5", &dir);
     let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        stderr.contains("strata: error: no node delivered a frame, so nothing was displayed"),
+        "{stderr}"
     );
-    assert!(stdout.contains("cannot connect"), "{stdout}");
+    assert!(
+        stderr.contains(&format!("{nobody}: frame 0: down: cannot connect")),
+        "{stderr}"
+    );
+    assert!(
+        stdout.contains("FAILED: no node delivered any of the 2 frame(s)"),
+        "{stdout}"
+    );
+    let json = summary_json(&dir);
+    assert_eq!(json["outcome"], "nothing-delivered");
+    assert_eq!(json["delivered_frames"], 0);
+    assert_no_figures(&stdout, &json);
+    // Nothing to compare against the exact render either.
+    assert_eq!(json["checked_frames"], 0);
+}
+
+#[test]
+fn a_node_serving_another_scene_is_a_failed_run() {
+    let node = NodeProcess::start("mixed", "0");
+    let dir = TempDir::new().unwrap();
+    let out = display("spheres", &node.addr, "2", "10", &dir);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("no node delivered a frame"), "{stderr}");
+    assert!(
+        stderr.contains("serves scene 'mixed', not 'spheres'"),
+        "{stderr}"
+    );
+    assert_no_figures(&stdout, &summary_json(&dir));
+}
+
+#[test]
+fn a_malformed_address_is_a_usage_error_before_any_connection() {
+    // A listener that would see the display's connection, if it tried one.
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    listener.set_nonblocking(true).unwrap();
+    let good = listener.local_addr().unwrap().to_string();
+    for (bad, want) in [
+        ("not-an-address", "is not HOST:PORT"),
+        ("127.0.0.1:0", "the port '0' is not a number in 1..=65535"),
+        ("127.0.0.1:99999", "the port '99999'"),
+        ("::1:7400", "IPv6 goes in brackets"),
+    ] {
+        let dir = TempDir::new().unwrap();
+        let out = display("spheres", &format!("{good},{bad}"), "2", "0.5", &dir);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{bad}: {stderr}");
+        assert!(stderr.starts_with("strata: "), "{bad}: {stderr}");
+        assert!(stderr.contains(want), "{bad}: want {want:?} in {stderr}");
+        assert!(!dir.path().join("summary.json").exists(), "{bad}");
+    }
+    let accepted = listener.accept();
+    assert!(
+        matches!(&accepted, Err(e) if e.kind() == std::io::ErrorKind::WouldBlock),
+        "the display connected before checking its arguments: {accepted:?}"
+    );
+}
+
+/// Reads one whole message from `from`: its prefix and its body.
+fn read_msg(from: &mut TcpStream) -> Option<(MessageType, Vec<u8>)> {
+    let mut msg = vec![0u8; PREFIX_LEN];
+    from.read_exact(&mut msg).ok()?;
+    let prefix = parse_prefix(&msg, &DecodeOptions::default()).ok()?;
+    let mut body = vec![0u8; usize::try_from(prefix.body_len).ok()?];
+    from.read_exact(&mut body).ok()?;
+    msg.extend_from_slice(&body);
+    Some((prefix.kind, msg))
+}
+
+/// A proxy in front of `node` that passes its first connection's frames `0..frames` (each a
+/// frame and a stats message) and no later one, closes the connection when the display asks
+/// for frame `frames + 1` (so frame `frames` is missing by then), and refuses any other
+/// connection: a node lost for good in the middle of a run.
+fn dying_proxy(node: String, frames: u64) -> String {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        let Ok((display, _)) = listener.accept() else {
+            return;
+        };
+        drop(listener);
+        let Ok(upstream) = TcpStream::connect(&node) else {
+            return;
+        };
+        let (mut from_display, mut to_node) =
+            (display.try_clone().unwrap(), upstream.try_clone().unwrap());
+        let (display_end, node_end) = (display.try_clone().unwrap(), upstream.try_clone().unwrap());
+        std::thread::spawn(move || {
+            while let Some((_, msg)) = read_msg(&mut from_display) {
+                let asked = Request::decode(&msg, &DecodeOptions::default()).unwrap();
+                if asked.frame_number > frames {
+                    break;
+                }
+                if to_node.write_all(&msg).is_err() {
+                    break;
+                }
+            }
+            display_end.shutdown(Shutdown::Both).ok();
+            node_end.shutdown(Shutdown::Both).ok();
+        });
+        let (mut from_node, mut to_display) = (upstream, display);
+        let mut passing = true;
+        while let Some((kind, msg)) = read_msg(&mut from_node) {
+            if kind == MessageType::Frame {
+                let info = inspect_frame(&msg, &DecodeOptions::default()).unwrap();
+                passing = info.header.frame_number < frames;
+            }
+            if passing && to_display.write_all(&msg).is_err() {
+                break;
+            }
+        }
+    });
+    addr
+}
+
+#[test]
+fn a_lost_node_makes_a_degraded_run() {
+    let a = NodeProcess::start("mixed", "0,1");
+    let b = NodeProcess::start("mixed", "2,3,4");
+    let lost = dying_proxy(b.addr.clone(), 2);
+    let dir = TempDir::new().unwrap();
+    let out = display("mixed", &format!("{},{lost}", a.addr), "6", "10", &dir);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{stdout}\n{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "strata: error: the run was degraded: {lost} delivered 2 of 6 frames"
+        )),
+        "{stderr}"
+    );
+    assert!(
+        stdout.contains("DEGRADED: 1 of 2 node(s) missed frames"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(&format!(
+            "node {lost}: delivered 2 of 6 frame(s); missed 4 from frame 2 \
+             (its last good frame, 1, was held)"
+        )),
+        "{stdout}"
+    );
+    // The live node's frames are real: the run still has its figures.
+    assert!(stdout.contains("display rate"), "{stdout}");
+    let json = summary_json(&dir);
+    assert_eq!(json["outcome"], "degraded");
+    assert_eq!(json["delivered_frames"], 6);
+    assert_eq!(json["shortfalls"][0]["node"], lost.as_str());
+    assert_eq!(json["shortfalls"][0]["missed"], 4);
+    assert_eq!(json["per_frame"][5]["nodes"][1]["status"], "held");
+    assert!(json["bytes_per_frame"].as_f64().unwrap() > 0.0);
+    let summary_txt = std::fs::read_to_string(dir.path().join("summary.txt")).unwrap();
+    assert!(summary_txt.contains("DEGRADED"), "{summary_txt}");
 }

@@ -34,21 +34,21 @@ use glam::Mat4;
 use strata_core::{DeepFrame, ObjectId, Rgb8Image};
 use strata_scene::Scene;
 use strata_wire::{
-    Codec, DecodeOptions, FrameMessage, Hello, MessageType, NodeStats, Request, RequestKind,
-    decode_error, decode_frame,
+    Codec, DecodeOptions, FrameMessage, Hello, MessageType, NodeStats, PixelMask, Request,
+    RequestKind, decode_error, decode_frame,
 };
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
-use tokio::net::tcp::OwnedReadHalf;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::sync::mpsc;
 use tokio::time::{timeout, timeout_at};
 
-use crate::Transfer;
 use crate::difference::{NodeCopy, stale_shared};
 use crate::merge::{MAX_NODES, merge_resolve};
-use crate::report::{FrameStats, NodeFrame, NodeIncident};
+use crate::report::{FrameStats, NodeFrame, NodeIncident, NodeStatus};
 use crate::reprojection::{ReprojCopy, View, ambiguous};
 use crate::stream::{ReadError, read_message};
+use crate::{FrameOutOfRange, Transfer, animation_frame};
 
 /// What to compose with when a node's frame is missing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,15 +91,104 @@ pub struct DisplayConfig {
     pub limits: DecodeOptions,
 }
 
-/// Why a display run could not start.
+/// Why a display run could not start, or had to stop.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum DisplayError {
-    /// The configuration is unusable.
+    /// No node addresses.
+    #[error("no render nodes given")]
+    NoNodes,
+    /// More nodes than one display merges.
+    #[error("{given} nodes given; one display merges at most {max}")]
+    TooManyNodes {
+        /// Nodes given.
+        given: usize,
+        /// The most a display merges.
+        max: usize,
+    },
+    /// A node address is not `host:port`.
+    #[error("--nodes: {0}")]
+    Address(#[from] AddressError),
+    /// A frame of zero pixels.
+    #[error("the frame size must be at least 1x1")]
+    EmptyFrame,
+    /// `in_flight` is 0.
+    #[error("--in-flight must be at least 1")]
+    InFlight,
+    /// The codec's parameters are out of range.
     #[error("{0}")]
-    Config(String),
+    Codec(#[source] strata_wire::WireError),
+    /// The frames asked for go beyond the last frame a scene can be posed at.
+    #[error("--first-frame {first} with --frames {frames}: {source}")]
+    FrameRange {
+        /// First frame.
+        first: u64,
+        /// Frames.
+        frames: u64,
+        /// The first frame number out of range.
+        source: FrameOutOfRange,
+    },
+    /// A request did not encode (the configuration was checked, so this is a bug).
+    #[error("encoding a request: {0}")]
+    Request(#[source] strata_wire::WireError),
     /// The async runtime could not start.
     #[error("starting the I/O runtime: {0}")]
     Runtime(#[from] std::io::Error),
+}
+
+/// Why a node address is not `host:port`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum AddressError {
+    /// No `:port`.
+    #[error("'{0}' is not HOST:PORT (such as 127.0.0.1:7400, render1:7400 or [::1]:7400)")]
+    NoPort(String),
+    /// The port is not a number in 1..=65535.
+    #[error("'{address}': the port '{port}' is not a number in 1..=65535")]
+    Port {
+        /// The address.
+        address: String,
+        /// Its port part.
+        port: String,
+    },
+    /// The host is empty or not a host name or IP address.
+    #[error("'{address}': '{host}' is not a host name or IP address (IPv6 goes in brackets)")]
+    Host {
+        /// The address.
+        address: String,
+        /// Its host part.
+        host: String,
+    },
+}
+
+/// Checks that `address` is `host:port` as `--nodes` takes it: a host name, an IPv4 address or
+/// a bracketed IPv6 address, and a port in 1..=65535. Nothing is resolved or connected.
+pub fn check_address(address: &str) -> Result<(), AddressError> {
+    let (host, port) = address
+        .rsplit_once(':')
+        .ok_or_else(|| AddressError::NoPort(address.to_string()))?;
+    if !matches!(port.parse::<u16>(), Ok(p) if p > 0) {
+        return Err(AddressError::Port {
+            address: address.to_string(),
+            port: port.to_string(),
+        });
+    }
+    let host_ok = match host.strip_prefix('[').and_then(|h| h.strip_suffix(']')) {
+        Some(v6) => v6.parse::<std::net::Ipv6Addr>().is_ok(),
+        None => {
+            !host.is_empty()
+                && host
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '.' | '_'))
+        }
+    };
+    if !host_ok {
+        return Err(AddressError::Host {
+            address: address.to_string(),
+            host: host.to_string(),
+        });
+    }
+    Ok(())
 }
 
 /// Receives each composed frame and each incident as they happen.
@@ -125,35 +214,51 @@ pub struct RunResult {
 }
 
 /// Runs the display: composes `config.frames` frames.
+///
+/// An error means the run could not start (the configuration is unusable) or had to stop; a
+/// node that fails is not an error but an incident, and shows in the frames' node statuses.
 pub fn run(config: DisplayConfig, observer: &mut dyn Observer) -> Result<RunResult, DisplayError> {
-    if config.nodes.is_empty() {
-        return Err(DisplayError::Config("no render nodes given".into()));
-    }
-    if config.nodes.len() > MAX_NODES {
-        return Err(DisplayError::Config(format!(
-            "{} nodes given; one display merges at most {MAX_NODES}",
-            config.nodes.len()
-        )));
-    }
-    if config.width == 0 || config.height == 0 {
-        return Err(DisplayError::Config(
-            "the frame size must be at least 1x1".into(),
-        ));
-    }
-    if config.in_flight == 0 {
-        return Err(DisplayError::Config(
-            "--in-flight must be at least 1".into(),
-        ));
-    }
-    config
-        .codec
-        .validate()
-        .map_err(|e| DisplayError::Config(e.to_string()))?;
+    check_config(&config)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()?;
-    Ok(runtime.block_on(drive(config, observer)))
+    runtime.block_on(async move { Driver::start(config, observer).run().await })
+}
+
+/// Everything `run` refuses before it connects to anything.
+fn check_config(config: &DisplayConfig) -> Result<(), DisplayError> {
+    if config.nodes.is_empty() {
+        return Err(DisplayError::NoNodes);
+    }
+    if config.nodes.len() > MAX_NODES {
+        return Err(DisplayError::TooManyNodes {
+            given: config.nodes.len(),
+            max: MAX_NODES,
+        });
+    }
+    for a in &config.nodes {
+        check_address(a)?;
+    }
+    if config.width == 0 || config.height == 0 {
+        return Err(DisplayError::EmptyFrame);
+    }
+    if config.in_flight == 0 {
+        return Err(DisplayError::InFlight);
+    }
+    config.codec.validate().map_err(DisplayError::Codec)?;
+    // Every frame number of the run must pose the scene: the last one is first + frames - 1.
+    let range_error = |source| DisplayError::FrameRange {
+        first: config.first_frame,
+        frames: config.frames,
+        source,
+    };
+    let last = config
+        .first_frame
+        .checked_add(config.frames.saturating_sub(1))
+        .ok_or(range_error(FrameOutOfRange(u64::MAX)))?;
+    animation_frame(last).map_err(range_error)?;
+    Ok(())
 }
 
 /// Commands from the driver to a link.
@@ -176,7 +281,7 @@ struct Arrival {
 /// Events from links to the driver.
 enum LinkEvent {
     Up(usize, u64, Hello),
-    Down(usize, u64, String),
+    Down(usize, u64, LinkError),
     Arrived(usize, u64, Box<Arrival>),
 }
 
@@ -201,49 +306,154 @@ struct NodeState {
     refused: bool,
 }
 
-async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult {
-    let (evt_tx, mut evt_rx) = mpsc::channel::<LinkEvent>(64);
-    let mut nodes: Vec<NodeState> = Vec::new();
-    for (i, addr) in config.nodes.iter().enumerate() {
-        let (cmd_tx, cmd_rx) = mpsc::channel(64);
-        tokio::spawn(link(
-            i,
-            addr.clone(),
-            cmd_rx,
-            evt_tx.clone(),
-            config.limits.clone(),
-            config.timeout,
-        ));
-        nodes.push(NodeState {
-            addr: addr.clone(),
-            cmd: cmd_tx,
-            up: false,
-            generation: 0,
-            copy: NodeCopy::empty(config.width, config.height),
-            reproj: ReprojCopy::empty(config.width, config.height),
-            depth_error: 0.0,
-            next_request: config.first_frame,
-            first_request: config.first_frame,
-            scene: config.scene.name.clone(),
-            refused: false,
-        });
-    }
-    drop(evt_tx);
-    let view = config.scene.camera.view().to_cols_array();
-    let projection = config
-        .scene
-        .camera
-        .projection(config.width, config.height)
-        .to_cols_array();
-    let all_objects: Vec<ObjectId> = config.scene.objects.iter().map(|o| o.id).collect();
-    let request = |frame: u64, node: usize, kind: RequestKind| -> Vec<u8> {
-        let r = Request {
-            frame_number: frame,
-            node_id: node as u32,
-            width: config.width,
-            height: config.height,
+/// Arrivals not yet applied, by node, frame number and whether they answer a fixup request.
+type Buffer = HashMap<(usize, u64, bool), Box<Arrival>>;
+
+/// What one frame's composition collects before it is resolved.
+struct FrameWork {
+    /// The frame.
+    t: u64,
+    /// Per node: what it sent and whether it took part.
+    stats: Vec<NodeFrame>,
+    /// Nodes whose copy was updated for this frame (the fixup round looks at these).
+    taking_part: Vec<bool>,
+    /// Reprojection: the frame's view, to shade what nodes send.
+    reproj_view: Option<View>,
+}
+
+/// The display's state for one run: the nodes, what arrived early, what happened so far.
+///
+/// Per frame *t* the driver: requests frames ahead ([`Driver::request_ahead`]), waits for *t*
+/// from every node asked for it ([`Driver::wait_for_frames`]), applies what arrived
+/// ([`Driver::apply_arrivals`]), runs the fixup round where nodes overlap
+/// ([`Driver::fixup_round`]), then merges and resolves ([`Driver::compose`]).
+struct Driver<'o> {
+    config: DisplayConfig,
+    observer: &'o mut dyn Observer,
+    events: mpsc::Receiver<LinkEvent>,
+    nodes: Vec<NodeState>,
+    buffer: Buffer,
+    incidents: Vec<NodeIncident>,
+    per_frame: Vec<FrameStats>,
+    first_composed: Option<Instant>,
+    last_composed: Option<Instant>,
+    /// The camera every request carries, column-major.
+    view: [f32; 16],
+    /// The projection every request carries, column-major.
+    projection: [f32; 16],
+    /// Every object of the scene (the reprojection view shades any node's fragments).
+    all_objects: Vec<ObjectId>,
+}
+
+impl<'o> Driver<'o> {
+    /// Spawns a link per node; nothing is requested yet.
+    fn start(config: DisplayConfig, observer: &'o mut dyn Observer) -> Self {
+        let (evt_tx, events) = mpsc::channel::<LinkEvent>(64);
+        let mut nodes = Vec::new();
+        for (i, addr) in config.nodes.iter().enumerate() {
+            let (cmd_tx, cmd_rx) = mpsc::channel(64);
+            tokio::spawn(link(
+                i,
+                addr.clone(),
+                cmd_rx,
+                evt_tx.clone(),
+                config.limits.clone(),
+                config.timeout,
+            ));
+            nodes.push(NodeState {
+                addr: addr.clone(),
+                cmd: cmd_tx,
+                up: false,
+                generation: 0,
+                copy: NodeCopy::empty(config.width, config.height),
+                reproj: ReprojCopy::empty(config.width, config.height),
+                depth_error: 0.0,
+                next_request: config.first_frame,
+                first_request: config.first_frame,
+                scene: config.scene.name.clone(),
+                refused: false,
+            });
+        }
+        let view = config.scene.camera.view().to_cols_array();
+        let projection = config
+            .scene
+            .camera
+            .projection(config.width, config.height)
+            .to_cols_array();
+        let all_objects = config.scene.objects.iter().map(|o| o.id).collect();
+        Driver {
+            config,
+            observer,
+            events,
+            nodes,
+            buffer: HashMap::new(),
+            incidents: Vec::new(),
+            per_frame: Vec::new(),
+            first_composed: None,
+            last_composed: None,
             view,
             projection,
+            all_objects,
+        }
+    }
+
+    /// Composes every frame of the run.
+    async fn run(mut self) -> Result<RunResult, DisplayError> {
+        self.wait_for_first_connections().await;
+        let end = self.config.first_frame + self.config.frames;
+        for t in self.config.first_frame..end {
+            self.request_ahead(t, end).await?;
+            self.wait_for_frames(t).await;
+            let apply_start = Instant::now();
+            let mut work = self.frame_work(t)?;
+            self.apply_arrivals(&mut work).await;
+            let mut merge_ms = apply_start.elapsed().as_secs_f64() * 1e3;
+            if self.needs_fixups() {
+                merge_ms += self.fixup_round(&mut work).await?;
+            }
+            // Late or superseded messages are of no use any more.
+            self.buffer.retain(|&(_, f, _), _| f > t);
+            self.compose(work, merge_ms);
+        }
+        let elapsed_s = match (self.first_composed, self.last_composed) {
+            (Some(a), Some(b)) => (b - a).as_secs_f64(),
+            _ => 0.0,
+        };
+        // Dropping the nodes closes the command channels, which ends the links and their
+        // connections.
+        Ok(RunResult {
+            per_frame: self.per_frame,
+            incidents: self.incidents,
+            elapsed_s,
+        })
+    }
+
+    /// Waits for the first connections (up to the timeout) so the first frame is not composed
+    /// without nodes that are merely slow to answer.
+    async fn wait_for_first_connections(&mut self) {
+        let first = self.config.first_frame;
+        let deadline = tokio::time::Instant::now() + self.config.timeout;
+        while self.nodes.iter().any(|n| !n.up && !n.refused) {
+            match timeout_at(deadline, self.events.recv()).await {
+                Ok(Some(e)) => self.on_event(e, (first, first)),
+                _ => break,
+            }
+        }
+    }
+
+    /// The request for frame `frame` of node `node`, encoded.
+    fn request(&self, frame: u64, node: usize, kind: RequestKind) -> Result<Vec<u8>, DisplayError> {
+        let config = &self.config;
+        let r = Request {
+            frame_number: frame,
+            node_id: u32::try_from(node).map_err(|_| DisplayError::TooManyNodes {
+                given: config.nodes.len(),
+                max: MAX_NODES,
+            })?,
+            width: config.width,
+            height: config.height,
+            view: self.view,
+            projection: self.projection,
             transfer: config.transfer,
             codec: config.codec,
             kind,
@@ -253,261 +463,317 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
             },
         };
         let mut b = Vec::new();
-        // The configuration was validated; a request always encodes.
-        r.encode_into(&mut b).ok();
-        b
-    };
+        r.encode_into(&mut b).map_err(DisplayError::Request)?;
+        Ok(b)
+    }
 
-    let end = config.first_frame + config.frames;
-    let mut buffer: HashMap<(usize, u64, bool), Box<Arrival>> = HashMap::new();
-    let mut incidents: Vec<NodeIncident> = Vec::new();
-    let mut per_frame = Vec::new();
-    let mut first_composed: Option<Instant> = None;
-    let mut last_composed: Option<Instant> = None;
+    /// Hands node `i`'s link a request for frame `frame` on its current connection.
+    async fn send_request(
+        &mut self,
+        i: usize,
+        frame: u64,
+        kind: RequestKind,
+    ) -> Result<(), DisplayError> {
+        let bytes = self.request(frame, i, kind)?;
+        let n = &self.nodes[i];
+        if n.cmd
+            .send(LinkCmd::Send(n.generation, bytes))
+            .await
+            .is_err()
+        {
+            self.link_gone(i, frame);
+        }
+        Ok(())
+    }
 
-    // Wait for the first connections (up to the timeout) so frame 0 is not composed empty.
-    let deadline = tokio::time::Instant::now() + config.timeout;
-    while nodes.iter().any(|n| !n.up) {
-        match timeout_at(deadline, evt_rx.recv()).await {
-            Ok(Some(e)) => on_event(
-                e,
-                &mut nodes,
-                &mut buffer,
-                (config.first_frame, config.first_frame),
-                &mut incidents,
-                observer,
-            ),
-            _ => break,
+    /// Node `i`'s link task ended, which only a bug does while the run lasts: the node is
+    /// left out from here on.
+    fn link_gone(&mut self, i: usize, t: u64) {
+        let n = &mut self.nodes[i];
+        n.up = false;
+        n.refused = true;
+        self.report(
+            i,
+            t,
+            "its connection task ended unexpectedly: left out".into(),
+        );
+    }
+
+    /// Keeps every live node `in_flight` frames ahead of `t` (never past `end`).
+    async fn request_ahead(&mut self, t: u64, end: u64) -> Result<(), DisplayError> {
+        let ahead = t.saturating_add(self.config.in_flight as u64);
+        for i in 0..self.nodes.len() {
+            loop {
+                let n = &self.nodes[i];
+                if !(n.up && n.next_request < end && n.next_request < ahead) {
+                    break;
+                }
+                let f = n.next_request;
+                let reset = f == n.first_request;
+                self.send_request(i, f, RequestKind::Render { reset })
+                    .await?;
+                self.nodes[i].next_request += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether node `i` was asked for frame `t` and its frame has not arrived yet.
+    fn waiting_for(&self, i: usize, t: u64) -> bool {
+        let n = &self.nodes[i];
+        n.up && n.first_request <= t
+            && t < n.next_request
+            && !self.buffer.contains_key(&(i, t, false))
+    }
+
+    /// Waits (at most the timeout) for frame `t` from every node asked for it; a node that
+    /// does not deliver in time is reported stalled and reconnected.
+    async fn wait_for_frames(&mut self, t: u64) {
+        let deadline = tokio::time::Instant::now() + self.config.timeout;
+        while (0..self.nodes.len()).any(|i| self.waiting_for(i, t)) {
+            match timeout_at(deadline, self.events.recv()).await {
+                Ok(Some(e)) => self.on_event(e, (t, t + 1)),
+                Ok(None) => return,
+                Err(_) => {
+                    let what = format!(
+                        "no frame within {:.1} s: stalled; reconnecting",
+                        self.config.timeout.as_secs_f64()
+                    );
+                    for i in 0..self.nodes.len() {
+                        if self.waiting_for(i, t) {
+                            self.fault(i, t, what.clone()).await;
+                        }
+                    }
+                    return;
+                }
+            }
         }
     }
 
-    for t in config.first_frame..end {
-        // Keep every live node `in_flight` frames ahead.
-        for (i, n) in nodes.iter_mut().enumerate() {
-            while n.up && n.next_request < end && n.next_request < t + config.in_flight as u64 {
-                let f = n.next_request;
-                let kind = RequestKind::Render {
-                    reset: f == n.first_request,
-                };
-                n.cmd
-                    .send(LinkCmd::Send(n.generation, request(f, i, kind)))
-                    .await
-                    .ok();
-                n.next_request += 1;
+    /// Empty per-node figures for frame `t`, and its view under the reprojection transfer.
+    fn frame_work(&self, t: u64) -> Result<FrameWork, DisplayError> {
+        let config = &self.config;
+        let reproj_view = match config.transfer {
+            Transfer::Reprojection => {
+                let pose = animation_frame(t).map_err(|source| DisplayError::FrameRange {
+                    first: config.first_frame,
+                    frames: config.frames,
+                    source,
+                })?;
+                Some(View::new(
+                    &config.scene,
+                    &self.all_objects,
+                    pose,
+                    (config.width, config.height),
+                    Mat4::from_cols_array(&self.view),
+                    Mat4::from_cols_array(&self.projection),
+                ))
             }
-        }
-        // Wait for frame t from every node that was asked for it.
-        let wanted = |n: &NodeState| n.up && n.first_request <= t && t < n.next_request;
-        let deadline = tokio::time::Instant::now() + config.timeout;
-        loop {
-            let missing = nodes
-                .iter()
-                .enumerate()
-                .any(|(i, n)| wanted(n) && !buffer.contains_key(&(i, t, false)));
-            if !missing {
-                break;
-            }
-            match timeout_at(deadline, evt_rx.recv()).await {
-                Ok(Some(e)) => on_event(
-                    e,
-                    &mut nodes,
-                    &mut buffer,
-                    (t, t + 1),
-                    &mut incidents,
-                    observer,
-                ),
-                Ok(None) => break,
-                Err(_) => {
-                    for (i, n) in nodes.iter_mut().enumerate() {
-                        if wanted(n) && !buffer.contains_key(&(i, t, false)) {
-                            let what = format!(
-                                "no frame within {:.1} s: stalled; reconnecting",
-                                config.timeout.as_secs_f64()
-                            );
-                            fault(n, t, what, observer, &mut incidents).await;
-                        }
-                    }
-                    break;
-                }
-            }
-        }
-
-        // Apply what arrived.
-        let apply_start = Instant::now();
-        let mut stats: Vec<NodeFrame> = nodes
-            .iter()
-            .map(|n| NodeFrame {
-                node: n.addr.clone(),
-                ..NodeFrame::default()
-            })
-            .collect();
-        let mut taking_part = vec![false; nodes.len()];
-        let reproj_view = (config.transfer == Transfer::Reprojection).then(|| {
-            View::new(
-                &config.scene,
-                &all_objects,
-                t,
-                (config.width, config.height),
-                Mat4::from_cols_array(&view),
-                Mat4::from_cols_array(&projection),
-            )
-        });
-        for (i, n) in nodes.iter_mut().enumerate() {
-            let s = &mut stats[i];
-            // A node that faulted keeps nothing it sent before: its next frame is a reset.
-            match buffer.remove(&(i, t, false)).filter(|_| n.up) {
-                Some(a) => {
-                    if t == n.first_request {
-                        n.copy = NodeCopy::empty(config.width, config.height);
-                        n.reproj = ReprojCopy::empty(config.width, config.height);
-                    }
-                    record(s, &a);
-                    s.status = "ok";
-                    let Arrival { msg, .. } = *a;
-                    match (msg.changed, msg.stale, msg.removals, &reproj_view) {
-                        (Some(changed), Some(stale), None, None) => {
-                            n.copy.apply_delta(&changed, &stale, &msg.frame)
-                        }
-                        (Some(_), None, Some(_), Some(_))
-                            if msg.header.view != view || msg.header.projection != projection =>
-                        {
-                            let what = format!(
-                                "rendered frame {t} with other matrices than the display sent; \
-                                 reconnecting"
-                            );
-                            fault(n, t, what, observer, &mut incidents).await;
-                            s.status = "held";
-                            continue;
-                        }
-                        (Some(touched), None, Some(removals), Some(v)) => {
-                            s.removals = removals.total() as u64;
-                            let applied = tokio::task::block_in_place(|| {
-                                n.reproj.apply(v, &touched, &removals, &msg.frame)
-                            });
-                            match applied {
-                                Ok(()) => {
-                                    n.depth_error = removals.depth_error();
-                                    n.copy.replace(n.reproj.held().to_frame())
-                                }
-                                Err(e) => {
-                                    // Both ends start over from an empty state.
-                                    let what = format!("{e}; reconnecting");
-                                    fault(n, t, what, observer, &mut incidents).await;
-                                    s.status = "held";
-                                    continue;
-                                }
-                            }
-                        }
-                        (None, None, None, None) => n.copy.replace(msg.frame),
-                        _ => {
-                            let what = format!(
-                                "sent a frame of another transfer than {}; reconnecting",
-                                crate::transfer::name(config.transfer)
-                            );
-                            fault(n, t, what, observer, &mut incidents).await;
-                            s.status = "held";
-                            continue;
-                        }
-                    }
-                    taking_part[i] = true;
-                }
-                None => {
-                    s.status = match config.on_fault {
-                        OnFault::Hold => "held",
-                        OnFault::Drop => {
-                            n.copy = NodeCopy::empty(config.width, config.height);
-                            "dropped"
-                        }
-                    };
-                }
-            }
-        }
-        let mut merge_ms = apply_start.elapsed().as_secs_f64() * 1e3;
-
-        // Difference: pixels shared between nodes need current depths from every node there.
-        // Reprojection: so do pixels where reprojected depths of two nodes are too close to order.
-        let fixups = match config.transfer {
-            Transfer::Difference | Transfer::Reprojection => nodes.len() > 1,
-            _ => false,
+            _ => None,
         };
-        if fixups {
-            let fix_start = Instant::now();
-            let stale = tokio::task::block_in_place(|| {
-                if config.transfer == Transfer::Difference {
-                    let copies: Vec<&NodeCopy> = nodes.iter().map(|n| &n.copy).collect();
-                    stale_shared(&copies, &taking_part)
-                } else {
-                    let frames: Vec<&DeepFrame> = nodes.iter().map(|n| n.copy.frame()).collect();
-                    let errors: Vec<f32> = nodes.iter().map(|n| n.depth_error).collect();
-                    ambiguous(&frames, &errors, &taking_part)
-                }
-            });
-            let mut asked = Vec::new();
-            for (i, m) in stale.into_iter().enumerate() {
-                if !m.is_empty() && nodes[i].up {
-                    stats[i].fixup_pixels = u64::from(m.len());
-                    let n = &nodes[i];
-                    n.cmd
-                        .send(LinkCmd::Send(
-                            n.generation,
-                            request(t, i, RequestKind::Fixup(m)),
-                        ))
-                        .await
-                        .ok();
-                    asked.push(i);
-                }
-            }
-            merge_ms += fix_start.elapsed().as_secs_f64() * 1e3;
-            let deadline = tokio::time::Instant::now() + config.timeout;
-            while asked
+        Ok(FrameWork {
+            t,
+            stats: self
+                .nodes
                 .iter()
-                .any(|&i| nodes[i].up && !buffer.contains_key(&(i, t, true)))
-            {
-                match timeout_at(deadline, evt_rx.recv()).await {
-                    Ok(Some(e)) => on_event(
-                        e,
-                        &mut nodes,
-                        &mut buffer,
-                        (t, t + 1),
-                        &mut incidents,
-                        observer,
-                    ),
-                    _ => {
-                        for &i in &asked {
-                            if !buffer.contains_key(&(i, t, true)) {
-                                let what = "no fixup reply within the timeout; reconnecting";
-                                fault(&mut nodes[i], t, what.into(), observer, &mut incidents)
-                                    .await;
-                            }
-                        }
-                        break;
-                    }
-                }
-            }
-            let fix_start = Instant::now();
-            for &i in &asked {
-                if let Some(a) = buffer.remove(&(i, t, true)).filter(|_| nodes[i].up) {
-                    record(&mut stats[i], &a);
-                    if let Some(mask) = &a.msg.changed {
-                        match &reproj_view {
-                            // Exact runs for this frame's composition; the held state stays.
-                            Some(v) => {
-                                let runs =
-                                    tokio::task::block_in_place(|| v.shade_frame(&a.msg.frame));
-                                nodes[i].copy.apply(mask, &runs);
-                            }
-                            None => nodes[i].copy.apply(mask, &a.msg.frame),
-                        }
-                    }
-                }
-            }
-            merge_ms += fix_start.elapsed().as_secs_f64() * 1e3;
-        }
-        // Late or superseded messages are of no use any more.
-        buffer.retain(|&(_, f, _), _| f > t);
+                .map(|n| NodeFrame {
+                    node: n.addr.clone(),
+                    ..NodeFrame::default()
+                })
+                .collect(),
+            taking_part: vec![false; self.nodes.len()],
+            reproj_view,
+        })
+    }
 
+    /// Applies every node's frame `t` to its copy; a node without one is held or dropped.
+    async fn apply_arrivals(&mut self, work: &mut FrameWork) {
+        for i in 0..self.nodes.len() {
+            self.apply_arrival(i, work).await;
+        }
+    }
+
+    /// Applies node `i`'s frame `work.t`, or marks it missing.
+    async fn apply_arrival(&mut self, i: usize, work: &mut FrameWork) {
+        let t = work.t;
+        // A node that faulted keeps nothing it sent before: its next frame is a reset.
+        let Some(a) = self
+            .buffer
+            .remove(&(i, t, false))
+            .filter(|_| self.nodes[i].up)
+        else {
+            work.stats[i].status = self.missing(i);
+            return;
+        };
+        let (width, height) = (self.config.width, self.config.height);
+        let n = &mut self.nodes[i];
+        if t == n.first_request {
+            n.copy = NodeCopy::empty(width, height);
+            n.reproj = ReprojCopy::empty(width, height);
+        }
+        let s = &mut work.stats[i];
+        record(s, &a);
+        s.status = NodeStatus::Ok;
+        match self.apply_message(i, t, a.msg, s, work.reproj_view.as_ref()) {
+            Ok(()) => work.taking_part[i] = true,
+            Err(what) => {
+                self.fault(i, t, format!("{what}; reconnecting")).await;
+                work.stats[i].status = self.missing(i);
+            }
+        }
+    }
+
+    /// Applies one frame message to node `i`'s copy; the error says why it does not fit.
+    fn apply_message(
+        &mut self,
+        i: usize,
+        t: u64,
+        msg: FrameMessage,
+        s: &mut NodeFrame,
+        reproj_view: Option<&View>,
+    ) -> Result<(), String> {
+        let n = &mut self.nodes[i];
+        match (msg.changed, msg.stale, msg.removals, reproj_view) {
+            (Some(changed), Some(stale), None, None) => {
+                n.copy.apply_delta(&changed, &stale, &msg.frame);
+            }
+            (Some(_), None, Some(_), Some(_))
+                if msg.header.view != self.view || msg.header.projection != self.projection =>
+            {
+                return Err(format!(
+                    "rendered frame {t} with other matrices than the display sent"
+                ));
+            }
+            (Some(touched), None, Some(removals), Some(v)) => {
+                s.removals = removals.total() as u64;
+                // On error both ends start over from an empty state.
+                tokio::task::block_in_place(|| n.reproj.apply(v, &touched, &removals, &msg.frame))
+                    .map_err(|e| e.to_string())?;
+                n.depth_error = removals.depth_error();
+                n.copy.replace(n.reproj.held().to_frame());
+            }
+            (None, None, None, None) => n.copy.replace(msg.frame),
+            _ => {
+                return Err(format!(
+                    "sent a frame of another transfer than {}",
+                    crate::transfer::name(self.config.transfer)
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// What node `i` contributes to a frame it did not deliver: its last good copy
+    /// (`OnFault::Hold`) or nothing (`OnFault::Drop`, which empties the copy).
+    fn missing(&mut self, i: usize) -> NodeStatus {
+        match self.config.on_fault {
+            OnFault::Hold => NodeStatus::Held,
+            OnFault::Drop => {
+                self.nodes[i].copy = NodeCopy::empty(self.config.width, self.config.height);
+                NodeStatus::Dropped
+            }
+        }
+    }
+
+    /// Difference: pixels shared between nodes need current depths from every node there.
+    /// Reprojection: so do pixels where reprojected depths of two nodes are too close to order.
+    fn needs_fixups(&self) -> bool {
+        matches!(
+            self.config.transfer,
+            Transfer::Difference | Transfer::Reprojection
+        ) && self.nodes.len() > 1
+    }
+
+    /// Asks the nodes for exact runs where their copies cannot be merged as they are, waits
+    /// for the replies and applies them; returns the milliseconds spent outside the wait.
+    async fn fixup_round(&mut self, work: &mut FrameWork) -> Result<f64, DisplayError> {
+        let start = Instant::now();
+        let stale = self.pixels_to_fix(&work.taking_part);
+        let mut asked = Vec::new();
+        for (i, mask) in stale.into_iter().enumerate() {
+            if !mask.is_empty() && self.nodes[i].up {
+                work.stats[i].fixup_pixels = u64::from(mask.len());
+                self.send_request(i, work.t, RequestKind::Fixup(mask))
+                    .await?;
+                asked.push(i);
+            }
+        }
+        let mut ms = start.elapsed().as_secs_f64() * 1e3;
+        self.wait_for_fixups(work.t, &asked).await;
+        let start = Instant::now();
+        self.apply_fixups(work, &asked);
+        ms += start.elapsed().as_secs_f64() * 1e3;
+        Ok(ms)
+    }
+
+    /// Per node, the pixels it must send exact runs for.
+    fn pixels_to_fix(&self, taking_part: &[bool]) -> Vec<PixelMask> {
+        tokio::task::block_in_place(|| {
+            if self.config.transfer == Transfer::Difference {
+                let copies: Vec<&NodeCopy> = self.nodes.iter().map(|n| &n.copy).collect();
+                stale_shared(&copies, taking_part)
+            } else {
+                let frames: Vec<&DeepFrame> = self.nodes.iter().map(|n| n.copy.frame()).collect();
+                let errors: Vec<f32> = self.nodes.iter().map(|n| n.depth_error).collect();
+                ambiguous(&frames, &errors, taking_part)
+            }
+        })
+    }
+
+    /// Waits (at most the timeout) for the fixup replies of `asked`; a node that does not
+    /// answer in time is reported and reconnected.
+    async fn wait_for_fixups(&mut self, t: u64, asked: &[usize]) {
+        let deadline = tokio::time::Instant::now() + self.config.timeout;
+        while asked
+            .iter()
+            .any(|&i| self.nodes[i].up && !self.buffer.contains_key(&(i, t, true)))
+        {
+            match timeout_at(deadline, self.events.recv()).await {
+                Ok(Some(e)) => self.on_event(e, (t, t + 1)),
+                _ => {
+                    for &i in asked {
+                        if !self.buffer.contains_key(&(i, t, true)) {
+                            let what = "no fixup reply within the timeout; reconnecting";
+                            self.fault(i, t, what.into()).await;
+                        }
+                    }
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Applies the fixup replies that arrived to this frame's copies.
+    fn apply_fixups(&mut self, work: &mut FrameWork, asked: &[usize]) {
+        for &i in asked {
+            let Some(a) = self
+                .buffer
+                .remove(&(i, work.t, true))
+                .filter(|_| self.nodes[i].up)
+            else {
+                continue;
+            };
+            record(&mut work.stats[i], &a);
+            let Some(mask) = &a.msg.changed else {
+                continue;
+            };
+            let copy = &mut self.nodes[i].copy;
+            match &work.reproj_view {
+                // Exact runs for this frame's composition; the held state stays.
+                Some(v) => {
+                    let runs = tokio::task::block_in_place(|| v.shade_frame(&a.msg.frame));
+                    copy.apply(mask, &runs);
+                }
+                None => copy.apply(mask, &a.msg.frame),
+            }
+        }
+    }
+
+    /// Merges every node's copy, resolves, and hands the frame to the observer.
+    fn compose(&mut self, work: FrameWork, merge_ms: f64) {
+        let config = &self.config;
         let resolve_start = Instant::now();
-        let copies: Vec<&DeepFrame> = nodes.iter().map(|n| n.copy.frame()).collect();
+        let copies: Vec<&DeepFrame> = self.nodes.iter().map(|n| n.copy.frame()).collect();
         let image = tokio::task::block_in_place(|| {
             merge_resolve(
                 &copies,
@@ -518,65 +784,128 @@ async fn drive(config: DisplayConfig, observer: &mut dyn Observer) -> RunResult 
         });
         let resolve_ms = resolve_start.elapsed().as_secs_f64() * 1e3;
         let now = Instant::now();
-        let interval_ms = last_composed.map_or(0.0, |l| (now - l).as_secs_f64() * 1e3);
-        first_composed.get_or_insert(now);
-        last_composed = Some(now);
+        let interval_ms = self
+            .last_composed
+            .map_or(0.0, |l| (now - l).as_secs_f64() * 1e3);
+        self.first_composed.get_or_insert(now);
+        self.last_composed = Some(now);
         let fs = FrameStats {
-            frame: t,
+            frame: work.t,
             fragments_displayed: copies.iter().map(|c| c.fragment_count() as u64).sum(),
-            nodes: stats,
+            nodes: work.stats,
             merge_ms,
             resolve_ms,
             interval_ms,
             bad_pixels: None,
         };
+        let observer = &mut *self.observer;
         tokio::task::block_in_place(|| observer.frame(&fs, &image));
-        per_frame.push(fs);
+        self.per_frame.push(fs);
     }
-    // Closing the command channels ends the links and their connections.
-    drop(nodes);
-    let elapsed_s = match (first_composed, last_composed) {
-        (Some(a), Some(b)) => (b - a).as_secs_f64(),
-        _ => 0.0,
-    };
-    RunResult {
-        per_frame,
-        incidents,
-        elapsed_s,
+
+    /// Reports `what` about node `i` at frame `t` and drops its connection: the link
+    /// reconnects and the node starts over from a reset.
+    async fn fault(&mut self, i: usize, t: u64, what: String) {
+        self.report(i, t, what);
+        self.nodes[i].up = false;
+        if self.nodes[i].cmd.send(LinkCmd::Reconnect).await.is_err() {
+            self.link_gone(i, t);
+        }
+    }
+
+    /// Tells the observer and keeps the incident for the summary.
+    fn report(&mut self, i: usize, t: u64, what: String) {
+        let inc = NodeIncident {
+            frame: t,
+            node: self.nodes[i].addr.clone(),
+            what,
+        };
+        self.observer.incident(&inc);
+        self.incidents.push(inc);
+    }
+
+    /// Handles one link event while composing frame `t`; a node that (re)connects joins at
+    /// frame `join_at`.
+    fn on_event(&mut self, e: LinkEvent, (t, join_at): (u64, u64)) {
+        match e {
+            LinkEvent::Up(i, generation, hello) => self.on_up(i, generation, &hello, t, join_at),
+            LinkEvent::Down(i, generation, reason) => {
+                if generation == self.nodes[i].generation {
+                    self.nodes[i].up = false;
+                    self.report(i, t, format!("down: {reason}"));
+                }
+            }
+            LinkEvent::Arrived(i, generation, a) => self.on_arrival(i, generation, a, t),
+        }
+    }
+
+    /// A node connected (again): check its scene, start a new generation at `join_at`.
+    fn on_up(&mut self, i: usize, generation: u64, hello: &Hello, t: u64, join_at: u64) {
+        let n = &mut self.nodes[i];
+        if n.refused {
+            return;
+        }
+        if hello.scene != n.scene {
+            n.refused = true;
+            let what = format!(
+                "serves scene '{}', not '{}': left out",
+                hello.scene, n.scene
+            );
+            self.report(i, t, what);
+            return;
+        }
+        n.up = true;
+        n.generation = generation;
+        // It joins with the next frame not yet composed, from a clean state.
+        n.next_request = join_at;
+        n.first_request = join_at;
+        // Whatever the old connection left in the buffer belongs to a chain of deltas that
+        // has ended.
+        self.buffer.retain(|&(j, _, _), _| j != i);
+        if generation > 1 {
+            let what = format!(
+                "reconnected ({} object(s), {} triangles); restarting from frame {join_at}",
+                hello.objects.len(),
+                hello.triangles,
+            );
+            self.report(i, t, what);
+        }
+    }
+
+    /// A frame message from node `i` arrived: keep it for its frame if it is what was asked.
+    fn on_arrival(&mut self, i: usize, generation: u64, a: Box<Arrival>, t: u64) {
+        let n = &self.nodes[i];
+        if generation != n.generation || !n.up {
+            return;
+        }
+        let f = a.msg.header.frame_number;
+        let node_ok = a.msg.header.node_id as usize == i
+            && a.msg.frame.width() == n.copy.frame().width()
+            && a.msg.frame.height() == n.copy.frame().height();
+        if !node_ok {
+            let what = format!(
+                "sent frame {f} as node {} at {}x{}, not what was asked; reconnecting",
+                a.msg.header.node_id,
+                a.msg.frame.width(),
+                a.msg.frame.height()
+            );
+            self.report(i, t, what);
+            self.nodes[i].up = false;
+            // A full command queue means the link is already busy reconnecting.
+            if let Err(mpsc::error::TrySendError::Closed(_)) =
+                self.nodes[i].cmd.try_send(LinkCmd::Reconnect)
+            {
+                self.link_gone(i, t);
+            }
+            return;
+        }
+        if f >= t {
+            self.buffer.insert((i, f, a.msg.header.fixup), a);
+        }
     }
 }
 
-/// Reports `what` about node `n` at frame `t` and drops its connection: the link reconnects
-/// and the node starts over from a reset.
-async fn fault(
-    n: &mut NodeState,
-    t: u64,
-    what: String,
-    observer: &mut dyn Observer,
-    incidents: &mut Vec<NodeIncident>,
-) {
-    report(&n.addr, t, what, observer, incidents);
-    n.up = false;
-    n.cmd.send(LinkCmd::Reconnect).await.ok();
-}
-
-/// Tells the observer and keeps the incident for the summary.
-fn report(
-    node: &str,
-    t: u64,
-    what: String,
-    observer: &mut dyn Observer,
-    incidents: &mut Vec<NodeIncident>,
-) {
-    let inc = NodeIncident {
-        frame: t,
-        node: node.to_string(),
-        what,
-    };
-    observer.incident(&inc);
-    incidents.push(inc);
-}
-
+/// Adds what came with an arrival to the node's figures for the frame.
 fn record(s: &mut NodeFrame, a: &Arrival) {
     let ms = |us: u64| us as f64 / 1e3;
     s.bytes += a.bytes;
@@ -590,90 +919,6 @@ fn record(s: &mut NodeFrame, a: &Arrival) {
     s.encode_ms += ms(a.stats.encode_us);
     s.transfer_ms += a.transfer.as_secs_f64() * 1e3;
     s.decode_ms += a.decode.as_secs_f64() * 1e3;
-}
-
-fn on_event(
-    e: LinkEvent,
-    nodes: &mut [NodeState],
-    buffer: &mut HashMap<(usize, u64, bool), Box<Arrival>>,
-    (t, join_at): (u64, u64),
-    incidents: &mut Vec<NodeIncident>,
-    observer: &mut dyn Observer,
-) {
-    let mut note =
-        |node: &NodeState, what: String| report(&node.addr, t, what, observer, incidents);
-    match e {
-        LinkEvent::Up(i, generation, hello) => {
-            let n = &mut nodes[i];
-            if n.refused {
-                return;
-            }
-            if hello.scene != n.scene {
-                n.refused = true;
-                note(
-                    n,
-                    format!(
-                        "serves scene '{}', not '{}': left out",
-                        hello.scene, n.scene
-                    ),
-                );
-                return;
-            }
-            n.up = true;
-            n.generation = generation;
-            // Whatever the old connection left in the buffer belongs to a chain of deltas that
-            // has ended.
-            buffer.retain(|&(j, _, _), _| j != i);
-            // It joins with the next frame not yet composed, from a clean state.
-            n.next_request = join_at;
-            n.first_request = join_at;
-            if generation > 1 {
-                note(
-                    n,
-                    format!(
-                        "reconnected ({} object(s), {} triangles); restarting from frame {}",
-                        hello.objects.len(),
-                        hello.triangles,
-                        n.first_request
-                    ),
-                );
-            }
-        }
-        LinkEvent::Down(i, generation, reason) => {
-            let n = &mut nodes[i];
-            if generation == n.generation {
-                n.up = false;
-                note(n, format!("down: {reason}"));
-            }
-        }
-        LinkEvent::Arrived(i, generation, a) => {
-            let n = &nodes[i];
-            let f = a.msg.header.frame_number;
-            let node_ok = a.msg.header.node_id == i as u32
-                && a.msg.frame.width() == n.copy.frame().width()
-                && a.msg.frame.height() == n.copy.frame().height();
-            if generation != n.generation || !n.up {
-                return;
-            }
-            if !node_ok {
-                note(
-                    n,
-                    format!(
-                        "sent frame {f} as node {} at {}x{}, not what was asked; reconnecting",
-                        a.msg.header.node_id,
-                        a.msg.frame.width(),
-                        a.msg.frame.height()
-                    ),
-                );
-                nodes[i].up = false;
-                nodes[i].cmd.try_send(LinkCmd::Reconnect).ok();
-                return;
-            }
-            if f >= t {
-                buffer.insert((i, f, a.msg.header.fixup), a);
-            }
-        }
-    }
 }
 
 /// One node's connection, kept alive: connect, read its hello, forward requests, reconnect.
@@ -690,35 +935,10 @@ async fn link(
     // Report a failure to connect once, not on every retry.
     let mut announced = false;
     loop {
-        let connected = async {
-            let stream = timeout(wait, TcpStream::connect(&addr))
-                .await
-                .map_err(|_| format!("no connection within {:.1} s", wait.as_secs_f64()))?
-                .map_err(|e| format!("cannot connect: {e}"))?;
-            stream.set_nodelay(true).ok();
-            let (mut rd, wr) = stream.into_split();
-            let m = timeout(wait, read_message(&mut rd, &limits))
-                .await
-                .map_err(|_| "connected, but no hello from the node".to_string())?
-                .map_err(|e| format!("reading the hello: {e}"))?;
-            let hello = match m.kind {
-                MessageType::Hello => {
-                    Hello::decode(&m.bytes, &limits).map_err(|e| e.to_string())?
-                }
-                MessageType::Error => {
-                    return Err(format!(
-                        "node reported: {}",
-                        decode_error(&m.bytes, &limits).unwrap_or_else(|e| e.to_string())
-                    ));
-                }
-                k => return Err(format!("expected a hello, got a {k:?} message")),
-            };
-            Ok::<_, String>((rd, wr, hello))
-        }
-        .await;
+        let connected = connect(&addr, &limits, wait).await;
         let reason = match connected {
             Err(reason) => reason,
-            Ok((rd, mut wr, hello)) => {
+            Ok((rd, wr, hello)) => {
                 generation += 1;
                 announced = false;
                 backoff = Duration::from_millis(100);
@@ -729,38 +949,10 @@ async fn link(
                 {
                     return;
                 }
-                let (in_tx, mut in_rx) = mpsc::channel(4);
-                let reader = tokio::spawn(read_frames(rd, limits.clone(), in_tx));
-                let reason = loop {
-                    tokio::select! {
-                        cmd = cmds.recv() => match cmd {
-                            None => {
-                                reader.abort();
-                                wr.shutdown().await.ok();
-                                return;
-                            }
-                            Some(LinkCmd::Send(g, bytes)) if g == generation => {
-                                if let Err(e) = wr.write_all(&bytes).await {
-                                    break format!("sending a request: {e}");
-                                }
-                            }
-                            Some(LinkCmd::Send(..)) => {}
-                            Some(LinkCmd::Reconnect) => break "disconnected by the display".to_string(),
-                        },
-                        got = in_rx.recv() => match got {
-                            Some(Ok(a)) => {
-                                if events.send(LinkEvent::Arrived(node, generation, a)).await.is_err() {
-                                    reader.abort();
-                                    return;
-                                }
-                            }
-                            Some(Err(reason)) => break reason,
-                            None => break "the connection's reader stopped".to_string(),
-                        },
-                    }
-                };
-                reader.abort();
-                reason
+                match carry(node, generation, rd, wr, &mut cmds, &events, &limits).await {
+                    ConnectionEnd::Lost(reason) => reason,
+                    ConnectionEnd::Finished => return,
+                }
             }
         };
         if !announced {
@@ -786,83 +978,257 @@ async fn link(
     }
 }
 
+/// How a link's connection ended.
+enum ConnectionEnd {
+    /// It was lost, for this reason: reconnect.
+    Lost(LinkError),
+    /// The driver is done with the link.
+    Finished,
+}
+
+/// Writes the driver's requests for connection `generation` and hands the frames that arrive
+/// to the driver, until the connection is lost or the driver is done.
+async fn carry(
+    node: usize,
+    generation: u64,
+    rd: OwnedReadHalf,
+    mut wr: OwnedWriteHalf,
+    cmds: &mut mpsc::Receiver<LinkCmd>,
+    events: &mpsc::Sender<LinkEvent>,
+    limits: &DecodeOptions,
+) -> ConnectionEnd {
+    let (in_tx, mut in_rx) = mpsc::channel(4);
+    let reader = tokio::spawn(read_frames(rd, limits.clone(), in_tx));
+    let end = loop {
+        tokio::select! {
+            cmd = cmds.recv() => match cmd {
+                None => {
+                    // The node may already have closed its end; the run is over either way.
+                    let _ = wr.shutdown().await;
+                    break ConnectionEnd::Finished;
+                }
+                Some(LinkCmd::Send(g, bytes)) if g == generation => {
+                    if let Err(e) = wr.write_all(&bytes).await {
+                        break ConnectionEnd::Lost(LinkError::Send(e));
+                    }
+                }
+                Some(LinkCmd::Send(..)) => {}
+                Some(LinkCmd::Reconnect) => {
+                    break ConnectionEnd::Lost(LinkError::Disconnected);
+                }
+            },
+            got = in_rx.recv() => match got {
+                Some(Ok(a)) => {
+                    if events.send(LinkEvent::Arrived(node, generation, a)).await.is_err() {
+                        break ConnectionEnd::Finished;
+                    }
+                }
+                Some(Err(reason)) => break ConnectionEnd::Lost(reason),
+                None => break ConnectionEnd::Lost(LinkError::ReaderStopped),
+            },
+        }
+    };
+    reader.abort();
+    end
+}
+
+/// Why a link lost (or never got) its connection; reported as "down: …".
+#[derive(Debug, thiserror::Error)]
+enum LinkError {
+    #[error("no connection within {0:.1} s")]
+    ConnectTimeout(f64),
+    #[error("cannot connect: {0}")]
+    Connect(#[source] std::io::Error),
+    #[error("connected, but no hello from the node")]
+    NoHello,
+    #[error("reading the hello: {0}")]
+    ReadHello(#[source] ReadError),
+    #[error("{0}")]
+    Hello(#[source] strata_wire::WireError),
+    #[error("expected a hello, got a {0:?} message")]
+    NotAHello(MessageType),
+    /// The node's error message, as it wrote it.
+    #[error("node reported: {0}")]
+    NodeReported(String),
+    #[error("sending a request: {0}")]
+    Send(#[source] std::io::Error),
+    #[error("disconnected by the display")]
+    Disconnected,
+    #[error("the connection's reader stopped")]
+    ReaderStopped,
+    #[error("the node closed the connection")]
+    Closed,
+    #[error("reading from the node: {0}")]
+    Read(#[source] ReadError),
+    #[error("expected the frame's stats, got a {0:?} message")]
+    NoStats(MessageType),
+    #[error("reading the frame's stats: {0}")]
+    ReadStats(#[source] ReadError),
+    #[error("malformed stats: {0}")]
+    Stats(#[source] strata_wire::WireError),
+    #[error("sent a frame that does not decode: {0}")]
+    Decode(#[source] strata_wire::WireError),
+    #[error("unexpected {0:?} message from a node")]
+    Unexpected(MessageType),
+    #[error("the frame decoder failed: {0}")]
+    Decoder(#[source] tokio::task::JoinError),
+}
+
+/// The text of a node's error message (or why it does not decode).
+fn node_reported(bytes: &[u8], limits: &DecodeOptions) -> LinkError {
+    LinkError::NodeReported(decode_error(bytes, limits).unwrap_or_else(|e| e.to_string()))
+}
+
+/// Connects to the node at `addr` and reads its hello, each within `wait`; the error says why
+/// the node cannot be used.
+async fn connect(
+    addr: &str,
+    limits: &DecodeOptions,
+    wait: Duration,
+) -> Result<(OwnedReadHalf, OwnedWriteHalf, Hello), LinkError> {
+    let stream = timeout(wait, TcpStream::connect(addr))
+        .await
+        .map_err(|_| LinkError::ConnectTimeout(wait.as_secs_f64()))?
+        .map_err(LinkError::Connect)?;
+    // Only latency depends on it.
+    let _ = stream.set_nodelay(true);
+    let (mut rd, wr) = stream.into_split();
+    let m = timeout(wait, read_message(&mut rd, limits))
+        .await
+        .map_err(|_| LinkError::NoHello)?
+        .map_err(LinkError::ReadHello)?;
+    let hello = match m.kind {
+        MessageType::Hello => Hello::decode(&m.bytes, limits).map_err(LinkError::Hello)?,
+        MessageType::Error => return Err(node_reported(&m.bytes, limits)),
+        k => return Err(LinkError::NotAHello(k)),
+    };
+    Ok((rd, wr, hello))
+}
+
+/// A frame message's bytes, the stats that followed it, and how long both bodies took to
+/// arrive.
+type RawFrame = (Vec<u8>, NodeStats, Duration);
+
 /// Reads frame + stats message pairs and decodes them on the blocking pool, in order.
 async fn read_frames(
     mut rd: OwnedReadHalf,
     limits: DecodeOptions,
-    out: mpsc::Sender<Result<Box<Arrival>, String>>,
+    out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
 ) {
-    let (raw_tx, mut raw_rx) = mpsc::channel::<(Vec<u8>, NodeStats, Duration)>(2);
-    let decoder = {
-        let limits = limits.clone();
-        let out = out.clone();
-        tokio::spawn(async move {
-            while let Some((bytes, stats, transfer)) = raw_rx.recv().await {
-                let limits = limits.clone();
-                let len = bytes.len() as u64;
-                let start = Instant::now();
-                let decoded =
-                    tokio::task::spawn_blocking(move || decode_frame(&bytes, &limits)).await;
-                let decode = start.elapsed();
-                let item = match decoded {
-                    Ok(Ok(msg)) => Ok(Box::new(Arrival {
-                        msg,
-                        stats,
-                        bytes: len,
-                        transfer,
-                        decode,
-                    })),
-                    Ok(Err(e)) => Err(format!("sent a frame that does not decode: {e}")),
-                    Err(e) => Err(format!("decoding failed: {e}")),
-                };
-                let failed = item.is_err();
-                if out.send(item).await.is_err() || failed {
-                    return;
+    let (raw_tx, raw_rx) = mpsc::channel::<RawFrame>(2);
+    let decoder = tokio::spawn(decode_frames(raw_rx, limits.clone(), out.clone()));
+    let failed = loop {
+        match read_frame_and_stats(&mut rd, &limits).await {
+            Ok(raw) => {
+                if raw_tx.send(raw).await.is_err() {
+                    break None;
                 }
             }
-        })
-    };
-    let fail = |reason: String| {
-        let out = out.clone();
-        async move {
-            out.send(Err(reason)).await.ok();
+            Err(e) => break Some(e),
         }
     };
-    loop {
-        let m = match read_message(&mut rd, &limits).await {
-            Ok(m) => m,
-            Err(ReadError::Closed) => break fail("the node closed the connection".into()).await,
-            Err(e) => break fail(format!("reading from the node: {e}")).await,
+    drop(raw_tx);
+    // The decoder reports what it decoded before the reader's failure.
+    let failed = match decoder.await {
+        Err(e) if e.is_panic() => Some(LinkError::Decoder(e)),
+        _ => failed,
+    };
+    if let Some(e) = failed {
+        // A closed channel means the link has moved on: nobody is left to tell.
+        let _ = out.send(Err(e)).await;
+    }
+}
+
+/// Reads the next frame message and the stats message that follows it.
+async fn read_frame_and_stats(
+    rd: &mut OwnedReadHalf,
+    limits: &DecodeOptions,
+) -> Result<RawFrame, LinkError> {
+    let m = match read_message(rd, limits).await {
+        Ok(m) => m,
+        Err(ReadError::Closed) => return Err(LinkError::Closed),
+        Err(e) => return Err(LinkError::Read(e)),
+    };
+    match m.kind {
+        MessageType::Frame => {}
+        MessageType::Error => return Err(node_reported(&m.bytes, limits)),
+        k => return Err(LinkError::Unexpected(k)),
+    }
+    let s = read_message(rd, limits)
+        .await
+        .map_err(LinkError::ReadStats)?;
+    if s.kind != MessageType::Stats {
+        return Err(LinkError::NoStats(s.kind));
+    }
+    let stats = NodeStats::decode(&s.bytes, limits).map_err(LinkError::Stats)?;
+    Ok((m.bytes, stats, m.body_time + s.body_time))
+}
+
+/// Decodes each frame on the blocking pool, in order, and hands it on; stops at the first
+/// frame that does not decode.
+async fn decode_frames(
+    mut raw: mpsc::Receiver<RawFrame>,
+    limits: DecodeOptions,
+    out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
+) {
+    while let Some((bytes, stats, transfer)) = raw.recv().await {
+        let limits = limits.clone();
+        let len = bytes.len() as u64;
+        let start = Instant::now();
+        let decoded = tokio::task::spawn_blocking(move || decode_frame(&bytes, &limits)).await;
+        let decode = start.elapsed();
+        let item = match decoded {
+            Ok(Ok(msg)) => Ok(Box::new(Arrival {
+                msg,
+                stats,
+                bytes: len,
+                transfer,
+                decode,
+            })),
+            Ok(Err(e)) => Err(LinkError::Decode(e)),
+            Err(e) => Err(LinkError::Decoder(e)),
         };
-        match m.kind {
-            MessageType::Frame => {
-                let s = match read_message(&mut rd, &limits).await {
-                    Ok(s) if s.kind == MessageType::Stats => s,
-                    Ok(s) => {
-                        break fail(format!(
-                            "expected the frame's stats, got a {:?} message",
-                            s.kind
-                        ))
-                        .await;
-                    }
-                    Err(e) => break fail(format!("reading the frame's stats: {e}")).await,
-                };
-                let stats = match NodeStats::decode(&s.bytes, &limits) {
-                    Ok(st) => st,
-                    Err(e) => break fail(format!("malformed stats: {e}")).await,
-                };
-                let transfer = m.body_time + s.body_time;
-                if raw_tx.send((m.bytes, stats, transfer)).await.is_err() {
-                    break;
-                }
-            }
-            MessageType::Error => {
-                let text = decode_error(&m.bytes, &limits).unwrap_or_else(|e| e.to_string());
-                break fail(format!("node reported: {text}")).await;
-            }
-            k => break fail(format!("unexpected {k:?} message from a node")).await,
+        let failed = item.is_err();
+        if out.send(item).await.is_err() || failed {
+            return;
         }
     }
-    drop(raw_tx);
-    decoder.await.ok();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn node_addresses_are_host_and_port() {
+        for good in [
+            "127.0.0.1:7400",
+            "render-1.lan:1",
+            "localhost:65535",
+            "[::1]:7400",
+        ] {
+            assert_eq!(check_address(good), Ok(()), "{good}");
+        }
+        let no_port = |a: &str| AddressError::NoPort(a.into());
+        let port = |a: &str, p: &str| AddressError::Port {
+            address: a.into(),
+            port: p.into(),
+        };
+        let host = |a: &str, h: &str| AddressError::Host {
+            address: a.into(),
+            host: h.into(),
+        };
+        for (bad, want) in [
+            ("not-an-address", no_port("not-an-address")),
+            ("127.0.0.1:0", port("127.0.0.1:0", "0")),
+            ("127.0.0.1:65536", port("127.0.0.1:65536", "65536")),
+            ("127.0.0.1:http", port("127.0.0.1:http", "http")),
+            (":7400", host(":7400", "")),
+            ("::1:7400", host("::1:7400", "::1")),
+            ("[::zz]:7400", host("[::zz]:7400", "[::zz]")),
+            ("two words:7400", host("two words:7400", "two words")),
+        ] {
+            assert_eq!(check_address(bad), Err(want), "{bad}");
+        }
+    }
 }

@@ -29,3 +29,14 @@ mod stream;
 pub mod transfer;
 
 pub use transfer::Transfer;
+
+/// The animation frame that frame number `frame` poses a scene at. Frame numbers travel as
+/// `u64`, scenes are posed with `u32` frames: a larger number is refused, never clamped.
+pub fn animation_frame(frame: u64) -> Result<u32, FrameOutOfRange> {
+    u32::try_from(frame).map_err(|_| FrameOutOfRange(frame))
+}
+
+/// A frame number beyond the last frame a scene can be posed at (2^32 - 1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("frame {0} is beyond the last animation frame a scene can be posed at ({max})", max = u32::MAX)]
+pub struct FrameOutOfRange(pub u64);

@@ -25,23 +25,25 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use strata_core::{DeepFrame, ObjectId, PassTimings};
+use strata_core::{DeepFrame, DeepFrameError, ObjectId, PassTimings};
 use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
-use strata_stores::{Method, MethodOptions};
+use strata_stores::{Method, MethodOptions, StoreError};
 use strata_wire::{
     DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
     TransferMethod, WireError, encode_delta_into, encode_error_into, encode_frame_into,
-    encode_reprojection_into, seed_layout_bytes,
+    encode_reprojection_into, message_type, seed_layout_bytes,
 };
 use tokio::io::AsyncWriteExt;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 
 use crate::difference::DiffEncoder;
-use crate::reprojection::{ReprojEncoder, View};
+use crate::reprojection::{ReprojEncoder, TooDeep, View};
 use crate::select::{depth_limit, restrict};
 use crate::stream::{ReadError, read_message};
+use crate::{FrameOutOfRange, animation_frame};
 
 /// Stores that keep every fragment whatever its colour bytes hold: the ones a node can render
 /// normal fragments with (the others read alpha, which a packed normal does not have, or drop
@@ -168,12 +170,92 @@ impl NodeConfig {
 }
 
 /// What happened on a node, for its log.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub enum NodeEvent {
     /// A display connected.
     Connected(String),
     /// The connection ended: cleanly (`None`) or with a reason.
-    Closed(String, Option<String>),
+    Closed(String, Option<ConnectionError>),
+}
+
+/// Why a display connection ended other than by the display closing it.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConnectionError {
+    /// The hello did not encode (a scene or object name too long for the wire).
+    #[error("encoding the hello: {0}")]
+    HelloEncode(#[source] WireError),
+    /// The socket failed.
+    #[error("{what}: {source}")]
+    Io {
+        /// What the node was doing.
+        what: &'static str,
+        /// The socket's error.
+        source: std::io::Error,
+    },
+    /// A message from the display that is not a well-formed strata message.
+    #[error("reading a request: {0}")]
+    Wire(#[source] WireError),
+    /// A message from the display that is not a request.
+    #[error("expected a request, got a {0:?} message")]
+    NotARequest(MessageType),
+    /// A request that does not decode.
+    #[error("malformed request: {0}")]
+    Request(#[source] WireError),
+    /// A reprojection request to a node whose store may lose fragments or read alpha.
+    #[error(
+        "the reprojection transfer needs every fragment with its normal, from one of {stores}; \
+         this node runs '{method}'",
+        stores = EXACT_STORES.join(", ")
+    )]
+    NeedsExactStore {
+        /// The node's store.
+        method: String,
+    },
+    /// A fixup request that cannot be answered.
+    #[error(transparent)]
+    Fixup(#[from] FixupError),
+    /// A stage ended before the connection did (it reported why to the display).
+    #[error("the {0} stage stopped")]
+    StageStopped(&'static str),
+    /// A stage's thread could not start.
+    #[error("starting the {stage} thread: {source}")]
+    Spawn {
+        /// The stage.
+        stage: &'static str,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A stage panicked: a bug in strata.
+    #[error("the {stage} stage panicked: {message}")]
+    Panicked {
+        /// The stage.
+        stage: &'static str,
+        /// The panic's message.
+        message: String,
+    },
+}
+
+/// Why a fixup request cannot be answered.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum FixupError {
+    /// The frame is no longer (or was never) among the recent frames.
+    #[error("fixup for frame {0}, which is not among the {RECENT_FRAMES} most recent frames")]
+    NotRecent(u64),
+    /// The mask is for another frame size.
+    #[error("fixup mask of {mask} pixels for a {width}x{height} frame")]
+    MaskSize {
+        /// Pixels the mask covers.
+        mask: u32,
+        /// The frame's size.
+        width: u32,
+        /// The frame's size.
+        height: u32,
+    },
+    /// The reply did not encode.
+    #[error("encoding the fixup reply: {0}")]
+    Encode(#[source] WireError),
 }
 
 /// Serves displays forever, one connection at a time.
@@ -201,6 +283,8 @@ struct RenderJob {
 /// Work for the encode thread.
 struct EncodeJob {
     request: Request,
+    /// The animation frame the request's frame number poses the scene at.
+    pose: u32,
     frame: DeepFrame,
     render_us: u64,
 }
@@ -208,175 +292,260 @@ struct EncodeJob {
 type Recent = Arc<Mutex<VecDeque<(u64, Arc<DeepFrame>)>>>;
 
 /// Serves one display until it disconnects; the error says why the connection ended otherwise.
-pub async fn serve_connection(stream: TcpStream, config: NodeConfig) -> Result<(), String> {
-    stream.set_nodelay(true).ok();
+pub async fn serve_connection(
+    stream: TcpStream,
+    config: NodeConfig,
+) -> Result<(), ConnectionError> {
+    // Only latency depends on it.
+    let _ = stream.set_nodelay(true);
     let (mut reader, mut writer) = stream.into_split();
     let mut hello = Vec::new();
     config
         .hello()
         .encode_into(&mut hello)
-        .map_err(|e| e.to_string())?;
-    writer.write_all(&hello).await.map_err(|e| e.to_string())?;
+        .map_err(ConnectionError::HelloEncode)?;
+    writer
+        .write_all(&hello)
+        .await
+        .map_err(|source| ConnectionError::Io {
+            what: "sending the hello",
+            source,
+        })?;
 
-    let (out_tx, mut out_rx) = mpsc::channel::<Vec<u8>>(2);
+    let (out_tx, out_rx) = mpsc::channel::<Vec<u8>>(2);
     let (render_tx, render_rx) = mpsc::channel::<RenderJob>(2);
     let (encode_tx, encode_rx) = mpsc::channel::<EncodeJob>(2);
     let recent: Recent = Arc::new(Mutex::new(VecDeque::new()));
 
-    let render = {
-        let config = config.clone();
-        let out = out_tx.clone();
+    let spawn = |stage: &'static str, f: Box<dyn FnOnce() + Send>| {
         std::thread::Builder::new()
-            .name("strata-node-render".into())
-            .spawn(move || render_thread(config, render_rx, encode_tx, out))
-            .map_err(|e| e.to_string())?
+            .name(format!("strata-node-{stage}"))
+            .spawn(f)
+            .map(|h| (stage, h))
+            .map_err(|source| ConnectionError::Spawn { stage, source })
+    };
+    let render = {
+        let (config, out) = (config.clone(), out_tx.clone());
+        spawn(
+            "render",
+            Box::new(move || render_thread(config, render_rx, encode_tx, out)),
+        )?
     };
     let encode = {
-        let config = config.clone();
-        let out = out_tx.clone();
-        let recent = recent.clone();
-        std::thread::Builder::new()
-            .name("strata-node-encode".into())
-            .spawn(move || encode_thread(config, encode_rx, out, recent))
-            .map_err(|e| e.to_string())?
+        let (config, out, recent) = (config.clone(), out_tx.clone(), recent.clone());
+        spawn(
+            "encode",
+            Box::new(move || encode_thread(config, encode_rx, out, recent)),
+        )?
     };
-    let writer_task = tokio::spawn(async move {
-        while let Some(bytes) = out_rx.recv().await {
-            let is_error = bytes.get(6) == Some(&(MessageType::Error as u8));
-            if writer.write_all(&bytes).await.is_err() || is_error {
-                break;
-            }
-        }
-        writer.shutdown().await.ok();
-    });
+    let writer_task = tokio::spawn(write_messages(writer, out_rx));
 
-    let result = loop {
-        let msg = match read_message(&mut reader, &config.limits).await {
+    let result = serve_requests(&mut reader, &config, &render_tx, &out_tx, &recent).await;
+    if let Err(e) = &result {
+        let mut bytes = Vec::new();
+        encode_error_into(&mut bytes, &format!("render node: {e}"));
+        // A closed channel means the writer already stopped: the display is gone.
+        let _ = out_tx.send(bytes).await;
+    }
+    drop(render_tx);
+    drop(out_tx);
+    // The stages end when their inputs close; the writer when every sender is gone. A stage
+    // that panicked is the real reason the connection ended.
+    let stages = tokio::task::spawn_blocking(move || join_stages([render, encode]))
+        .await
+        .map_err(|e| ConnectionError::Panicked {
+            stage: "join",
+            message: e.to_string(),
+        })
+        .and_then(|r| r);
+    let writer = writer_task.await.map_err(|e| ConnectionError::Panicked {
+        stage: "writer",
+        message: e.to_string(),
+    });
+    stages.and(writer).and(result)
+}
+
+/// Writes queued messages until every sender is gone, a write fails, or an error message
+/// (after which the node closes the connection) is written.
+async fn write_messages(mut writer: OwnedWriteHalf, mut queue: mpsc::Receiver<Vec<u8>>) {
+    while let Some(bytes) = queue.recv().await {
+        let is_error = message_type(&bytes) == Some(MessageType::Error);
+        if writer.write_all(&bytes).await.is_err() || is_error {
+            break;
+        }
+    }
+    // The display may already have closed its end; nothing is left to tell it.
+    let _ = writer.shutdown().await;
+}
+
+/// Waits for the stage threads; the first that panicked is the error.
+fn join_stages(
+    stages: [(&'static str, std::thread::JoinHandle<()>); 2],
+) -> Result<(), ConnectionError> {
+    let mut result = Ok(());
+    for (stage, handle) in stages {
+        if let Err(panic) = handle.join() {
+            let message = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "no message".into());
+            result = result.and(Err(ConnectionError::Panicked { stage, message }));
+        }
+    }
+    result
+}
+
+/// Reads the display's requests and hands them to the stages until the display closes the
+/// connection (`Ok`) or something goes wrong.
+async fn serve_requests(
+    reader: &mut OwnedReadHalf,
+    config: &NodeConfig,
+    render: &mpsc::Sender<RenderJob>,
+    out: &mpsc::Sender<Vec<u8>>,
+    recent: &Recent,
+) -> Result<(), ConnectionError> {
+    loop {
+        let msg = match read_message(reader, &config.limits).await {
             Ok(m) => m,
-            Err(ReadError::Closed) => break Ok(()),
-            Err(e) => break Err(format!("reading a request: {e}")),
+            Err(ReadError::Closed) => return Ok(()),
+            Err(ReadError::Io(source)) => {
+                return Err(ConnectionError::Io {
+                    what: "reading a request",
+                    source,
+                });
+            }
+            Err(ReadError::Wire(e)) => return Err(ConnectionError::Wire(e)),
         };
         if msg.kind != MessageType::Request {
-            break Err(format!("expected a request, got a {:?} message", msg.kind));
+            return Err(ConnectionError::NotARequest(msg.kind));
         }
-        let request = match Request::decode(&msg.bytes, &config.limits) {
-            Ok(r) => r,
-            Err(e) => break Err(format!("malformed request: {e}")),
-        };
+        let request =
+            Request::decode(&msg.bytes, &config.limits).map_err(ConnectionError::Request)?;
         if request.transfer == TransferMethod::Reprojection
             && !EXACT_STORES.contains(&config.method.as_str())
         {
-            break Err(format!(
-                "the reprojection transfer needs every fragment with its normal, from one of {}; \
-                 this node runs '{}'",
-                EXACT_STORES.join(", "),
-                config.method
-            ));
+            return Err(ConnectionError::NeedsExactStore {
+                method: config.method.clone(),
+            });
         }
         match request.kind {
             RequestKind::Render { .. } => {
-                if render_tx.send(RenderJob { request }).await.is_err() {
-                    break Err("the render stage stopped".into());
+                if render.send(RenderJob { request }).await.is_err() {
+                    return Err(ConnectionError::StageStopped("render"));
                 }
             }
             RequestKind::Fixup(ref mask) => {
                 let mask = mask.clone();
                 let recent = recent.clone();
-                let out = out_tx.clone();
                 let reply = tokio::task::spawn_blocking(move || fixup(&recent, &request, &mask))
                     .await
-                    .map_err(|e| e.to_string())
-                    .and_then(|r| r);
-                match reply {
-                    Ok(bytes) => {
-                        if out.send(bytes).await.is_err() {
-                            break Err("the connection's writer stopped".into());
-                        }
-                    }
-                    Err(e) => break Err(e),
+                    .map_err(|e| ConnectionError::Panicked {
+                        stage: "fixup",
+                        message: e.to_string(),
+                    })??;
+                if out.send(reply).await.is_err() {
+                    return Err(ConnectionError::StageStopped("writer"));
                 }
             }
         }
-    };
-    if let Err(e) = &result {
-        let mut bytes = Vec::new();
-        encode_error_into(&mut bytes, &format!("render node: {e}"));
-        out_tx.send(bytes).await.ok();
     }
-    drop(render_tx);
-    drop(out_tx);
-    // The stages end when their inputs close; the writer when every sender is gone.
-    tokio::task::spawn_blocking(move || {
-        render.join().ok();
-        encode.join().ok();
-    })
-    .await
-    .ok();
-    writer_task.await.ok();
-    result
 }
 
+/// Sends `text` to the display as an error message (after which the writer closes the
+/// connection).
+fn send_error(out: &mpsc::Sender<Vec<u8>>, text: &str) {
+    let mut bytes = Vec::new();
+    encode_error_into(&mut bytes, &format!("render node: {text}"));
+    // A closed channel means the connection is already over.
+    let _ = out.blocking_send(bytes);
+}
+
+/// Why a frame could not be rendered.
+#[derive(Debug, thiserror::Error)]
+enum RenderError {
+    /// The frame number cannot pose the scene.
+    #[error(transparent)]
+    Frame(#[from] FrameOutOfRange),
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// Reprojection: the store lost fragments.
+    #[error(
+        "the store dropped {0} fragments; the reprojection transfer needs every one (use a \
+         growing pool: --pool auto)"
+    )]
+    Dropped(u64),
+    /// The store's fragments do not form a DeepFrame.
+    #[error(transparent)]
+    DeepFrame(#[from] DeepFrameError),
+    /// The store keeps no fragment lists.
+    #[error("method '{0}' exports no DeepFrame")]
+    NoDeepFrame(String),
+}
+
+/// Renders each requested frame with the node's store and hands it to the encode thread.
 fn render_thread(
     config: NodeConfig,
     mut jobs: mpsc::Receiver<RenderJob>,
     encode: mpsc::Sender<EncodeJob>,
     out: mpsc::Sender<Vec<u8>>,
 ) {
-    let fail = |e: String| {
-        let mut bytes = Vec::new();
-        encode_error_into(&mut bytes, &format!("render node: {e}"));
-        out.blocking_send(bytes).ok();
-    };
     let mut method = match config.store() {
         Ok(m) => m,
-        Err(e) => return fail(e.to_string()),
+        Err(e) => return send_error(&out, &e.to_string()),
     };
     let mut raster = Rasterizer::default();
     while let Some(RenderJob { request }) = jobs.blocking_recv() {
         let start = Instant::now();
-        let frame_index = u32::try_from(request.frame_number).unwrap_or(u32::MAX);
-        let mut input = FrameInput::from_scene(&config.scene, frame_index);
-        input.objects.retain(|o| config.objects.contains(&o.id));
-        input.width = request.width;
-        input.height = request.height;
-        input.view = glam::Mat4::from_cols_array(&request.view);
-        input.projection = glam::Mat4::from_cols_array(&request.projection);
-        if request.transfer == TransferMethod::Reprojection {
-            input.output = FragmentOutput::PackedNormal;
-        }
-        let frame = method
-            .clear(input.width, input.height)
-            .and_then(|()| method.capture(&mut raster, &input, &mut PassTimings::new()))
-            .map_err(|e| e.to_string())
-            .and_then(|report| {
-                // Reprojection: the display must be able to hold exactly what was rendered.
-                if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
-                    return Err(format!(
-                        "the store dropped {} fragments; the reprojection transfer needs every \
-                         one (use a growing pool: --pool auto)",
-                        report.dropped
-                    ));
-                }
-                Ok(())
-            })
-            .and_then(|()| match method.deep_frame() {
-                Some(Ok(f)) => Ok(f),
-                Some(Err(e)) => Err(e.to_string()),
-                None => Err(format!("method '{}' exports no DeepFrame", config.method)),
+        let rendered = animation_frame(request.frame_number)
+            .map_err(RenderError::from)
+            .and_then(|pose| {
+                render(&config, method.as_mut(), &mut raster, &request, pose).map(|f| (pose, f))
             });
-        match frame {
-            Ok(frame) => {
-                let job = EncodeJob {
-                    request,
-                    frame,
-                    render_us: start.elapsed().as_micros() as u64,
-                };
-                if encode.blocking_send(job).is_err() {
-                    return;
-                }
-            }
-            Err(e) => return fail(format!("frame {}: {e}", request.frame_number)),
+        let (pose, frame) = match rendered {
+            Ok(r) => r,
+            Err(e) => return send_error(&out, &format!("frame {}: {e}", request.frame_number)),
+        };
+        let job = EncodeJob {
+            request,
+            pose,
+            frame,
+            render_us: start.elapsed().as_micros() as u64,
+        };
+        if encode.blocking_send(job).is_err() {
+            return;
         }
+    }
+}
+
+/// Renders the node's objects posed at `pose` with the request's camera and size: clear,
+/// capture, export the DeepFrame.
+fn render(
+    config: &NodeConfig,
+    method: &mut dyn Method,
+    raster: &mut Rasterizer,
+    request: &Request,
+    pose: u32,
+) -> Result<DeepFrame, RenderError> {
+    let mut input = FrameInput::from_scene(&config.scene, pose);
+    input.objects.retain(|o| config.objects.contains(&o.id));
+    input.width = request.width;
+    input.height = request.height;
+    input.view = glam::Mat4::from_cols_array(&request.view);
+    input.projection = glam::Mat4::from_cols_array(&request.projection);
+    if request.transfer == TransferMethod::Reprojection {
+        input.output = FragmentOutput::PackedNormal;
+    }
+    method.clear(input.width, input.height)?;
+    let report = method.capture(raster, &input, &mut PassTimings::new())?;
+    // Reprojection: the display must be able to hold exactly what was rendered.
+    if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
+        return Err(RenderError::Dropped(report.dropped));
+    }
+    match method.deep_frame() {
+        Some(f) => Ok(f?),
+        None => Err(RenderError::NoDeepFrame(config.method.clone())),
     }
 }
 
@@ -391,6 +560,117 @@ fn header_for(request: &Request, fixup: bool) -> FrameHeader {
     }
 }
 
+/// Why a frame could not be encoded.
+#[derive(Debug, thiserror::Error)]
+enum EncodeError {
+    /// The wire encoder refused it.
+    #[error(transparent)]
+    Wire(#[from] WireError),
+    /// The reprojection delta does not fit the wire format.
+    #[error(transparent)]
+    Reprojection(#[from] TooDeep),
+}
+
+/// The encode thread's state across frames: what the difference and reprojection transfers
+/// remember of the frames before.
+struct Encoders {
+    background: [f32; 3],
+    diff: DiffEncoder,
+    reproj: ReprojEncoder,
+}
+
+/// What selecting and encoding one frame did.
+struct Encoded {
+    /// Fragments in the message.
+    sent: u64,
+    select_us: u64,
+    encode_us: u64,
+}
+
+/// Selects fragments of `frame` with the request's transfer and encodes them into `bytes`.
+fn select_and_encode(
+    enc: &mut Encoders,
+    config: &NodeConfig,
+    request: &Request,
+    pose: u32,
+    frame: &Arc<DeepFrame>,
+    bytes: &mut Vec<u8>,
+) -> Result<Encoded, EncodeError> {
+    let header = header_for(request, false);
+    let reset = matches!(request.kind, RequestKind::Render { reset: true });
+    let select_start = Instant::now();
+    let micros = |t: Instant| t.elapsed().as_micros() as u64;
+    match request.transfer {
+        TransferMethod::Difference => {
+            if reset {
+                enc.diff = DiffEncoder::new(enc.background, request.tolerance);
+            }
+            let d = enc.diff.diff(frame.clone());
+            let select_us = micros(select_start);
+            let t = Instant::now();
+            encode_delta_into(bytes, &header, &d.changed, &d.stale, &d.runs, request.codec)?;
+            Ok(Encoded {
+                sent: d.runs.fragment_count() as u64,
+                select_us,
+                encode_us: micros(t),
+            })
+        }
+        TransferMethod::DepthLimited {
+            layers,
+            opacity_threshold,
+        } => {
+            let chosen = depth_limit(frame, layers, opacity_threshold);
+            let select_us = micros(select_start);
+            let t = Instant::now();
+            encode_frame_into(bytes, &header, &chosen, request.codec)?;
+            Ok(Encoded {
+                sent: chosen.fragment_count() as u64,
+                select_us,
+                encode_us: micros(t),
+            })
+        }
+        TransferMethod::Reprojection => {
+            if reset {
+                enc.reproj = ReprojEncoder::new(request.tolerance);
+            }
+            let view = View::new(
+                &config.scene,
+                &config.objects,
+                pose,
+                (request.width, request.height),
+                glam::Mat4::from_cols_array(&request.view),
+                glam::Mat4::from_cols_array(&request.projection),
+            );
+            let d = enc.reproj.encode(&view, frame)?;
+            let select_us = micros(select_start);
+            let t = Instant::now();
+            encode_reprojection_into(
+                bytes,
+                &header,
+                &d.touched,
+                &d.removals,
+                &d.inserts,
+                request.codec,
+            )?;
+            Ok(Encoded {
+                sent: d.inserts.fragment_count() as u64,
+                select_us,
+                encode_us: micros(t),
+            })
+        }
+        TransferMethod::Full => {
+            let t = Instant::now();
+            encode_frame_into(bytes, &header, frame, request.codec)?;
+            Ok(Encoded {
+                sent: frame.fragment_count() as u64,
+                select_us: 0,
+                encode_us: micros(t),
+            })
+        }
+    }
+}
+
+/// Selects, encodes and sends each rendered frame with its stats, and keeps it for fixups.
 fn encode_thread(
     config: NodeConfig,
     mut jobs: mpsc::Receiver<EncodeJob>,
@@ -398,109 +678,33 @@ fn encode_thread(
     recent: Recent,
 ) {
     let background = config.scene.background;
-    let mut diff = DiffEncoder::new(background, 0);
-    let mut reproj = ReprojEncoder::new(0);
+    let mut enc = Encoders {
+        background,
+        diff: DiffEncoder::new(background, 0),
+        reproj: ReprojEncoder::new(0),
+    };
     while let Some(EncodeJob {
         request,
+        pose,
         frame,
         render_us,
     }) = jobs.blocking_recv()
     {
         let frame = Arc::new(frame);
-        let pixels = u64::from(request.width) * u64::from(request.height);
-        let rendered = frame.fragment_count() as u64;
-        let header = header_for(&request, false);
         let mut bytes = Vec::new();
-        let select_start = Instant::now();
-        let (sent, select_us, encode_us, result) = match request.transfer {
-            TransferMethod::Difference => {
-                if matches!(request.kind, RequestKind::Render { reset: true }) {
-                    diff = DiffEncoder::new(background, request.tolerance);
-                }
-                let d = diff.diff(frame.clone());
-                let select_us = select_start.elapsed().as_micros() as u64;
-                let t = Instant::now();
-                let r = encode_delta_into(
-                    &mut bytes,
-                    &header,
-                    &d.changed,
-                    &d.stale,
-                    &d.runs,
-                    request.codec,
-                );
-                (
-                    d.runs.fragment_count() as u64,
-                    select_us,
-                    t.elapsed().as_micros() as u64,
-                    r,
-                )
-            }
-            TransferMethod::DepthLimited {
-                layers,
-                opacity_threshold,
-            } => {
-                let chosen = depth_limit(&frame, layers, opacity_threshold);
-                let select_us = select_start.elapsed().as_micros() as u64;
-                let t = Instant::now();
-                let r = encode_frame_into(&mut bytes, &header, &chosen, request.codec);
-                (
-                    chosen.fragment_count() as u64,
-                    select_us,
-                    t.elapsed().as_micros() as u64,
-                    r,
-                )
-            }
-            TransferMethod::Reprojection => {
-                if matches!(request.kind, RequestKind::Render { reset: true }) {
-                    reproj = ReprojEncoder::new(request.tolerance);
-                }
-                let view = View::new(
-                    &config.scene,
-                    &config.objects,
-                    request.frame_number,
-                    (request.width, request.height),
-                    glam::Mat4::from_cols_array(&request.view),
-                    glam::Mat4::from_cols_array(&request.projection),
-                );
-                match reproj.encode(&view, &frame) {
-                    Ok(d) => {
-                        let select_us = select_start.elapsed().as_micros() as u64;
-                        let t = Instant::now();
-                        let r = encode_reprojection_into(
-                            &mut bytes,
-                            &header,
-                            &d.touched,
-                            &d.removals,
-                            &d.inserts,
-                            request.codec,
-                        );
-                        (
-                            d.inserts.fragment_count() as u64,
-                            select_us,
-                            t.elapsed().as_micros() as u64,
-                            r,
-                        )
-                    }
-                    Err(e) => (0, 0, 0, Err(WireError::Encode(e.to_string()))),
-                }
-            }
-            TransferMethod::Full => {
-                let t = Instant::now();
-                let r = encode_frame_into(&mut bytes, &header, &frame, request.codec);
-                (rendered, 0, t.elapsed().as_micros() as u64, r)
+        let encoded = match select_and_encode(&mut enc, &config, &request, pose, &frame, &mut bytes)
+        {
+            Ok(e) => e,
+            Err(e) => {
+                let text = format!("encoding frame {}: {e}", request.frame_number);
+                return send_error(&out, &text);
             }
         };
-        if let Err(e) = result {
-            encode_error_into(
-                &mut bytes,
-                &format!("render node: encoding frame {}: {e}", request.frame_number),
-            );
-            out.blocking_send(bytes).ok();
-            return;
-        }
+        let pixels = u64::from(request.width) * u64::from(request.height);
+        let sent = encoded.sent;
         let stats = NodeStats {
             frame_number: request.frame_number,
-            fragments_rendered: rendered,
+            fragments_rendered: frame.fragment_count() as u64,
             fragments_sent: sent,
             // The seed's layout: 4-byte heads, 12-byte colour or 24-byte normal fragments.
             raw_bytes: if request.transfer == TransferMethod::Reprojection {
@@ -509,22 +713,25 @@ fn encode_thread(
                 seed_layout_bytes(pixels, sent)
             },
             render_us,
-            select_us,
-            encode_us,
+            select_us: encoded.select_us,
+            encode_us: encoded.encode_us,
             fixup: false,
         };
         append_stats(&mut bytes, &stats);
-        {
-            let mut r = recent.lock().unwrap_or_else(|e| e.into_inner());
-            if r.len() == RECENT_FRAMES {
-                r.pop_front();
-            }
-            r.push_back((request.frame_number, frame));
-        }
+        keep_recent(&recent, request.frame_number, frame);
         if out.blocking_send(bytes).is_err() {
             return;
         }
     }
+}
+
+/// Keeps `frame` among the recent frames fixup requests are answered from.
+fn keep_recent(recent: &Recent, frame_number: u64, frame: Arc<DeepFrame>) {
+    let mut r = recent.lock().unwrap_or_else(|e| e.into_inner());
+    if r.len() == RECENT_FRAMES {
+        r.pop_front();
+    }
+    r.push_back((frame_number, frame));
 }
 
 fn append_stats(bytes: &mut Vec<u8>, stats: &NodeStats) {
@@ -534,7 +741,7 @@ fn append_stats(bytes: &mut Vec<u8>, stats: &NodeStats) {
 }
 
 /// The reply to a fixup: exact runs of a recent frame at the requested pixels.
-fn fixup(recent: &Recent, request: &Request, mask: &PixelMask) -> Result<Vec<u8>, String> {
+fn fixup(recent: &Recent, request: &Request, mask: &PixelMask) -> Result<Vec<u8>, FixupError> {
     let start = Instant::now();
     let frame = {
         let r = recent.lock().unwrap_or_else(|e| e.into_inner());
@@ -543,19 +750,15 @@ fn fixup(recent: &Recent, request: &Request, mask: &PixelMask) -> Result<Vec<u8>
             .map(|(_, f)| f.clone())
     };
     let Some(frame) = frame else {
-        return Err(format!(
-            "fixup for frame {}, which is not among the {RECENT_FRAMES} most recent frames",
-            request.frame_number
-        ));
+        return Err(FixupError::NotRecent(request.frame_number));
     };
     let pixels = u64::from(frame.width()) * u64::from(frame.height());
     if u64::from(mask.frame_pixels()) != pixels {
-        return Err(format!(
-            "fixup mask of {} pixels for a {}x{} frame",
-            mask.frame_pixels(),
-            frame.width(),
-            frame.height()
-        ));
+        return Err(FixupError::MaskSize {
+            mask: mask.frame_pixels(),
+            width: frame.width(),
+            height: frame.height(),
+        });
     }
     let runs = restrict(&frame, mask);
     let select_us = start.elapsed().as_micros() as u64;
@@ -575,7 +778,7 @@ fn fixup(recent: &Recent, request: &Request, mask: &PixelMask) -> Result<Vec<u8>
         &runs,
         request.codec,
     )
-    .map_err(|e| e.to_string())?;
+    .map_err(FixupError::Encode)?;
     let stats = NodeStats {
         frame_number: request.frame_number,
         fragments_rendered: frame.fragment_count() as u64,

@@ -1,10 +1,33 @@
 //! The exact local render of the whole scene a display is checked against: every object, the
 //! linked-list A-buffer, the display's camera and size — what one machine would have shown.
 
-use strata_core::{DeepFrame, Rgb8Image};
+use strata_core::{DeepFrame, DeepFrameError, Rgb8Image};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::Scene;
-use strata_stores::{MethodOptions, create};
+use strata_stores::{MethodOptions, StoreError, UnknownMethod, create};
+
+use crate::{FrameOutOfRange, animation_frame};
+
+/// Why the exact render failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReferenceError {
+    /// The frame number cannot pose the scene.
+    #[error(transparent)]
+    Frame(#[from] FrameOutOfRange),
+    /// The A-buffer is not available.
+    #[error("the exact render: {0}")]
+    Method(#[from] UnknownMethod),
+    /// The A-buffer failed (out of memory for its pool, a frame too large…).
+    #[error("the exact render: {0}")]
+    Store(#[from] StoreError),
+    /// Its fragments do not form a DeepFrame.
+    #[error("the exact render: {0}")]
+    DeepFrame(#[from] DeepFrameError),
+    /// The A-buffer exports no DeepFrame.
+    #[error("the exact render: the A-buffer exports no DeepFrame")]
+    NoDeepFrame,
+}
 
 /// Renders and resolves every object of `scene` at animation frame `frame`, `width × height`.
 pub fn exact_image(
@@ -13,7 +36,7 @@ pub fn exact_image(
     width: u32,
     height: u32,
     raster: &mut Rasterizer,
-) -> Result<Rgb8Image, String> {
+) -> Result<Rgb8Image, ReferenceError> {
     Ok(exact_frame(scene, frame, width, height, raster)?.resolve(scene.background))
 }
 
@@ -24,18 +47,14 @@ pub fn exact_frame(
     width: u32,
     height: u32,
     raster: &mut Rasterizer,
-) -> Result<DeepFrame, String> {
-    let mut method = create("abuffer", &MethodOptions::default()).map_err(|e| e.to_string())?;
-    let mut input = FrameInput::from_scene(scene, u32::try_from(frame).unwrap_or(u32::MAX));
+) -> Result<DeepFrame, ReferenceError> {
+    let pose = animation_frame(frame)?;
+    let mut method = create("abuffer", &MethodOptions::default())?;
+    let mut input = FrameInput::from_scene(scene, pose);
     input.width = width;
     input.height = height;
     input.projection = scene.camera.projection(width, height);
-    method.clear(width, height).map_err(|e| e.to_string())?;
-    method
-        .capture(raster, &input, &mut strata_core::PassTimings::new())
-        .map_err(|e| e.to_string())?;
-    match method.deep_frame() {
-        Some(r) => r.map_err(|e| e.to_string()),
-        None => Err("the A-buffer exports no DeepFrame".into()),
-    }
+    method.clear(width, height)?;
+    method.capture(raster, &input, &mut strata_core::PassTimings::new())?;
+    Ok(method.deep_frame().ok_or(ReferenceError::NoDeepFrame)??)
 }

@@ -6,7 +6,7 @@
 //! the opacity in front of it, `1 − Π(1 − αᵢ)`, is still below T. The first fragment is always
 //! kept; the one that crosses T is kept too (it is what makes the pixel reach T).
 //!
-//! Both build the output with [`gather`]: per pixel, a span of some source frame's columns;
+//! Both build the output with `gather`: per pixel, a span of some source frame's columns;
 //! counted in parallel chunks, prefix-summed, then copied in parallel chunks into columns
 //! allocated once — no per-pixel allocation and no re-sorting (spans of sorted runs are sorted).
 

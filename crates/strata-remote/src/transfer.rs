@@ -8,34 +8,48 @@ pub use strata_wire::TransferMethod as Transfer;
 /// Names accepted by `--transfer`.
 pub const NAMES: &[&str] = &["full", "depth-limited", "difference", "reprojection"];
 
+/// Why `--transfer` and its options do not name a transfer method.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum TransferError {
+    /// Not one of [`NAMES`].
+    #[error("unknown transfer '{0}': expected one of {names}", names = NAMES.join(", "))]
+    Unknown(String),
+    /// `depth-limited` without `--layers`.
+    #[error("--transfer depth-limited needs --layers N (N ≥ 1)")]
+    NeedsLayers,
+    /// `--layers` or `--opacity-threshold` with another transfer.
+    #[error("--layers and --opacity-threshold apply to --transfer depth-limited, not {0}")]
+    NotDepthLimited(String),
+    /// `--layers 0`.
+    #[error("--layers must be at least 1")]
+    NoLayers,
+    /// An opacity threshold outside (0, 1].
+    #[error("--opacity-threshold {0} is outside (0, 1]")]
+    Threshold(f32),
+}
+
 /// The transfer method `name` with its options (`layers` and `opacity_threshold` belong to
-/// `depth-limited` only), or a message saying what is wrong.
+/// `depth-limited` only).
 pub fn parse(
     name: &str,
     layers: Option<u32>,
     opacity_threshold: Option<f32>,
-) -> Result<Transfer, String> {
+) -> Result<Transfer, TransferError> {
     let t = match name {
         "full" => Transfer::Full,
         "depth-limited" => Transfer::DepthLimited {
-            layers: layers.ok_or("--transfer depth-limited needs --layers N (N ≥ 1)")?,
+            layers: layers.ok_or(TransferError::NeedsLayers)?,
             opacity_threshold,
         },
         "difference" => Transfer::Difference,
         "reprojection" => Transfer::Reprojection,
-        other => {
-            return Err(format!(
-                "unknown transfer '{other}': expected one of {}",
-                NAMES.join(", ")
-            ));
-        }
+        other => return Err(TransferError::Unknown(other.to_string())),
     };
     if !matches!(t, Transfer::DepthLimited { .. })
         && (layers.is_some() || opacity_threshold.is_some())
     {
-        return Err(format!(
-            "--layers and --opacity-threshold apply to --transfer depth-limited, not {name}"
-        ));
+        return Err(TransferError::NotDepthLimited(name.to_string()));
     }
     if let Transfer::DepthLimited {
         layers,
@@ -43,12 +57,12 @@ pub fn parse(
     } = t
     {
         if layers == 0 {
-            return Err("--layers must be at least 1".into());
+            return Err(TransferError::NoLayers);
         }
         if let Some(o) = opacity_threshold
             && !(o > 0.0 && o <= 1.0)
         {
-            return Err(format!("--opacity-threshold {o} is outside (0, 1]"));
+            return Err(TransferError::Threshold(o));
         }
     }
     Ok(t)
@@ -78,15 +92,35 @@ mod tests {
                 opacity_threshold: Some(0.9)
             })
         );
-        for (n, l, o) in [
-            ("depth-limited", None, None),
-            ("depth-limited", Some(0), None),
-            ("depth-limited", Some(2), Some(1.5)),
-            ("full", Some(2), None),
-            ("bilateral", None, None),
-            ("reprojection", Some(3), None),
+        for (n, l, o, want) in [
+            ("depth-limited", None, None, TransferError::NeedsLayers),
+            ("depth-limited", Some(0), None, TransferError::NoLayers),
+            (
+                "depth-limited",
+                Some(2),
+                Some(1.5),
+                TransferError::Threshold(1.5),
+            ),
+            (
+                "full",
+                Some(2),
+                None,
+                TransferError::NotDepthLimited("full".into()),
+            ),
+            (
+                "bilateral",
+                None,
+                None,
+                TransferError::Unknown("bilateral".into()),
+            ),
+            (
+                "reprojection",
+                Some(3),
+                None,
+                TransferError::NotDepthLimited("reprojection".into()),
+            ),
         ] {
-            assert!(parse(n, l, o).is_err(), "{n} {l:?} {o:?}");
+            assert_eq!(parse(n, l, o), Err(want), "{n} {l:?} {o:?}");
         }
         for n in ["full", "difference", "reprojection"] {
             assert_eq!(name(parse(n, None, None).unwrap()), n);

@@ -8,9 +8,10 @@ use strata_core::{ObjectId, Rgb8Image};
 use strata_raster::Rasterizer;
 use strata_remote::Transfer;
 use strata_remote::display::{self, DisplayConfig, Observer, OnFault};
+use strata_remote::merge::merge_resolve;
 use strata_remote::node::{NodeConfig, serve};
-use strata_remote::reference::exact_image;
-use strata_remote::report::{FrameStats, NodeIncident};
+use strata_remote::reference::{exact_frame, exact_image};
+use strata_remote::report::{FrameStats, NodeIncident, NodeStatus};
 use strata_scene::{Animation, Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
 use strata_wire::{Codec, DecodeOptions};
@@ -142,7 +143,11 @@ fn two_nodes_full_transfer_equal_the_exact_render() {
     for f in &r.per_frame {
         assert_eq!(f.fragments_sent(), f.fragments_rendered());
         assert!(f.fragments_rendered() > 10_000);
-        assert!(f.nodes.iter().all(|n| n.status == "ok" && n.bytes > 0));
+        assert!(
+            f.nodes
+                .iter()
+                .all(|n| n.status == NodeStatus::Ok && n.bytes > 0)
+        );
     }
 }
 
@@ -291,14 +296,16 @@ fn a_dead_node_is_reported_held_and_reconnected() {
         "{whats:?}"
     );
     assert!(
-        r.per_frame.iter().any(|f| f.nodes[1].status == "held"),
+        r.per_frame
+            .iter()
+            .any(|f| f.nodes[1].status == NodeStatus::Held),
         "the dead node's last frame was held"
     );
     // Once back (the link retries with a growing delay), the display is exact again.
     let back = r
         .per_frame
         .iter()
-        .rposition(|f| f.nodes.iter().any(|n| n.status != "ok"))
+        .rposition(|f| f.nodes.iter().any(|n| n.status != NodeStatus::Ok))
         .expect("some frame was composed without the dead node")
         + 1;
     assert!(back < 60, "the node came back before the end");
@@ -307,6 +314,110 @@ fn a_dead_node_is_reported_held_and_reconnected() {
         incidents: Vec::new(),
     };
     assert_exact(&s, &keep);
+}
+
+/// The exact DeepFrame of the objects `objects` (indices) of `scene` alone at frame `frame`:
+/// what a node serving them renders.
+fn frame_of(scene: &Scene, objects: &[usize], frame: u64) -> strata_core::DeepFrame {
+    let mut only = scene.clone();
+    only.objects = objects.iter().map(|&i| scene.objects[i].clone()).collect();
+    exact_frame(&only, frame, W, H, &mut Rasterizer::default()).unwrap()
+}
+
+/// Two nodes, the second killed for good once frame 2 is composed; returns the run, the
+/// displayed images, and the last frame the dead node delivered.
+fn run_with_a_dying_node(
+    s: &Arc<Scene>,
+    on_fault: OnFault,
+) -> (display::RunResult, Vec<(u64, Rgb8Image)>, usize) {
+    let a = Node::start(s, &[0, 1, 2]);
+    let b = Node::start(s, &[3, 4]);
+    let mut cfg = config(s, &[&a, &b], Transfer::Full, 8);
+    cfg.on_fault = on_fault;
+    struct KillAfter {
+        images: Vec<(u64, Rgb8Image)>,
+        b: Node,
+    }
+    impl Observer for KillAfter {
+        fn frame(&mut self, stats: &FrameStats, image: &Rgb8Image) {
+            self.images.push((stats.frame, image.clone()));
+            if stats.frame == 2 {
+                self.b.kill();
+            }
+        }
+    }
+    let mut killer = KillAfter {
+        images: Vec::new(),
+        b,
+    };
+    let r = display::run(cfg, &mut killer).unwrap();
+    assert_eq!(r.per_frame.len(), 8);
+    // Frames already on their way may still arrive after the kill; after that, nothing.
+    let last_good = r
+        .per_frame
+        .iter()
+        .rposition(|f| f.nodes[1].status == NodeStatus::Ok)
+        .expect("the node delivered frames before it died");
+    assert!(last_good >= 2, "frames 0-2 were delivered");
+    assert!(last_good < 7, "the dead node missed the last frames");
+    assert!(
+        r.per_frame[..=last_good]
+            .iter()
+            .all(|f| f.nodes.iter().all(|n| n.status == NodeStatus::Ok))
+    );
+    (r, killer.images, last_good)
+}
+
+#[test]
+fn on_fault_hold_composes_the_last_good_frame_of_a_node_that_died() {
+    let s = scene();
+    let (r, images, last_good) = run_with_a_dying_node(&s, OnFault::Hold);
+    let held_frame = frame_of(&s, &[3, 4], r.per_frame[last_good].frame);
+    assert!(
+        held_frame.fragment_count() > 0,
+        "the dead node's objects are on screen"
+    );
+    for (k, f) in r.per_frame.iter().enumerate().skip(last_good + 1) {
+        assert_eq!(f.nodes[1].status, NodeStatus::Held, "frame {}", f.frame);
+        assert_eq!(f.nodes[0].status, NodeStatus::Ok, "frame {}", f.frame);
+        let live = frame_of(&s, &[0, 1, 2], f.frame);
+        let want = merge_resolve(&[&live, &held_frame], W, H, s.background);
+        let (t, image) = &images[k];
+        assert_eq!(*t, f.frame);
+        assert!(
+            image == &want,
+            "frame {t}: the display differs in {} pixels from the live node's frame merged with \
+             the dead node's last frame",
+            strata_core::metrics::bad_pixels(image, &want, 0)
+                .unwrap()
+                .count
+        );
+        // Not the live node alone: the held objects are there ...
+        let alone = merge_resolve(&[&live], W, H, s.background);
+        assert!(
+            image != &alone,
+            "frame {t}: the held node's objects are missing"
+        );
+        // ... and they are the old pose, not the current one (the scene turns every frame).
+        let now = exact_image(&s, f.frame, W, H, &mut Rasterizer::default()).unwrap();
+        assert!(image != &now, "frame {t}: the held objects moved");
+    }
+}
+
+#[test]
+fn on_fault_drop_composes_without_a_node_that_died() {
+    let s = scene();
+    let (r, images, last_good) = run_with_a_dying_node(&s, OnFault::Drop);
+    for (k, f) in r.per_frame.iter().enumerate().skip(last_good + 1) {
+        assert_eq!(f.nodes[1].status, NodeStatus::Dropped, "frame {}", f.frame);
+        let live = frame_of(&s, &[0, 1, 2], f.frame);
+        let want = merge_resolve(&[&live], W, H, s.background);
+        assert!(
+            images[k].1 == want,
+            "frame {}: only the live node's objects",
+            f.frame
+        );
+    }
 }
 
 /// Largest channel difference between the display's frames and the exact render.

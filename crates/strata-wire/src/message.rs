@@ -66,6 +66,8 @@ pub const MAGIC: [u8; 4] = *b"STRW";
 pub const VERSION: u16 = 1;
 /// Bytes in the prefix.
 pub const PREFIX_LEN: usize = 20;
+/// Offset of the prefix's `type` byte.
+pub const TYPE_OFFSET: usize = 6;
 /// Bytes of a frame message before its section table.
 pub const FRAME_HEADER_LEN: usize = 188;
 /// Bytes per section-table entry.
@@ -102,6 +104,15 @@ impl MessageType {
         };
         Err(WireError::UnsupportedMessageType { found: b, what })
     }
+}
+
+/// The type of the message `bytes` starts with, read from its prefix's `type` byte without
+/// checking anything else (`None` for a short prefix or an unknown type): what a writer that
+/// queued the message needs to know, not a decoder.
+pub fn message_type(bytes: &[u8]) -> Option<MessageType> {
+    bytes
+        .get(TYPE_OFFSET)
+        .and_then(|&b| MessageType::from_byte(b).ok())
 }
 
 /// What a decoder accepts; every limit is checked before the allocation it guards.
@@ -548,20 +559,12 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
                 "a difference frame holds at most 2^32 - 1 pixels",
             )
         })?;
-    let (changed, stale, removals, sections) = match parsed.info.header.transfer {
-        TransferMethod::Difference => {
-            let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
-            let stale = PixelMask::decode(&decoded.remove(0), parsed.sections[1].offset, pixels)?;
-            (Some(mask), Some(stale), None, &parsed.sections[2..])
-        }
-        TransferMethod::Reprojection => {
-            let mask = PixelMask::decode(&decoded.remove(0), parsed.sections[0].offset, pixels)?;
-            let removals =
-                Removals::decode(&decoded.remove(0), parsed.sections[1].offset, mask.len())?;
-            (Some(mask), None, Some(removals), &parsed.sections[2..])
-        }
-        _ => (None, None, None, &parsed.sections[..]),
-    };
+    let (side, sections) = decode_side_sections(&parsed, &mut decoded, pixels)?;
+    let SideSections {
+        changed,
+        stale,
+        removals,
+    } = side;
     let frame = codec::decode_sections(
         parsed.info.codec,
         parsed.info.width,
@@ -590,6 +593,48 @@ pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessag
     })
 }
 
+/// What a difference or reprojection frame carries before the codec's sections.
+#[derive(Default)]
+struct SideSections {
+    changed: Option<PixelMask>,
+    stale: Option<PixelMask>,
+    removals: Option<Removals>,
+}
+
+/// Decodes the difference transfer's `mask` and `stale` or the reprojection transfer's `mask`
+/// and `removals` (taking them from the front of `decoded`); returns them with the codec's
+/// sections that follow.
+fn decode_side_sections<'p, 'a>(
+    parsed: &'p ParsedFrame<'a>,
+    decoded: &mut Vec<Vec<u8>>,
+    pixels: u32,
+) -> Result<(SideSections, &'p [SectionRef<'a>]), WireError> {
+    let at = |i: usize| parsed.sections[i].offset;
+    match parsed.info.header.transfer {
+        TransferMethod::Difference => {
+            let mask = PixelMask::decode(&decoded.remove(0), at(0), pixels)?;
+            let stale = PixelMask::decode(&decoded.remove(0), at(1), pixels)?;
+            let side = SideSections {
+                changed: Some(mask),
+                stale: Some(stale),
+                removals: None,
+            };
+            Ok((side, &parsed.sections[2..]))
+        }
+        TransferMethod::Reprojection => {
+            let mask = PixelMask::decode(&decoded.remove(0), at(0), pixels)?;
+            let removals = Removals::decode(&decoded.remove(0), at(1), mask.len())?;
+            let side = SideSections {
+                changed: Some(mask),
+                stale: None,
+                removals: Some(removals),
+            };
+            Ok((side, &parsed.sections[2..]))
+        }
+        _ => Ok((SideSections::default(), &parsed.sections[..])),
+    }
+}
+
 /// Parses and validates a frame message's header and section table without decompressing
 /// anything (what `strata codecs` reports per section).
 pub fn inspect_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameInfo, WireError> {
@@ -601,13 +646,46 @@ struct ParsedFrame<'a> {
     sections: Vec<SectionRef<'a>>,
 }
 
-/// Everything that can be checked without decompressing, in message order.
+/// Everything that can be checked without decompressing, in message order: the prefix and
+/// body, the header fields, the section table, then the payloads' places.
 fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFrame<'a>, WireError> {
+    let body = checked_frame_body(bytes, options)?;
+    let mut r = Reader::new(body, PREFIX_LEN as u64);
+    let fields = read_frame_fields(&mut r, options)?;
+    let expected = expected_sections(fields.header.transfer, fields.codec);
+    read_section_count(&mut r, &fields, &expected)?;
+    let infos = read_section_table(&mut r, &fields, &expected, options)?;
+    let sections = payloads(&mut r, &infos)?;
+    Ok(ParsedFrame {
+        info: FrameInfo {
+            header: fields.header,
+            codec: fields.codec,
+            width: fields.width,
+            height: fields.height,
+            fragment_count: fields.fragment_count,
+            sections: infos,
+        },
+        sections,
+    })
+}
+
+/// A frame message's fixed-size header, read and checked.
+struct FrameFields {
+    header: FrameHeader,
+    codec: Codec,
+    width: u32,
+    height: u32,
+    fragment_count: u32,
+}
+
+/// The body of a frame message: the prefix is a frame's, its length is the message's, and (when
+/// `options` asks) its checksum matches.
+fn checked_frame_body<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<&'a [u8], WireError> {
     let prefix = parse_prefix(bytes, options)?;
     if prefix.kind != MessageType::Frame {
         return Err(WireError::invalid(
             "type",
-            6,
+            TYPE_OFFSET as u64,
             prefix.kind as u8,
             "not a frame message",
         ));
@@ -640,11 +718,19 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
             });
         }
     }
-    let mut r = Reader::new(body, PREFIX_LEN as u64);
+    Ok(body)
+}
+
+/// Bytes 20–183: frame number, node, size against the limits, fragment count, transfer, codec
+/// and the two matrices.
+fn read_frame_fields(
+    r: &mut Reader<'_>,
+    options: &DecodeOptions,
+) -> Result<FrameFields, WireError> {
     let frame_number = r.u64("frame_number")?;
     let node_id = r.u32("node_id")?;
-    let width = limited(&mut r, "width", u64::from(options.max_width))?;
-    let height = limited(&mut r, "height", u64::from(options.max_height))?;
+    let width = limited(r, "width", u64::from(options.max_width))?;
+    let height = limited(r, "height", u64::from(options.max_height))?;
     let pixels = u64::from(width) * u64::from(height);
     if pixels > options.max_pixels {
         return Err(WireError::Limit {
@@ -654,14 +740,42 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
             limit: options.max_pixels,
         });
     }
-    let fragment_count = limited(&mut r, "fragment_count", options.max_fragments)?;
+    let fragment_count = limited(r, "fragment_count", options.max_fragments)?;
     let transfer_kind = r.u8("transfer")?;
     let transfer_flags = r.u8("transfer_flags")?;
     let codec_id = r.u8("codec")?;
     let codec_param = r.u8("codec_param")?;
     let layers = r.u32("layers")?;
     let threshold = r.f32("opacity_threshold")?;
-    let codec = Codec::from_bytes(codec_id, codec_param).ok_or_else(|| {
+    let codec = codec_from_fields(codec_id, codec_param)?;
+    let fixup = transfer_kind == 2 && transfer_flags & 2 != 0;
+    let transfer = transfer_from_fields(
+        transfer_kind,
+        transfer_flags & !(u8::from(fixup) << 1),
+        layers,
+        threshold,
+    )?;
+    let view = read_matrix(r, "view")?;
+    let projection = read_matrix(r, "projection")?;
+    Ok(FrameFields {
+        header: FrameHeader {
+            frame_number,
+            node_id,
+            view,
+            projection,
+            transfer,
+            fixup,
+        },
+        codec,
+        width,
+        height,
+        fragment_count,
+    })
+}
+
+/// The codec from bytes 46–47 (`codec`, `codec_param`).
+fn codec_from_fields(codec_id: u8, codec_param: u8) -> Result<Codec, WireError> {
+    Codec::from_bytes(codec_id, codec_param).ok_or_else(|| {
         if codec_id <= 4 {
             WireError::invalid(
                 "codec_param",
@@ -672,41 +786,37 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
         } else {
             WireError::invalid("codec", 46, codec_id, "unknown codec (0–4 are defined)")
         }
-    })?;
-    let fixup = transfer_kind == 2 && transfer_flags & 2 != 0;
-    let transfer = transfer_from_fields(
-        transfer_kind,
-        transfer_flags & !(u8::from(fixup) << 1),
-        layers,
-        threshold,
-    )?;
-    let mut view = [0f32; 16];
-    for v in &mut view {
-        *v = r.f32("view")?;
+    })
+}
+
+/// Sixteen floats, column-major.
+fn read_matrix(r: &mut Reader<'_>, field: &'static str) -> Result<[f32; 16], WireError> {
+    let mut m = [0f32; 16];
+    for v in &mut m {
+        *v = r.f32(field)?;
     }
-    let mut projection = [0f32; 16];
-    for v in &mut projection {
-        *v = r.f32("projection")?;
-    }
+    Ok(m)
+}
+
+/// The sections a frame of `transfer` encoded with `codec` has, in order: the difference and
+/// reprojection transfers' two sections, then the codec's.
+fn expected_sections(transfer: TransferMethod, codec: Codec) -> Vec<SectionTag> {
+    let before: &[SectionTag] = match transfer {
+        TransferMethod::Difference => &[SectionTag::Mask, SectionTag::Stale],
+        TransferMethod::Reprojection => &[SectionTag::Mask, SectionTag::Removals],
+        _ => &[],
+    };
+    before.iter().chain(codec.sections()).copied().collect()
+}
+
+/// Bytes 184–187: `section_count`, which must be `expected`'s length, and 2 reserved bytes.
+fn read_section_count(
+    r: &mut Reader<'_>,
+    fields: &FrameFields,
+    expected: &[SectionTag],
+) -> Result<(), WireError> {
     let count_at = r.offset();
     let section_count = r.u16("section_count")?;
-    let codec_sections = codec.sections();
-    let with_mask: Vec<SectionTag>;
-    let expected: &[SectionTag] = if transfer == TransferMethod::Difference {
-        with_mask = [SectionTag::Mask, SectionTag::Stale]
-            .into_iter()
-            .chain(codec_sections.iter().copied())
-            .collect();
-        &with_mask
-    } else if transfer == TransferMethod::Reprojection {
-        with_mask = [SectionTag::Mask, SectionTag::Removals]
-            .into_iter()
-            .chain(codec_sections.iter().copied())
-            .collect();
-        &with_mask
-    } else {
-        codec_sections
-    };
     if usize::from(section_count) != expected.len() {
         return Err(WireError::invalid(
             "section_count",
@@ -714,104 +824,42 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
             section_count,
             format!(
                 "codec {} with this transfer has {} sections",
-                codec.name(),
+                fields.codec.name(),
                 expected.len()
             ),
         ));
     }
-    reserved(&mut r, 2, "reserved")?;
+    reserved(r, 2, "reserved")
+}
 
-    // The section table: every length checked against the header before anything is allocated.
+/// The section table: every length checked against the header before anything is allocated,
+/// and the payloads' lengths against the bytes that follow the table.
+fn read_section_table(
+    r: &mut Reader<'_>,
+    fields: &FrameFields,
+    expected: &[SectionTag],
+    options: &DecodeOptions,
+) -> Result<Vec<SectionInfo>, WireError> {
+    // Everything after the prefix: no payload can be longer.
+    let available = (r.offset() - PREFIX_LEN as u64) + r.remaining() as u64;
     let mut infos = Vec::with_capacity(expected.len());
     let mut payload_total: u64 = 0;
     for &want in expected {
         let entry_at = r.offset();
-        let tag_byte = r.u8("section tag")?;
-        if SectionTag::from_byte(tag_byte) != Some(want) {
-            return Err(WireError::invalid(
-                "section tag",
-                entry_at,
-                tag_byte,
-                format!(
-                    "codec {} expects the {} section ({}) here",
-                    codec.name(),
-                    want.name(),
-                    want as u8
-                ),
-            ));
-        }
-        let comp_byte = r.u8("section compression")?;
-        let compression = match Compression::from_byte(comp_byte) {
-            Some(c) if c == Compression::None || c == codec.compression() => c,
-            _ => {
-                return Err(WireError::invalid(
-                    "section compression",
-                    entry_at + 1,
-                    comp_byte,
-                    format!(
-                        "codec {} allows {} ({}) or none (0)",
-                        codec.name(),
-                        codec.compression().name(),
-                        codec.compression() as u8
-                    ),
-                ));
-            }
-        };
-        reserved(&mut r, 2, "section reserved")?;
-        let encoded_len = r.u64("encoded_len")?;
-        let decoded_at = r.offset();
-        let decoded_len = r.u64("decoded_len")?;
-        payload_total = payload_total.saturating_add(encoded_len);
+        let info = read_section_entry(r, want, fields, options)?;
+        payload_total = payload_total.saturating_add(info.encoded_len);
         if payload_total > available {
             return Err(WireError::invalid(
                 "encoded_len",
                 entry_at + 4,
-                encoded_len,
+                info.encoded_len,
                 format!(
                     "the {} section does not fit in the {available}-byte body",
                     want.name()
                 ),
             ));
         }
-        let (lo, hi) = if want == SectionTag::Removals {
-            want.decoded_range(pixels, options.max_fragments)
-        } else {
-            want.decoded_range(pixels, u64::from(fragment_count))
-        };
-        if decoded_len < lo || decoded_len > hi {
-            let need = if lo == hi {
-                format!("exactly {lo}")
-            } else {
-                format!("{lo} to {hi}")
-            };
-            return Err(WireError::invalid(
-                "decoded_len",
-                decoded_at,
-                decoded_len,
-                format!(
-                    "the {} section of a {width}x{height} frame of {fragment_count} fragments decodes to {need} bytes",
-                    want.name()
-                ),
-            ));
-        }
-        if decoded_len > compression.max_decoded(encoded_len) {
-            return Err(WireError::invalid(
-                "decoded_len",
-                decoded_at,
-                decoded_len,
-                format!(
-                    "{} cannot expand {encoded_len} bytes that far (at most {})",
-                    compression.name(),
-                    compression.max_decoded(encoded_len)
-                ),
-            ));
-        }
-        infos.push(SectionInfo {
-            tag: want,
-            compression,
-            encoded_len,
-            decoded_len,
-        });
+        infos.push(info);
     }
     if payload_total != r.remaining() as u64 {
         return Err(WireError::invalid(
@@ -824,8 +872,118 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
             ),
         ));
     }
+    Ok(infos)
+}
+
+/// One 20-byte table entry, which must describe section `want`: its tag, a compression the
+/// codec allows, and a decoded length the frame's size and fragment count allow and the
+/// compression can reach from the encoded length.
+fn read_section_entry(
+    r: &mut Reader<'_>,
+    want: SectionTag,
+    fields: &FrameFields,
+    options: &DecodeOptions,
+) -> Result<SectionInfo, WireError> {
+    let codec = fields.codec;
+    let entry_at = r.offset();
+    let tag_byte = r.u8("section tag")?;
+    if SectionTag::from_byte(tag_byte) != Some(want) {
+        return Err(WireError::invalid(
+            "section tag",
+            entry_at,
+            tag_byte,
+            format!(
+                "codec {} expects the {} section ({}) here",
+                codec.name(),
+                want.name(),
+                want as u8
+            ),
+        ));
+    }
+    let comp_byte = r.u8("section compression")?;
+    let compression = match Compression::from_byte(comp_byte) {
+        Some(c) if c == Compression::None || c == codec.compression() => c,
+        _ => {
+            return Err(WireError::invalid(
+                "section compression",
+                entry_at + 1,
+                comp_byte,
+                format!(
+                    "codec {} allows {} ({}) or none (0)",
+                    codec.name(),
+                    codec.compression().name(),
+                    codec.compression() as u8
+                ),
+            ));
+        }
+    };
+    reserved(r, 2, "section reserved")?;
+    let encoded_len = r.u64("encoded_len")?;
+    let decoded_at = r.offset();
+    let decoded_len = r.u64("decoded_len")?;
+    check_decoded_len(want, fields, options, decoded_at, decoded_len)?;
+    if decoded_len > compression.max_decoded(encoded_len) {
+        return Err(WireError::invalid(
+            "decoded_len",
+            decoded_at,
+            decoded_len,
+            format!(
+                "{} cannot expand {encoded_len} bytes that far (at most {})",
+                compression.name(),
+                compression.max_decoded(encoded_len)
+            ),
+        ));
+    }
+    Ok(SectionInfo {
+        tag: want,
+        compression,
+        encoded_len,
+        decoded_len,
+    })
+}
+
+/// A section's decoded length must lie in the range its tag allows for the frame's pixels and
+/// fragments (removals: for at most `options.max_fragments` removed positions).
+fn check_decoded_len(
+    want: SectionTag,
+    fields: &FrameFields,
+    options: &DecodeOptions,
+    decoded_at: u64,
+    decoded_len: u64,
+) -> Result<(), WireError> {
+    let (width, height, fragment_count) = (fields.width, fields.height, fields.fragment_count);
+    let pixels = u64::from(width) * u64::from(height);
+    let (lo, hi) = if want == SectionTag::Removals {
+        want.decoded_range(pixels, options.max_fragments)
+    } else {
+        want.decoded_range(pixels, u64::from(fragment_count))
+    };
+    if decoded_len < lo || decoded_len > hi {
+        let need = if lo == hi {
+            format!("exactly {lo}")
+        } else {
+            format!("{lo} to {hi}")
+        };
+        return Err(WireError::invalid(
+            "decoded_len",
+            decoded_at,
+            decoded_len,
+            format!(
+                "the {} section of a {width}x{height} frame of {fragment_count} fragments decodes to {need} bytes",
+                want.name()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The payloads after the table, one per entry, back to back.
+fn payloads<'a>(
+    r: &mut Reader<'a>,
+    infos: &[SectionInfo],
+) -> Result<Vec<SectionRef<'a>>, WireError> {
     let mut sections = Vec::with_capacity(infos.len());
-    for info in &infos {
+    for info in infos {
         let offset = r.offset();
         let payload = r.take(info.encoded_len as usize, "section payload")?;
         sections.push(SectionRef {
@@ -834,24 +992,7 @@ fn parse_frame<'a>(bytes: &'a [u8], options: &DecodeOptions) -> Result<ParsedFra
             offset,
         });
     }
-    Ok(ParsedFrame {
-        info: FrameInfo {
-            header: FrameHeader {
-                frame_number,
-                node_id,
-                view,
-                projection,
-                transfer,
-                fixup,
-            },
-            codec,
-            width,
-            height,
-            fragment_count,
-            sections: infos,
-        },
-        sections,
-    })
+    Ok(sections)
 }
 
 fn limited(r: &mut Reader<'_>, field: &'static str, limit: u64) -> Result<u32, WireError> {

@@ -11,29 +11,28 @@ use strata_core::{Rgb8Image, metrics};
 use strata_raster::Rasterizer;
 use strata_remote::display::{self, DisplayConfig, Observer, OnFault};
 use strata_remote::reference::exact_image;
-use strata_remote::report::{FrameStats, NodeIncident, Summary};
+use strata_remote::report::{FrameStats, NodeIncident, Outcome, Summary};
 use strata_remote::transfer;
 use strata_wire::{Codec, DecodeOptions};
 
+use crate::Failed;
 use crate::options::{open_scene, search_path};
 
-/// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
-///
-/// Asks every node (`strata node`) for each frame of the scene's animation, receives from all of
-/// them at once, merges their per-pixel runs, resolves, and prints a summary: bytes raw and
-/// encoded, node render / select / encode and display transfer / decode / merge / resolve times,
-/// fragments sent against rendered, display fps, and bad pixels against the exact local render
-/// of the whole scene (checked after the run, so the check does not slow the display). A node that
-/// fails is reported, composed without (or from its last frame, `--on-fault hold`) and
-/// reconnected when it returns.
+/// Exit status of a run in which no node delivered any frame.
+const EXIT_NOTHING_DELIVERED: u8 = 1;
+/// Exit status of a run in which some node missed frames.
+const EXIT_DEGRADED: u8 = 3;
+
+/// The arguments of `strata display` (its help text, with the exit statuses, is on the
+/// subcommand in `main.rs`).
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name: the same scene the nodes serve.
     #[arg(long)]
     pub(crate) scene: String,
 
-    /// Render node addresses, comma-separated (`host:port`).
-    #[arg(long, value_delimiter = ',', required = true)]
+    /// Render node addresses, comma-separated (`host:port`, IPv6 as `[::1]:7400`).
+    #[arg(long, value_delimiter = ',', required = true, value_parser = parse_node_address)]
     pub(crate) nodes: Vec<String>,
 
     /// Transfer method: full, depth-limited (with --layers), difference, reprojection.
@@ -89,7 +88,7 @@ pub(crate) struct Args {
     pub(crate) check: bool,
 
     /// A pixel is bad if some channel differs from the exact render by more than this many 8-bit
-    /// steps (DESIGN: 2).
+    /// steps.
     #[arg(long, default_value_t = metrics::DEFAULT_BAD_PIXEL_THRESHOLD)]
     pub(crate) threshold: u8,
 
@@ -104,6 +103,11 @@ pub(crate) struct Args {
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
+}
+
+fn parse_node_address(s: &str) -> Result<String, String> {
+    display::check_address(s).map_err(|e| e.to_string())?;
+    Ok(s.to_string())
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -157,8 +161,7 @@ impl Observer for Progress {
 }
 
 pub(crate) fn run(args: Args) -> Result<()> {
-    let t = transfer::parse(&args.transfer, args.layers, args.opacity_threshold)
-        .map_err(anyhow::Error::msg)?;
+    let t = transfer::parse(&args.transfer, args.layers, args.opacity_threshold)?;
     if !(args.timeout > 0.0 && args.timeout <= 3600.0) {
         bail!("--timeout must be within (0, 3600] seconds");
     }
@@ -214,42 +217,23 @@ pub(crate) fn run(args: Args) -> Result<()> {
         return Err(e);
     }
     let mut per_frame = result.per_frame;
-    if args.check && !progress.images.is_empty() {
-        let bar = ProgressBar::new(progress.images.len() as u64).with_style(
-            ProgressStyle::with_template("checking against the exact render {pos}/{len}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        let mut raster = Rasterizer::default();
-        for ((f, image), stats) in progress.images.iter().zip(per_frame.iter_mut()) {
-            let exact =
-                exact_image(&scene, *f, width, height, &mut raster).map_err(anyhow::Error::msg)?;
-            stats.bad_pixels = Some(metrics::bad_pixels(image, &exact, args.threshold)?.count);
-            bar.inc(1);
-        }
-        bar.finish_and_clear();
+    // Comparing blank frames with the exact render says nothing when no node delivered.
+    if args.check && per_frame.iter().any(FrameStats::delivered) {
+        check_frames(
+            &scene,
+            &progress.images,
+            &mut per_frame,
+            (width, height),
+            args.threshold,
+        )?;
     }
-    let transfer_label = match t {
-        transfer::Transfer::DepthLimited {
-            layers,
-            opacity_threshold: Some(o),
-        } => format!("depth-limited --layers {layers} --opacity-threshold {o}"),
-        transfer::Transfer::DepthLimited { layers, .. } => {
-            format!("depth-limited --layers {layers}")
-        }
-        transfer::Transfer::Difference if tolerance > 0 => {
-            format!("difference --tolerance {tolerance}")
-        }
-        transfer::Transfer::Reprojection => format!("reprojection --tolerance {tolerance}"),
-        other => transfer::name(other).to_string(),
-    };
     let summary = Summary::new(
         scene.name.clone(),
         width,
         height,
-        transfer_label,
+        transfer_label(t, tolerance),
         args.codec.to_string(),
         args.nodes.clone(),
-        result.elapsed_s,
         args.threshold,
         result.incidents,
         per_frame,
@@ -264,5 +248,98 @@ pub(crate) fn run(args: Args) -> Result<()> {
         fs::write(&txt, &table).with_context(|| format!("writing {}", txt.display()))?;
         eprintln!("wrote {} and {}", json.display(), txt.display());
     }
+    exit_status(&summary)
+}
+
+/// Counts each kept frame's bad pixels against the exact local render of the whole scene.
+fn check_frames(
+    scene: &strata_scene::Scene,
+    images: &[(u64, Rgb8Image)],
+    per_frame: &mut [FrameStats],
+    (width, height): (u32, u32),
+    threshold: u8,
+) -> Result<()> {
+    let bar = ProgressBar::new(images.len() as u64).with_style(
+        ProgressStyle::with_template("checking against the exact render {pos}/{len}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut raster = Rasterizer::default();
+    for ((f, image), stats) in images.iter().zip(per_frame.iter_mut()) {
+        let exact = exact_image(scene, *f, width, height, &mut raster)?;
+        stats.bad_pixels = Some(metrics::bad_pixels(image, &exact, threshold)?.count);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
     Ok(())
+}
+
+/// The transfer method and its options as the summary names them.
+fn transfer_label(t: transfer::Transfer, tolerance: u8) -> String {
+    match t {
+        transfer::Transfer::DepthLimited {
+            layers,
+            opacity_threshold: Some(o),
+        } => format!("depth-limited --layers {layers} --opacity-threshold {o}"),
+        transfer::Transfer::DepthLimited { layers, .. } => {
+            format!("depth-limited --layers {layers}")
+        }
+        transfer::Transfer::Difference if tolerance > 0 => {
+            format!("difference --tolerance {tolerance}")
+        }
+        transfer::Transfer::Reprojection => format!("reprojection --tolerance {tolerance}"),
+        other => transfer::name(other).to_string(),
+    }
+}
+
+/// Success only when every node delivered every frame; otherwise an error with the run's exit
+/// status that says which nodes failed and how.
+fn exit_status(summary: &Summary) -> Result<()> {
+    let why = |node: &str| {
+        summary
+            .incidents
+            .iter()
+            .find(|i| i.node == node)
+            .map_or_else(
+                || "sent no frame".to_string(),
+                |i| format!("frame {}: {}", i.frame, i.what),
+            )
+    };
+    match summary.outcome {
+        Outcome::Complete => Ok(()),
+        Outcome::NothingDelivered => {
+            let nodes: Vec<String> = summary
+                .nodes
+                .iter()
+                .map(|n| format!("{n}: {}", why(n)))
+                .collect();
+            Err(Failed {
+                status: EXIT_NOTHING_DELIVERED,
+                message: format!(
+                    "no node delivered a frame, so nothing was displayed ({})",
+                    nodes.join("; ")
+                ),
+            }
+            .into())
+        }
+        Outcome::Degraded => {
+            let nodes: Vec<String> = summary
+                .shortfalls
+                .iter()
+                .map(|s| {
+                    format!(
+                        "{} delivered {} of {} frames ({})",
+                        s.node,
+                        s.delivered,
+                        summary.frames,
+                        why(&s.node)
+                    )
+                })
+                .collect();
+            Err(Failed {
+                status: EXIT_DEGRADED,
+                message: format!("the run was degraded: {}", nodes.join("; ")),
+            }
+            .into())
+        }
+    }
 }

@@ -7,7 +7,7 @@
 //! is a *surfel* — the object, the object-space position and the object-space normal of a
 //! fragment — and the colour fragment that surfel shades to at the current frame. The node
 //! renders **normal fragments** ([`strata_raster::FragmentOutput::PackedNormal`]: window depth, a
-//! [`PackedNormal`] in the colour bytes, the object), and the wire carries them unchanged; the
+//! [`strata_core::PackedNormal`] in the colour bytes, the object), and the wire carries them unchanged; the
 //! eye-space position is the unprojection of the pixel centre at that depth (the seed stores eye
 //! x, y, z per fragment — 24 bytes — strata derives x and y from the pixel, so a normal fragment
 //! costs what a colour fragment does).
@@ -47,11 +47,11 @@
 //!
 //! # Modules
 //!
-//! - [`view`]: one frame's matrices and materials; eq. 5.9 (project a surfel), eq. 5.10 (a
+//! - `view`: one frame's matrices and materials; eq. 5.9 (project a surfel), eq. 5.10 (a
 //!   rendered normal fragment to a surfel), shading;
-//! - [`held`]: the per-pixel runs both ends hold, reprojection, the digest;
-//! - [`encoder`]: the node's side — matching, removals and inserts;
-//! - [`copy`]: the display's side — applying a frame, and which pixels need a fixup.
+//! - `held`: the per-pixel runs both ends hold, reprojection, the digest;
+//! - `encoder`: the node's side — matching, removals and inserts;
+//! - `copy`: the display's side — applying a frame, and which pixels need a fixup.
 
 mod copy;
 mod encoder;

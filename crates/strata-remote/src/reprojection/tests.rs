@@ -41,7 +41,7 @@ fn view(scene: &Scene, objects: &[ObjectId], frame: u64) -> View {
     View::new(
         scene,
         objects,
-        frame,
+        crate::animation_frame(frame).expect("a small frame number"),
         (W, H),
         scene.camera.view(),
         scene.camera.projection(W, H),

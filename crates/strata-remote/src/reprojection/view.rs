@@ -43,12 +43,11 @@ impl View {
     pub fn new(
         scene: &Scene,
         objects: &[ObjectId],
-        frame: u64,
+        frame: u32,
         (width, height): (u32, u32),
         view: Mat4,
         projection: Mat4,
     ) -> View {
-        let frame = u32::try_from(frame).unwrap_or(u32::MAX);
         let max = scene.objects.iter().map(|o| o.id.0).max().unwrap_or(0) as usize;
         let mut table = vec![None; max + 1];
         for o in scene.objects.iter().filter(|o| objects.contains(&o.id)) {
