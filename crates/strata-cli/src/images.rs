@@ -117,13 +117,29 @@ impl ImageOptions {
                 path.display()
             );
         }
-        if format == FlatFormat::Png && self.half {
+        Ok(format)
+    }
+
+    /// Checks that `--half` and `--compression` have an EXR to apply to: the flat output or a
+    /// deep one.
+    pub(crate) fn check_exr_options(&self, flat: &Path, deep: Option<&Path>) -> Result<()> {
+        let writes_exr = deep.is_some() || FlatFormat::from_path(flat)? == FlatFormat::Exr;
+        if writes_exr {
+            return Ok(());
+        }
+        if self.half {
             bail!(
-                "--half is for EXR files; {} is a PNG (use --bits 16)",
-                path.display()
+                "--half is for EXR files, and {} is a PNG (use --bits 16, or --deep FILE.exr)",
+                flat.display()
             );
         }
-        Ok(format)
+        if self.compression != ExrCompression::Zips {
+            bail!(
+                "--compression is for EXR files, and {} is a PNG",
+                flat.display()
+            );
+        }
+        Ok(())
     }
 
     /// Checks the options against a deep output path.

@@ -7,6 +7,8 @@
 //! - [`reference`]: exact comparison of a rendered RGB image against a PNG stored in the
 //!   repository, `STRATA_BLESS=1` to rewrite it, and an actual and a diff image written next to
 //!   the reference when they differ.
+//! - [`tools`]: external programs used as oracles (OpenImageIO, OpenEXR), with the same
+//!   visible-skip or fail policy, through `STRATA_REQUIRE_TOOLS=1`.
 //! - [`assert_mentions`]: the "this message names these things" check the CLI tests share.
 //!
 //! The crate depends on no strata crate, so every strata crate can use it in its tests without a
@@ -14,6 +16,7 @@
 
 pub mod models;
 pub mod reference;
+pub mod tools;
 
 pub use models::{Models, model, models};
 pub use reference::{Rgb8, assert_matches_reference};

@@ -76,7 +76,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     }
     crate::options::check_output(&args.out)?;
 
-    let images = read_inputs(&args.inputs)?;
+    let images = common_channels(read_inputs(&args.inputs)?)?;
     let merged = strata_exr::merge(&images).context("cannot merge the inputs")?;
     let flat = strata_exr::flatten(&merged).context("cannot flatten the merged image")?;
     let options = WriteOptions {
@@ -122,6 +122,63 @@ pub(crate) fn run(args: Args) -> Result<()> {
         merged.sample_count()
     );
     crate::images::write_all(&files)
+}
+
+/// The inputs restricted to the channels they all have (tools add their own, such as strata's
+/// `objectid`), saying on stderr what is left out; an error if `A` or `Z` is not among them.
+fn common_channels(images: Vec<DeepImage>) -> Result<Vec<DeepImage>> {
+    let names = |image: &DeepImage| -> Vec<String> {
+        image.channels().iter().map(|c| c.name.clone()).collect()
+    };
+    let Some(first) = images.first() else {
+        bail!("no input");
+    };
+    let common: Vec<String> = names(first)
+        .into_iter()
+        .filter(|n| images.iter().all(|i| i.channel_index(n).is_some()))
+        .collect();
+    for needed in ["A", "Z"] {
+        if !common.iter().any(|n| n == needed) {
+            bail!("not every input has a `{needed}` channel, so they cannot be depth-composited");
+        }
+    }
+    if images.iter().all(|i| names(i) == common) {
+        return Ok(images);
+    }
+    let mut dropped: Vec<String> = images
+        .iter()
+        .flat_map(names)
+        .filter(|n| !common.contains(n))
+        .collect();
+    dropped.sort();
+    dropped.dedup();
+    eprintln!(
+        "note: merging the channels every input has ({}); left out: {}",
+        common.join(" "),
+        dropped.join(" ")
+    );
+    images
+        .into_iter()
+        .map(|image| {
+            let keep: Vec<usize> = common
+                .iter()
+                .filter_map(|n| image.channel_index(n))
+                .collect();
+            let channels = keep.iter().map(|&c| image.channels()[c].clone()).collect();
+            let columns = keep.iter().map(|&c| image.column(c).clone()).collect();
+            let mut out = DeepImage::new(
+                image.data_window(),
+                channels,
+                image.offsets().to_vec(),
+                columns,
+            )?;
+            out.set_display_window(image.display_window());
+            for a in image.attributes() {
+                out.set_attribute(a.clone());
+            }
+            Ok(out)
+        })
+        .collect()
 }
 
 /// Reads every input as a deep image, saying which file is wrong.

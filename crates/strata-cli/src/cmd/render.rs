@@ -77,6 +77,7 @@ fn check_outputs(
         check_output(deep)?;
         args.image.check_deep(deep)?;
     }
+    args.image.check_exr_options(out, args.deep.as_deref())?;
     let info = strata_stores::find(&args.render.method)?;
     if info.fidelity(options) == strata_stores::Fidelity::Approximate {
         let what = if args.deep.is_some() {
