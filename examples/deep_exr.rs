@@ -54,7 +54,10 @@ fn main() -> Result<()> {
     let back = strata_exr::read_deep_file(&exr_path, &Limits::default())?;
     let again = strata_exr::frame_from_deep(&back, None)?;
     if again != frame {
-        bail!("the DeepFrame read back from {} differs", exr_path.display());
+        bail!(
+            "the DeepFrame read back from {} differs",
+            exr_path.display()
+        );
     }
 
     // 6. Resolve: composite every run onto the background; the same image the store resolved.

@@ -114,7 +114,7 @@ fn gltf_text() -> String {
 
 fn glb_from(json: &[u8], bin: &[u8]) -> Vec<u8> {
     let mut j = json.to_vec();
-    while j.len() % 4 != 0 {
+    while !j.len().is_multiple_of(4) {
         j.push(b' ');
     }
     let total = 12 + 8 + j.len() + 8 + bin.len();

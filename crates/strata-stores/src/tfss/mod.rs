@@ -122,7 +122,7 @@ const EMPTY_DEPTH: u32 = u32::MAX;
 /// Sections reserved from the allocation counter at a time. A multiple of 64, so that a block of
 /// packed sections spans whole 64-bit words (see `bits`).
 pub const SECTION_BLOCK: u32 = 64;
-const _: () = assert!(SECTION_BLOCK % 64 == 0);
+const _: () = assert!(SECTION_BLOCK.is_multiple_of(64));
 
 /// The largest pool, in sections (as the linked list's, it leaves the counter room to overshoot).
 pub const MAX_SECTIONS: u64 = 1 << 31;
