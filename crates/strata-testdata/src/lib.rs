@@ -1,10 +1,10 @@
 //! Test support shared by strata's own test suites (a dev-dependency only, never published).
 //!
-//! - [`models`]: finds the real meshes (Stanford dragon, bunny, armadillo; the Khronos engine)
+//! - [`models`](mod@models): finds the real meshes (Stanford dragon, bunny, armadillo; the Khronos engine)
 //!   in one documented search order, and applies one policy when a mesh is missing: a visible
 //!   `SKIPPED:` line on stderr, or — with `STRATA_REQUIRE_MODELS=1`, as CI sets it — a test
 //!   failure that names every place searched.
-//! - [`reference`]: exact comparison of a rendered RGB image against a PNG stored in the
+//! - [`reference`](mod@reference): exact comparison of a rendered RGB image against a PNG stored in the
 //!   repository, `STRATA_BLESS=1` to rewrite it, and an actual and a diff image written next to
 //!   the reference when they differ.
 //! - [`tools`]: external programs used as oracles (OpenImageIO, OpenEXR), with the same

@@ -55,7 +55,7 @@ pub(crate) struct Args {
     #[arg(long)]
     pub(crate) tolerance: Option<u8>,
 
-    /// Codec the nodes encode with: raw, lz4, zstd[:LEVEL], deep-lz4, deep-zstd[:LEVEL].
+    /// Codec the nodes encode with: raw, lz4, zstd or zstd:LEVEL, deep-lz4, deep-zstd or deep-zstd:LEVEL.
     #[arg(long, default_value = "deep-lz4")]
     pub(crate) codec: Codec,
 

@@ -6,7 +6,7 @@
 //! | [`variable`] | `vkbuffer`: k(p) under a budget, from importance maps or Optimal-K | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
 //! | [`importance`] | the periphery and depth-complexity heuristics with noise | 001 §3.2.2 |
 //! | [`allocate`] | k(p) from the importance map under the budget | 001 Alg. 17 |
-//! | [`optimal_k`] | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
+//! | [`optimal_k`](mod@optimal_k) | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
 //! | [`maps`] | k and importance maps as heat-map images | 001 Fig. 3.9 |
 
 pub mod allocate;

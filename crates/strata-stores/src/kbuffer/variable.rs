@@ -40,7 +40,7 @@
 //! | prefix sum of the counts → exact regions | `capture.prefix_sum` |
 //! | store every fragment (geometry) | `capture.capture` |
 //! | sort every run | `capture.sort` |
-//! | Optimal-K greedy ([`super::optimal_k`]) + truncate every run to its k | `capture.k` |
+//! | Optimal-K greedy ([`optimal_k`](mod@super::optimal_k)) + truncate every run to its k | `capture.k` |
 //! | composite | `resolve` |
 //!
 //! Truncating the sorted runs keeps exactly the fragments a second KeepNearest capture into
