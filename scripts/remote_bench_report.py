@@ -158,7 +158,7 @@ def aggregate():
                      pct(s["bytes_vs_16n"]), pct(s["fragments_sent_share"]),
                      pct(s["fragments_sent_share_after_first"]) if s.get("frames", 0) >= 2 else "–",
                      bad(worst["summary"])])
-    md.append(table(["scene", "size", "transfer", "MB/frame encoded", "MB/frame seed layout",
+    md.append(table(["scene", "size", "transfer", "MB/frame encoded", "MB/frame list layout",
                      "encoded % of seed", "% of 16 B·fragments", "fragments sent %",
                      "sent % after frame 0", "bad-pixel frames (max)"], rows))
     md.append("\nBytes from the first link that ran each combination; bad pixels are the worst over the links.")
@@ -217,7 +217,7 @@ def aggregate():
               "on separate machines the pipeline's throughput would be its slowest stage's.\n")
 
     # ---- Figure 6.1
-    md.append(f"## Figure 6.1 — bytes saved against the seed layout ({main_codec}), mean over scenes\n")
+    md.append(f"## Figure 6.1 — bytes saved against the list layout ({main_codec}), mean over scenes\n")
     sizes = sorted({r["size"] for r in main}, key=size_key)
     transfers = sorted({r["transfer"] for r in main}, key=transfer_key)
     rows = []

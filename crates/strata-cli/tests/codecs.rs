@@ -108,7 +108,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
         assert_eq!(raw[i], HEADER + ENTRY + 4 * 1280 * 720 + 12 * fragments[i]);
     }
     // The LZ4 reference is the lz4 codec itself.
-    assert_eq!(u64s(&doc["seed_lz4_bytes_per_frame"]), lz4);
+    assert_eq!(u64s(&doc["list_lz4_bytes_per_frame"]), lz4);
 
     let total_fragments: u64 = fragments.iter().sum();
     for c in codecs {
@@ -122,7 +122,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
         assert!((f(&c["percent_of_16n"]) - of_16n).abs() < 1e-9, "{name}");
         let of_lz4 = 100.0 * total as f64 / lz4.iter().sum::<u64>() as f64;
         assert!(
-            (f(&c["percent_of_seed_lz4"]) - of_lz4).abs() < 1e-9,
+            (f(&c["percent_of_list_lz4"]) - of_lz4).abs() < 1e-9,
             "{name}"
         );
         assert!(f(&c["encode_ms_median"]) >= 0.0 && f(&c["decode_ms_median"]) >= 0.0);
@@ -132,7 +132,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
         let expected: &[&str] = if name.starts_with("deep") {
             &["counts", "depth", "color", "object"]
         } else {
-            &["seed"]
+            &["lists"]
         };
         assert_eq!(keys, expected, "{name}");
         let payload: f64 = sections.values().map(f).sum();
@@ -148,7 +148,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             "{name}: printed {printed}, JSON {mean}"
         );
         if name == "lz4" {
-            assert!((f(&c["percent_of_seed_lz4"]) - 100.0).abs() < 1e-9);
+            assert!((f(&c["percent_of_list_lz4"]) - 100.0).abs() < 1e-9);
         }
     }
 }
@@ -211,7 +211,7 @@ fn codecs_measures_only_the_codecs_asked_for_at_their_levels() {
     assert_eq!(listed, ["zstd:19", "deep-zstd:-3", "deep-zstd"]);
     assert_eq!(u(&doc["runs"]), 2);
     // The LZ4 reference is measured even when lz4 is not listed.
-    assert_eq!(u64s(&doc["seed_lz4_bytes_per_frame"]).len(), 3);
+    assert_eq!(u64s(&doc["list_lz4_bytes_per_frame"]).len(), 3);
     // A scene without animation has one frame, however many are asked for.
     let still = dir.path().join("still.toml");
     std::fs::write(

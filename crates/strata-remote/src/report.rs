@@ -500,7 +500,7 @@ fn write_figures(s: &mut String, f: &Figures, delivered: usize, frames: usize) {
     }
     let _ = writeln!(
         s,
-        "  bytes per frame   {:8.3} MB encoded, {:.3} MB in the seed layout; {:.1}% of 16 B x fragments rendered{of}",
+        "  bytes per frame   {:8.3} MB encoded, {:.3} MB in the list layout; {:.1}% of 16 B x fragments rendered{of}",
         mb(f.bytes_per_frame),
         mb(f.raw_bytes_per_frame),
         100.0 * f.bytes_vs_16n

@@ -226,7 +226,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "bytes_per_frame": t.bytes,
             "mean_bytes_per_frame": total as f64 / n,
             "percent_of_16n": of_16n,
-            "percent_of_seed_lz4": of_lz4,
+            "percent_of_list_lz4": of_lz4,
             "encode_ms_median": enc,
             "decode_ms_median": dec,
             "section_bytes_per_frame": t.sections.iter().map(|(name, b)| (name.to_string(), json!(*b as f64 / n))).collect::<serde_json::Map<String, Value>>(),
@@ -247,7 +247,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "threads": threads,
             "cpu": crate::report::cpu_model(),
             "fragments_per_frame": fragments,
-            "seed_lz4_bytes_per_frame": seed_lz4,
+            "list_lz4_bytes_per_frame": seed_lz4,
             "codecs": rows,
         });
         std::fs::write(path, serde_json::to_string_pretty(&doc)? + "\n")

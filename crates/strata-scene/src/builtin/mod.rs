@@ -47,7 +47,7 @@ pub const SCENES: &[BuiltinScene] = &[
     },
     BuiltinScene {
         name: "overlap",
-        description: "seed 000 figure 1.1: half-transparent red over blue over white",
+        description: "half-transparent red over half-transparent blue over white (Jähne 2014, fig. 1.1)",
         source: include_str!("scenes/overlap.toml"),
         meshes: &[],
     },

@@ -247,7 +247,7 @@ impl SectionTag {
     /// Lower-case name, as in error messages.
     pub fn name(self) -> &'static str {
         match self {
-            SectionTag::Seed => "seed",
+            SectionTag::Seed => "lists",
             SectionTag::Counts => "counts",
             SectionTag::Depth => "depth",
             SectionTag::Color => "color",

@@ -55,7 +55,7 @@ pub(crate) fn decode(
     let n = fragments as usize;
     if bytes.len() != 4 * pixels + NODE_BYTES * n {
         return Err(WireError::section(
-            "seed",
+            "lists",
             offset,
             format!(
                 "{} bytes, a {width}x{height} frame of {n} fragments needs {}",
@@ -73,7 +73,7 @@ pub(crate) fn decode(
         total += u64::from(c);
         if total > n as u64 {
             return Err(WireError::section(
-                "seed",
+                "lists",
                 offset + 4 * p as u64,
                 format!(
                     "the counts up to pixel {p} add up to {total}, more than the {n} fragments the header announces"
@@ -84,7 +84,7 @@ pub(crate) fn decode(
     }
     if total != n as u64 {
         return Err(WireError::section(
-            "seed",
+            "lists",
             offset,
             format!("the counts add up to {total}, the header announces {n} fragments"),
         ));
