@@ -329,6 +329,10 @@ fn check_expansion(
     packed: u64,
     unpacked: u64,
 ) -> Result<()> {
+    if unpacked == 0 {
+        // Nothing to decode; whatever a writer stored for an empty block is ignored.
+        return Ok(());
+    }
     if packed > unpacked {
         return Err(layout.chunk_error(
             chunk,
@@ -414,8 +418,9 @@ fn read_sample_counts(
                     return Err(layout.chunk_error(
                         i,
                         format!(
-                            "sample counts decrease at pixel ({x}, {}): cumulative count \
+                            "sample counts decrease at pixel ({}, {}): cumulative count \
                              {cumulative} after {previous}",
+                            i64::from(h.data_window.x_min) + x as i64,
                             i64::from(h.data_window.y_min) + (rows.start + r) as i64
                         ),
                     ));
