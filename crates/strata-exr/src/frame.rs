@@ -37,8 +37,8 @@
 //!
 //! Colour: `a8 = round(A·255)` and, when `a8 > 0`, `c8 = round(C/A·255)`. `FLOAT` channels give
 //! back every 8-bit colour exactly; so do `HALF` channels (their 11 significant bits keep
-//! `C/A·255` within 0.25 of the integer; the tests check all 65,536 colour/alpha pairs). A
-//! fragment with `a8 = 0` carries no colour in premultiplied form and comes back black.
+//! `C/A·255` within 0.25 of the integer; the tests check every colour value with every non-zero
+//! alpha). A fragment with `a8 = 0` carries no colour in premultiplied form and comes back black.
 
 use strata_core::{DeepFrame, Fragment, ObjectId, Rgba8};
 

@@ -168,8 +168,8 @@ impl Box2i {
     /// [`ExrError::InvalidImage`] if the window is empty or its corner overflows `i32`.
     pub fn from_origin(x: i32, y: i32, width: u32, height: u32) -> Result<Self> {
         let end = |start: i32, len: u32| -> Option<i32> {
-            let len = i32::try_from(len).ok()?;
-            start.checked_add(len.checked_sub(1)?)
+            let len = i32::try_from(len).ok().filter(|&l| l > 0)?;
+            start.checked_add(len - 1)
         };
         match (end(x, width), end(y, height)) {
             (Some(x_max), Some(y_max)) => Ok(Box2i {
@@ -374,8 +374,14 @@ impl std::fmt::Display for Attribute {
     }
 }
 
-/// Checks channel names: non-empty, at most 255 bytes, no NUL, strictly ascending (unique).
+/// Checks channel names: at least one channel; names non-empty, at most 255 bytes, no NUL,
+/// strictly ascending (unique).
 pub(crate) fn check_channels(channels: &[Channel]) -> Result<()> {
+    if channels.is_empty() {
+        return Err(ExrError::InvalidImage(
+            "an image needs at least one channel".into(),
+        ));
+    }
     for c in channels {
         if c.name.is_empty() || c.name.len() > 255 || c.name.contains('\0') {
             return Err(ExrError::InvalidImage(format!(

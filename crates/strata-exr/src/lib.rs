@@ -35,6 +35,16 @@
 //! `ZBack`, `objectid` (UINT) and the exact window depth `strata.depth`; the round trip is
 //! bit-exact (see `frame.rs`).
 //!
+//! # Typical uses
+//!
+//! - save a rendered frame: [`deep_from_frame`] (clip planes as a [`DepthMapping`], camera
+//!   matrices in [`FrameOptions`]), then [`write_deep_file`];
+//! - composite deep files: [`read_deep_file`] each, [`merge`], [`flatten`], then
+//!   [`write_flat_file`] (or [`FlatImage::rgba`] for another format);
+//! - inspect a file: [`read_file_bytes`], [`read_info`] (every attribute, printable with
+//!   `Display`), [`read_deep`], [`stats`], and one pixel's samples through
+//!   [`DeepImage::pixel_at`] and [`Column::get_f64`].
+//!
 //! ```
 //! use strata_exr::*;
 //!

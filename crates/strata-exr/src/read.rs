@@ -329,6 +329,10 @@ fn check_expansion(
     packed: u64,
     unpacked: u64,
 ) -> Result<()> {
+    if unpacked == 0 {
+        // Nothing to decode; whatever a writer stored for an empty block is ignored.
+        return Ok(());
+    }
     if packed > unpacked {
         return Err(layout.chunk_error(
             chunk,
@@ -405,32 +409,7 @@ fn read_sample_counts(
             table,
             table_len,
         )?;
-        let mut chunk_samples: u64 = 0;
-        for (r, line) in table.chunks_exact(layout.width * 4).enumerate() {
-            let mut previous = 0i32;
-            for (x, b) in line.chunks_exact(4).enumerate() {
-                let cumulative = i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                if cumulative < previous {
-                    return Err(layout.chunk_error(
-                        i,
-                        format!(
-                            "sample counts decrease at pixel ({x}, {}): cumulative count \
-                             {cumulative} after {previous}",
-                            i64::from(h.data_window.y_min) + (rows.start + r) as i64
-                        ),
-                    ));
-                }
-                total += (cumulative - previous) as u64;
-                previous = cumulative;
-                let offset = u32::try_from(total).map_err(|_| ExrError::LimitExceeded {
-                    what: "the total sample count",
-                    value: total,
-                    limit: u64::from(u32::MAX),
-                })?;
-                offsets.push(offset);
-            }
-            chunk_samples += previous as u64;
-        }
+        let chunk_samples = append_counts(h, layout, i, &table, &mut offsets, &mut total)?;
         limits.check("the total sample count", total, limits.max_samples)?;
         let expected = chunk_samples * bytes_per_sample;
         if unpacked_data != expected {
@@ -462,6 +441,47 @@ fn read_sample_counts(
         .saturating_add(4 * (layout.pixels as u64 + 1));
     limits.check("the decoded pixel data (bytes)", decoded, limits.max_bytes)?;
     Ok((offsets, chunks))
+}
+
+/// Appends one chunk's per-pixel counts (its table holds, per scanline, cumulative counts from
+/// the left edge) to the prefix sum `offsets`; returns the chunk's sample count.
+fn append_counts(
+    h: &Header,
+    layout: &Layout,
+    chunk: usize,
+    table: &[u8],
+    offsets: &mut Vec<u32>,
+    total: &mut u64,
+) -> Result<u64> {
+    let rows = layout.rows(chunk);
+    let mut chunk_samples: u64 = 0;
+    for (r, line) in table.chunks_exact(layout.width * 4).enumerate() {
+        let mut previous = 0i32;
+        for (x, b) in line.chunks_exact(4).enumerate() {
+            let cumulative = i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            if cumulative < previous {
+                return Err(layout.chunk_error(
+                    chunk,
+                    format!(
+                        "sample counts decrease at pixel ({}, {}): cumulative count \
+                         {cumulative} after {previous}",
+                        i64::from(h.data_window.x_min) + x as i64,
+                        i64::from(h.data_window.y_min) + (rows.start + r) as i64
+                    ),
+                ));
+            }
+            *total += (cumulative - previous) as u64;
+            previous = cumulative;
+            let offset = u32::try_from(*total).map_err(|_| ExrError::LimitExceeded {
+                what: "the total sample count",
+                value: *total,
+                limit: u64::from(u32::MAX),
+            })?;
+            offsets.push(offset);
+        }
+        chunk_samples += previous as u64;
+    }
+    Ok(chunk_samples)
 }
 
 /// Second pass: one chunk's sample data appended to the columns.

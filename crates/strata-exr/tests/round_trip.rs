@@ -461,3 +461,52 @@ fn flat_rgba_fills_missing_channels() {
         rgba.to_vec()
     );
 }
+
+#[test]
+fn images_are_checked_on_construction() {
+    let w = Box2i::from_origin(0, 0, 2, 1).unwrap();
+    let a = || vec![Channel::new("A", SampleType::Half)];
+    let cases: Vec<(Result<DeepImage, ExrError>, &str)> = vec![
+        (
+            DeepImage::new(w, vec![], vec![0, 0, 0], vec![]),
+            "at least one channel",
+        ),
+        (
+            DeepImage::new(w, a(), vec![0, 1], vec![Column::F32(vec![0.5])]),
+            "offsets for 2 pixels",
+        ),
+        (
+            DeepImage::new(w, a(), vec![0, 2, 1], vec![Column::F32(vec![0.5])]),
+            "decrease",
+        ),
+        (
+            DeepImage::new(w, a(), vec![0, 1, 2], vec![Column::F32(vec![0.5])]),
+            "holds 1 values, expected 2",
+        ),
+        (
+            DeepImage::new(w, a(), vec![0, 1, 1], vec![Column::U32(vec![1])]),
+            "is half but its column holds integers",
+        ),
+        (
+            DeepImage::new(
+                w,
+                vec![
+                    Channel::new("Z", SampleType::Float),
+                    Channel::new("A", SampleType::Half),
+                ],
+                vec![0, 0, 0],
+                vec![Column::F32(vec![]), Column::F32(vec![])],
+            ),
+            "sorted by name",
+        ),
+    ];
+    for (result, expected) in cases {
+        let err = result.unwrap_err();
+        assert!(
+            matches!(err, ExrError::InvalidImage(_)) && err.to_string().contains(expected),
+            "{err}"
+        );
+    }
+    assert!(Box2i::from_origin(i32::MAX, 0, 2, 1).is_err());
+    assert!(Box2i::from_origin(0, 0, 0, 1).is_err());
+}
