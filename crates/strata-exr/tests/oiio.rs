@@ -23,23 +23,16 @@ const DEEP_COMPRESSIONS: [Compression; 3] =
 
 /// True if `program` can be started (and, with `need_success`, `args` succeed); otherwise
 /// fails the test (tools required) or prints a SKIPPED line.
+/// True if the tool is there; otherwise a visible `SKIPPED:` line, or a failure with
+/// `STRATA_REQUIRE_TOOLS=1` (the one policy in `strata_testdata::tools`).
+#[track_caller]
 fn have(program: &str, args: &[&str], package: &str, need_success: bool) -> bool {
-    // `exrheader` exits 1 even for `-h`: that it starts at all is what counts.
-    let ok = Command::new(program)
-        .args(args)
-        .output()
-        .map(|o| o.status.success() || !need_success)
-        .unwrap_or(false);
-    if ok {
-        return true;
+    if need_success {
+        strata_testdata::tools::tool(program, args, package)
+    } else {
+        // `exrheader` exits 1 even for `-h`: that it starts at all is what counts.
+        strata_testdata::tools::present(program, package)
     }
-    let required = std::env::var("STRATA_REQUIRE_TOOLS").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "{program} not found or not working (install {package}); STRATA_REQUIRE_TOOLS=1 requires it"
-    );
-    eprintln!("SKIPPED: {program} not found (install {package})");
-    false
 }
 
 fn have_oiiotool() -> bool {
