@@ -104,6 +104,46 @@ fn two_node_processes_merge_into_the_exact_image() {
     }
 }
 
+/// `--save-deep` writes each composed frame's merged fragments as a deep EXR that resolves to
+/// the PNG `--save-frames` wrote for it, and that holds both nodes' objects.
+#[test]
+fn display_saves_merged_deep_frames() {
+    let a = NodeProcess::start("mixed", "opaque cube,glass slab");
+    let b = NodeProcess::start("mixed", "1,2,4");
+    let dir = TempDir::new().unwrap();
+    let out = strata()
+        .args([
+            "display", "--scene", "mixed", "--frames", "2", "--size", "160x90",
+        ])
+        .args(["--nodes", &format!("{},{}", a.addr, b.addr)])
+        .arg("--out-dir")
+        .arg(dir.path())
+        .args(["--save-frames", "--save-deep"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for t in 0..2 {
+        let exr = dir.path().join(format!("frame-{t:04}.exr"));
+        let image = strata_exr::read_deep_file(&exr, &strata_exr::Limits::default())
+            .unwrap_or_else(|e| panic!("{}: {e}", exr.display()));
+        let frame = strata_exr::frame_from_deep(&image, None).expect("a DeepFrame");
+        let objects: std::collections::BTreeSet<u32> =
+            frame.objects().iter().map(|o| o.0).collect();
+        assert_eq!(
+            objects.into_iter().collect::<Vec<_>>(),
+            vec![0, 1, 2, 3, 4],
+            "frame {t} holds every object of both nodes"
+        );
+        let png = strata_core::Rgb8Image::read_png(dir.path().join(format!("frame-{t:04}.png")))
+            .expect("the saved PNG");
+        assert_eq!(frame.resolve([0.92, 0.92, 0.95]), png, "frame {t}");
+    }
+}
+
 #[test]
 fn display_errors_are_clear() {
     let cases: &[(&[&str], &str)] = &[

@@ -31,7 +31,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::Mat4;
-use strata_core::{DeepFrame, ObjectId, Rgb8Image};
+use strata_core::{DeepFrame, DeepFrameError, ObjectId, Rgb8Image};
 use strata_scene::Scene;
 use strata_wire::{
     Codec, DecodeOptions, FrameMessage, Hello, MessageType, NodeStats, PixelMask, Request,
@@ -44,7 +44,7 @@ use tokio::sync::mpsc;
 use tokio::time::{timeout, timeout_at};
 
 use crate::difference::{NodeCopy, stale_shared};
-use crate::merge::{MAX_NODES, merge_resolve};
+use crate::merge::{MAX_NODES, merge_frames, merge_resolve};
 use crate::report::{FrameStats, NodeFrame, NodeIncident, NodeStatus};
 use crate::reprojection::{ReprojCopy, View, ambiguous};
 use crate::stream::{ReadError, read_message};
@@ -195,6 +195,13 @@ pub fn check_address(address: &str) -> Result<(), AddressError> {
 pub trait Observer {
     /// A frame was composed.
     fn frame(&mut self, _stats: &FrameStats, _image: &Rgb8Image) {}
+    /// True if [`Observer::deep_frame`] should receive every composed frame's merged fragments
+    /// (merging them costs a pass over every fragment, so only when asked).
+    fn wants_deep_frames(&self) -> bool {
+        false
+    }
+    /// The merged fragments of a composed frame, when [`Observer::wants_deep_frames`].
+    fn deep_frame(&mut self, _frame: u64, _deep: Result<&DeepFrame, &DeepFrameError>) {}
     /// Something happened to a node.
     fn incident(&mut self, _incident: &NodeIncident) {}
 }
@@ -800,6 +807,12 @@ impl<'o> Driver<'o> {
         };
         let observer = &mut *self.observer;
         tokio::task::block_in_place(|| observer.frame(&fs, &image));
+        if observer.wants_deep_frames() {
+            tokio::task::block_in_place(|| {
+                let merged = merge_frames(&copies, config.width, config.height);
+                observer.deep_frame(work.t, merged.as_ref());
+            });
+        }
         self.per_frame.push(fs);
     }
 

@@ -53,6 +53,37 @@ pub fn merge_resolve(
     image
 }
 
+/// The per-pixel merge of `frames` as one DeepFrame (for saving what the display composed).
+///
+/// Runs are concatenated per pixel and sorted by [`DeepFrame::build`], which orders by
+/// [`Fragment::order_key`], so the result is the same sequence [`merge_resolve`] composites.
+///
+/// # Errors
+/// When the frames differ in size or the merged frame holds more fragments than a DeepFrame can.
+pub fn merge_frames(
+    frames: &[&DeepFrame],
+    width: u32,
+    height: u32,
+) -> Result<DeepFrame, strata_core::DeepFrameError> {
+    let pixels = width as usize * height as usize;
+    let counts: Vec<u32> = (0..pixels)
+        .into_par_iter()
+        .map(|p| {
+            frames
+                .iter()
+                .map(|f| f.offsets().get(p + 1).map_or(0, |e| e - f.offsets()[p]))
+                .sum()
+        })
+        .collect();
+    DeepFrame::build(width, height, &counts, |p, out| {
+        for f in frames {
+            if f.offsets().len() == pixels + 1 {
+                out.extend(f.run(p).iter());
+            }
+        }
+    })
+}
+
 fn resolve_merged(
     frames: &[&DeepFrame],
     p: usize,
@@ -97,6 +128,27 @@ fn resolve_merged(
 mod tests {
     use super::*;
     use strata_core::ObjectId;
+
+    #[test]
+    fn merged_frame_resolves_to_the_merged_image() {
+        let f = |depth: f32, object: u32, r: u8| Fragment {
+            depth,
+            color: Rgba8([r, 255 - r, 7, 100]),
+            object: ObjectId(object),
+        };
+        let a = DeepFrame::from_pixel_lists(2, 1, &[vec![f(0.1, 1, 10), f(0.5, 1, 20)], vec![]])
+            .expect("frame a");
+        let b = DeepFrame::from_pixel_lists(2, 1, &[vec![f(0.3, 2, 30)], vec![f(0.2, 2, 40)]])
+            .expect("frame b");
+        let merged = merge_frames(&[&a, &b], 2, 1).expect("merged");
+        assert_eq!(merged.fragment_count(), 4);
+        let depths: Vec<f32> = merged.run(0).depth.to_vec();
+        assert_eq!(depths, vec![0.1, 0.3, 0.5]);
+        assert_eq!(
+            merged.resolve([1.0; 3]),
+            merge_resolve(&[&a, &b], 2, 1, [1.0; 3])
+        );
+    }
 
     #[test]
     fn merging_equals_resolving_the_union() {

@@ -92,13 +92,19 @@ pub(crate) struct Args {
     #[arg(long, default_value_t = metrics::DEFAULT_BAD_PIXEL_THRESHOLD)]
     pub(crate) threshold: u8,
 
-    /// Folder for summary.json, summary.txt and (with --save-frames) the frames as PNG.
+    /// Folder for summary.json, summary.txt and (with --save-frames, --save-deep) the frames as
+    /// PNG and deep EXR.
     #[arg(long)]
     pub(crate) out_dir: Option<PathBuf>,
 
     /// Write every composed frame as frame-NNNN.png into --out-dir.
     #[arg(long, requires = "out_dir")]
     pub(crate) save_frames: bool,
+
+    /// Write every composed frame's merged fragments as an OpenEXR deep image,
+    /// frame-NNNN.exr, into --out-dir (see `strata render --deep`).
+    #[arg(long, requires = "out_dir")]
+    pub(crate) save_deep: bool,
 
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
@@ -129,7 +135,32 @@ struct Progress {
     images: Vec<(u64, Rgb8Image)>,
     keep: bool,
     save: Option<PathBuf>,
+    /// Where and through which camera to write deep frames (`--save-deep`).
+    save_deep: Option<(PathBuf, strata_scene::Camera)>,
     error: Option<anyhow::Error>,
+}
+
+impl Progress {
+    /// Writes one merged frame as `frame-NNNN.exr`.
+    fn write_deep(&self, t: u64, deep: &strata_core::DeepFrame) -> Result<()> {
+        let Some((dir, camera)) = &self.save_deep else {
+            return Ok(());
+        };
+        let path = dir.join(format!("frame-{t:04}.exr"));
+        let mapping = strata_exr::DepthMapping::new(f64::from(camera.near), f64::from(camera.far))?;
+        let options = strata_exr::FrameOptions {
+            camera: Some(strata_exr::CameraMatrices {
+                view: camera.view().to_cols_array(),
+                projection: camera
+                    .projection(deep.width(), deep.height())
+                    .to_cols_array(),
+            }),
+            ..strata_exr::FrameOptions::default()
+        };
+        let image = strata_exr::deep_from_frame(deep, mapping, &options)?;
+        strata_exr::write_deep_file(&path, &image, &strata_exr::WriteOptions::default())
+            .with_context(|| format!("writing {}", path.display()))
+    }
 }
 
 impl Observer for Progress {
@@ -151,6 +182,26 @@ impl Observer for Progress {
         }
         if self.keep {
             self.images.push((stats.frame, image.clone()));
+        }
+    }
+
+    fn wants_deep_frames(&self) -> bool {
+        self.save_deep.is_some() && self.error.is_none()
+    }
+
+    fn deep_frame(
+        &mut self,
+        t: u64,
+        deep: Result<&strata_core::DeepFrame, &strata_core::DeepFrameError>,
+    ) {
+        let written = match deep {
+            Ok(deep) => self.write_deep(t, deep),
+            Err(e) => Err(anyhow::anyhow!(
+                "frame {t}: cannot merge the nodes' fragments: {e}"
+            )),
+        };
+        if let Err(e) = written {
+            self.error = Some(e);
         }
     }
 
@@ -209,6 +260,11 @@ pub(crate) fn run(args: Args) -> Result<()> {
         images: Vec::new(),
         keep: args.check,
         save: args.save_frames.then(|| args.out_dir.clone()).flatten(),
+        save_deep: args
+            .save_deep
+            .then(|| args.out_dir.clone())
+            .flatten()
+            .map(|dir| (dir, scene.camera)),
         error: None,
     };
     let result = display::run(config, &mut progress)?;
