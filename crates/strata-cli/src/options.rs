@@ -203,6 +203,9 @@ pub(crate) fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
 
 /// Fails early, before any rendering, if `path`'s directory does not exist.
 pub(crate) fn check_output(path: &std::path::Path) -> Result<()> {
+    if path.is_dir() {
+        anyhow::bail!("cannot write {}: it is a directory", path.display());
+    }
     match path.parent() {
         Some(dir) if !dir.as_os_str().is_empty() && !dir.is_dir() => anyhow::bail!(
             "cannot write {}: the directory {} does not exist",

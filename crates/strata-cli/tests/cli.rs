@@ -212,7 +212,7 @@ fn render_overlap_writes_the_seed_colours_and_full_statistics() {
 
     let img = read_png(&png);
     assert_eq!((img.width(), img.height()), (640, 480));
-    // Seed 000 §1: red over blue over white, alpha 128/255 each.
+    // Jähne 2014 §1: red over blue over white, alpha 128/255 each.
     assert_eq!(
         img.pixel(320, 240),
         [191, 63, 127],
@@ -1085,22 +1085,20 @@ fn unknown_scene_error_is_prefixed_once() {
 
 #[test]
 fn png_write_error_states_its_cause_once() {
-    // A missing directory is caught before rendering; an output path that is a directory fails
-    // only when the PNG is written, with the OS error — which must appear once, not again as a
-    // `caused by:` line.
+    // A missing directory, and an output path that is a directory, are both caught before
+    // rendering, each said once (not again as a `caused by:` line).
     let dir = TempDir::new().unwrap();
     let err = run_err(
         strata()
             .args(["render", "overlap", "--out"])
             .arg(dir.path().join("missing/x.png")),
     );
-    assert!(err.contains("does not exist"), "{err}");
-    let err = run_err(
-        strata()
-            .args(["render", "overlap", "--out"])
-            .arg(dir.path()),
-    );
-    assert_eq!(err.matches("Is a directory").count(), 1, "{err}");
+    assert_eq!(err.matches("does not exist").count(), 1, "{err}");
+    let taken = dir.path().join("x.png");
+    std::fs::create_dir(&taken).unwrap();
+    let err = run_err(strata().args(["render", "overlap", "--out"]).arg(&taken));
+    assert_eq!(err.matches("is a directory").count(), 1, "{err}");
+    assert!(!err.contains("caused by"), "{err}");
 }
 
 #[test]
