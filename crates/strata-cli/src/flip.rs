@@ -1,4 +1,4 @@
-//! FLIP, NVIDIA's perceptual image difference (Andersson et al. 2020, used by seed 001 §5), through
+//! FLIP, NVIDIA's perceptual image difference (Andersson et al. 2020, used by Tsopouridis 2021 §5), through
 //! the `nv-flip` crate (which builds NVIDIA's C++ reference code).
 //!
 //! `strata compare` is the only place that computes it, so only this binary needs a C++ compiler

@@ -104,7 +104,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             lz4[i],
             raw[i]
         );
-        // Raw is the seed layout: 4 bytes a pixel, 12 a fragment, after one table entry.
+        // Raw is the thesis layout: 4 bytes a pixel, 12 a fragment, after one table entry.
         assert_eq!(raw[i], HEADER + ENTRY + 4 * 1280 * 720 + 12 * fragments[i]);
     }
     // The LZ4 reference is the lz4 codec itself.

@@ -1,5 +1,5 @@
 //! `strata tfss-sim` end to end on the built-in `overlap` scene (640×480, two quads): the tables,
-//! the JSON figures and the seed-002 formulas behind them, and the errors.
+//! the JSON figures and the Lin 2007 formulas behind them, and the errors.
 
 use std::path::Path;
 

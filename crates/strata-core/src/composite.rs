@@ -1,6 +1,6 @@
-//! The OVER operator, applied front to back (seed 000 eq. 1.1; seed 001 `resolveColor`).
+//! The OVER operator, applied front to back (Jähne 2014 eq. 1.1; Tsopouridis 2021 `resolveColor`).
 //!
-//! Seed 000 blends back to front, `c = c_a α_a + c_b α_b (1 − α_a)`. Composited front to back with
+//! Jähne 2014 blends back to front, `c = c_a α_a + c_b α_b (1 − α_a)`. Composited front to back with
 //! the transmittance `T` (the product of `1 − α` of everything in front) the same sum reads
 //!
 //! ```text
@@ -13,19 +13,11 @@
 
 use crate::fragment::{Rgba8, unorm8};
 
-/// Composites straight-alpha colours given front to back onto an opaque background.
-///
-/// ```
-/// # use strata_core::composite::over_front_to_back_f32;
-/// // Seed 000 §1, figure 1.1 (2): half-transparent blue over red over white.
-/// let out = over_front_to_back_f32([[0.0, 0.0, 1.0, 0.5], [1.0, 0.0, 0.0, 0.5]], [1.0; 3]);
-/// assert_eq!(out, [0.5, 0.25, 0.75]);
-/// ```
+/// Composites straight-alpha colours given front to back without a background: the
+/// premultiplied sum `C` and the transmittance `T` left for whatever lies behind (`A = 1 − T`).
+/// Stops at the first `T` that is exactly zero, then returns `T = 0`.
 #[inline]
-pub fn over_front_to_back_f32(
-    colors: impl IntoIterator<Item = [f32; 4]>,
-    background: [f32; 3],
-) -> [f32; 3] {
+pub fn front_to_back_f32(colors: impl IntoIterator<Item = [f32; 4]>) -> ([f32; 3], f32) {
     let mut acc = [0.0f32; 3];
     let mut t = 1.0f32;
     for [r, g, b, a] in colors {
@@ -35,8 +27,29 @@ pub fn over_front_to_back_f32(
         acc[2] += w * b;
         t *= 1.0 - a;
         if t <= 0.0 {
-            return acc;
+            return (acc, 0.0);
         }
+    }
+    (acc, t)
+}
+
+/// Composites straight-alpha colours given front to back onto an opaque background.
+///
+/// ```
+/// # use strata_core::composite::over_front_to_back_f32;
+/// // Half-transparent blue over red over white (Jähne 2014, figure 1.1 (2)).
+/// let out = over_front_to_back_f32([[0.0, 0.0, 1.0, 0.5], [1.0, 0.0, 0.0, 0.5]], [1.0; 3]);
+/// assert_eq!(out, [0.5, 0.25, 0.75]);
+/// ```
+#[inline]
+pub fn over_front_to_back_f32(
+    colors: impl IntoIterator<Item = [f32; 4]>,
+    background: [f32; 3],
+) -> [f32; 3] {
+    let (acc, t) = front_to_back_f32(colors);
+    if t == 0.0 {
+        // Nothing of the background shows: skip the multiply-add so the result is `acc` to the bit.
+        return acc;
     }
     [
         acc[0] + t * background[0],

@@ -1,11 +1,11 @@
 //! DeepFrame: every pixel's fragments as one sorted run, in one contiguous layout.
 //!
-//! DeepFrame is strata's lingua franca (DESIGN §1): whatever a fragment store captured, it hands
+//! DeepFrame is strata's lingua franca (the pipeline design): whatever a fragment store captured, it hands
 //! over a DeepFrame, and resolve, comparison, encoding, merging and composition all work on it.
 //!
 //! # Layout
 //!
-//! The S-buffer layout of seed 001 §3.1.3 — prefix-summed per-pixel counts and contiguous
+//! The S-buffer layout of Tsopouridis 2021 §3.1.3 — prefix-summed per-pixel counts and contiguous
 //! fragments — with the fragment fields split into columns:
 //!
 //! ```text
@@ -425,7 +425,7 @@ impl DeepFrame {
         (self.offsets.len() * 4 + self.depth.len() * 12) as u64
     }
 
-    /// Composites every run front to back onto `background` (DESIGN §2 resolve).
+    /// Composites every run front to back onto `background` (strata's shared conventions resolve).
     pub fn resolve(&self, background: [f32; 3]) -> Rgb8Image {
         let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
         let bg = composite::background_pixel(background);

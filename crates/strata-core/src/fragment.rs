@@ -1,6 +1,6 @@
 //! The colour fragment: window depth, straight-alpha RGBA8 and the object that made it.
 //!
-//! Seed 000 §2.1 stores a colour fragment as 12 bytes (RGBA8 colour, f32 depth, next pointer);
+//! Jähne 2014 §2.1 stores a colour fragment as 12 bytes (RGBA8 colour, f32 depth, next pointer);
 //! strata replaces the store-specific `next` link by the object id, which every store keeps so that
 //! results can be attributed (remote rendering, object migration) and ties broken deterministically.
 //!

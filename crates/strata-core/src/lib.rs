@@ -1,6 +1,6 @@
 //! strata's shared data model: the fragment, the DeepFrame, OVER compositing, images and metrics.
 //!
-//! Every other strata crate speaks these types. The pipeline (DESIGN §1) is
+//! Every other strata crate speaks these types. The pipeline (the pipeline design) is
 //!
 //! ```text
 //! scene ─► rasterizer ─► fragment store ─► DeepFrame ─► resolve / encode / merge / compose
@@ -9,15 +9,15 @@
 //! and this crate owns the plain data that flows between the stages:
 //!
 //! - [`Fragment`]: depth, straight-alpha RGBA8 and the id of the object that made it — the
-//!   12-byte colour node of seed 000 §2.1 plus the object id;
+//!   12-byte colour node of Jähne 2014 §2.1 plus the object id;
 //! - [`DeepFrame`]: every pixel's fragments as one sorted run, in one contiguous layout
 //!   (`offsets[w*h+1]` + fragment columns) — the exchange format of the whole engine;
-//! - [`composite`]: the OVER operator (seed 000 eq. 1.1) applied front to back, shared by every
+//! - [`composite`]: the OVER operator (Jähne 2014 eq. 1.1) applied front to back, shared by every
 //!   resolve so that exact methods agree to the bit;
 //! - [`Rgb8Image`], [`metrics`] (RMSE, bad pixels) and [`DepthStats`] (depth complexity);
 //! - [`PassTimings`]: per-pass wall-clock times, in the order the passes ran.
 //!
-//! The worked example of seed 000 §1 — half-transparent red over half-transparent blue over white:
+//! The worked example of Jähne 2014 §1 — half-transparent red over half-transparent blue over white:
 //!
 //! ```
 //! use strata_core::composite::over_front_to_back_f32;

@@ -1,4 +1,4 @@
-//! What an object looks like: its straight-alpha colour and how it is shaded (DESIGN §2).
+//! What an object looks like: its straight-alpha colour and how it is shaded (strata's shared conventions).
 
 use crate::fragment::{Rgba8, unorm8};
 

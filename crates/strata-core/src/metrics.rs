@@ -1,11 +1,11 @@
-//! Image quality against a reference (DESIGN §2): RMSE and bad pixels.
+//! Image quality against a reference (strata's shared conventions): RMSE and bad pixels.
 //!
 //! FLIP, the perceptual difference, lives in the command-line tool (`strata compare`), the one
 //! place that computes it, so that this crate builds without a C++ compiler.
 //!
 //! - **RMSE** over the RGB channels in `[0, 1]`.
 //! - **Bad pixels**: pixels whose largest channel difference exceeds a threshold in 8-bit steps
-//!   (DESIGN default 2/255: seed 000 fig. 6.2 counts visible differences). Every printed figure
+//!   (default 2/255: Jähne 2014 fig. 6.2 counts visible differences). Every printed figure
 //!   states its threshold.
 
 use crate::image::Rgb8Image;

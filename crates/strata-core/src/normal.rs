@@ -1,6 +1,6 @@
-//! Unit normals packed into 32 bits as spherical angles (seed 000 §2.1, eq. 2.1–2.2).
+//! Unit normals packed into 32 bits as spherical angles (Jähne 2014 §2.1, eq. 2.1–2.2).
 //!
-//! A normal fragment (seed 000 Table 2.1) replaces the colour by the surface normal so that a
+//! A normal fragment (Jähne 2014 Table 2.1) replaces the colour by the surface normal so that a
 //! receiver can re-shade it after moving it (the reprojection transfer, ch. 5). strata keeps the
 //! 12-byte fragment layout and puts the packed normal in the colour's four bytes: a
 //! [`crate::Fragment`] whose `color` holds [`PackedNormal::to_bits`] travels through every store,
@@ -14,7 +14,7 @@
 //!               atan2(√(x² + y²), z), which stays accurate next to the poles
 //! ```
 //!
-//! The seed stores the two angles as half floats (`packHalf2x16`), whose 10-bit mantissa leaves
+//! The thesis stores the two angles as half floats (`packHalf2x16`), whose 10-bit mantissa leaves
 //! steps of up to 2⁻⁸ rad near θ = ±π — up to 0.8/255 of headlight shading. Fixed point over the
 //! known ranges spends all 16 bits on the angle: steps of 9.6·10⁻⁵ rad in θ and 4.8·10⁻⁵ rad in
 //! φ, so a re-shaded normal fragment rounds to the shaded colour but for rare ±1 ties.

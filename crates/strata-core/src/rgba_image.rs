@@ -90,20 +90,11 @@ impl RgbaF32Image {
                 let p0 = chunk * PIXELS;
                 for (i, px) in out.chunks_exact_mut(4).enumerate() {
                     let run = frame.run(p0 + i);
-                    let mut acc = [0.0f32; 3];
-                    let mut t = 1.0f32;
-                    for c in run.color {
-                        let [r, g, b, a] = c.0.map(|v| UNORM8_TO_F32[v as usize]);
-                        let w = t * a;
-                        acc[0] += w * r;
-                        acc[1] += w * g;
-                        acc[2] += w * b;
-                        t *= 1.0 - a;
-                        if t <= 0.0 {
-                            t = 0.0;
-                            break;
-                        }
-                    }
+                    let (acc, t) = crate::composite::front_to_back_f32(
+                        run.color
+                            .iter()
+                            .map(|c| c.0.map(|v| UNORM8_TO_F32[v as usize])),
+                    );
                     px.copy_from_slice(&[acc[0], acc[1], acc[2], 1.0 - t]);
                 }
             });

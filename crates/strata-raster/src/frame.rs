@@ -45,10 +45,10 @@ pub struct FrameInput<'a> {
 /// What the four colour bytes of the rasterizer's fragments hold.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum FragmentOutput {
-    /// The shaded colour (DESIGN §2: headlight or unlit, RGBA8).
+    /// The shaded colour (strata's shared conventions: headlight or unlit, RGBA8).
     #[default]
     Shaded,
-    /// Normal fragments (seed 000 §2.1): the perspective-correctly interpolated eye-space normal
+    /// Normal fragments (Jähne 2014 §2.1): the perspective-correctly interpolated eye-space normal
     /// of lit objects as a [`strata_core::PackedNormal`]; unlit objects give
     /// [`strata_core::PackedNormal::NONE`]. Depth and object are as for shaded fragments, so the
     /// eye-space position is the unprojection of the pixel centre at the fragment's depth, and a

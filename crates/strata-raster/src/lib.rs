@@ -2,7 +2,7 @@
 //!
 //! The rasterizer turns a [`FrameInput`] (meshes, model matrices, materials, camera) into
 //! fragments pushed into a [`CaptureTarget`] — a fragment store. It follows the conventions of
-//! DESIGN §2 exactly: GL projection, pixel centres at `(x + ½, y + ½)`, the top-left fill rule,
+//! strata's shared conventions exactly: GL projection, pixel centres at `(x + ½, y + ½)`, the top-left fill rule,
 //! exact near-plane clipping, perspective-correct interpolation, no culling, headlight and unlit
 //! shading, RGBA8 rounding.
 //!

@@ -1,7 +1,7 @@
 //! The rasterizer against analytic answers: coverage, clipping, depth, shading.
 //!
 //! Each test builds a small frame by hand (camera, meshes) and checks the fragments the
-//! rasterizer emits against values computed independently in f64 from the DESIGN §2 conventions.
+//! rasterizer emits against values computed independently in f64 from the strata's shared conventions conventions.
 
 use glam::{DMat4, DVec3, DVec4, Mat4, Vec3};
 use strata_core::{Fragment, Material, ObjectId, PackedNormal, Shading};

@@ -1,13 +1,13 @@
-//! The `difference` transfer (seed 000 ch. 4, Algorithms A.4–A.5), made exact.
+//! The `difference` transfer (Jähne 2014 ch. 4, Algorithms A.4–A.5), made exact.
 //!
-//! # What the seed did, and why it could be wrong
+//! # What the thesis did, and why it could be wrong
 //!
-//! The seed's render node resolved each frame, compared the colours with its previous frame and
+//! The thesis's render node resolved each frame, compared the colours with its previous frame and
 //! sent the whole fragment list of every pixel whose colour changed; the display replaced those
 //! lists. That is right for a pixel only one node draws: the display's colour there is the
 //! node's colour. Where two nodes' objects overlap, the display interleaves their fragments by
 //! depth, and a list whose colour did not change may still hold stale depths — an object moving
-//! through another one composites in the wrong order (the seed's fig. 4.3).
+//! through another one composites in the wrong order (the thesis's fig. 4.3).
 //!
 //! # What strata does
 //!
@@ -19,8 +19,8 @@
 //! With a *tolerance* of `t` steps, a pixel whose colour moved by at most `t` in every channel
 //! from the colour the display shows is not sent (coverage changes always are), and the key keeps
 //! the colour the display shows, so the error never exceeds `t` and never accumulates. With
-//! `t = 2` the display has no bad pixels by DESIGN §2's definition (more than 2/255), which is
-//! what seed 000's "visual" difference aims at; `t = 0` is exact. The bound is for pixels one
+//! `t = 2` the display has no bad pixels by strata's definition (more than 2/255), which is
+//! what Jähne 2014's "visual" difference aims at; `t = 0` is exact. The bound is for pixels one
 //! node draws: a fixup replaces a shared pixel's run without the node updating its key, so where
 //! nodes overlap a pixel that stops being shared may be off by up to `2t` until it next changes.
 //!

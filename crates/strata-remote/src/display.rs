@@ -1,4 +1,4 @@
-//! The display node (seed 000 Algorithms A.3, A.5): drives the animation, asks every render node
+//! The display node (Jähne 2014 Algorithms A.3, A.5): drives the animation, asks every render node
 //! for each frame, receives from all of them concurrently, applies what arrives to its copy of
 //! each node's runs, merges the copies per pixel and resolves.
 //!

@@ -1,4 +1,4 @@
-//! Remote rendering (seed 000): render nodes render some objects of a scene, choose fragments
+//! Remote rendering (Jähne 2014): render nodes render some objects of a scene, choose fragments
 //! with a transfer method, encode them with `strata-wire` and stream them over TCP; a display
 //! node drives the animation, receives from every node concurrently, merges the nodes' runs per
 //! pixel and resolves.

@@ -1,5 +1,5 @@
 //! The display's merge and resolve: per pixel, the sorted runs of every node merged front to back
-//! and composited (seed 000 Algorithm A.3's display pass, for several nodes).
+//! and composited (Jähne 2014 Algorithm A.3's display pass, for several nodes).
 //!
 //! Each node's run is already sorted by [`Fragment::order_key`] (depth, then object id, then
 //! colour: a total order on values), so merging them gives the same sequence as sorting the union

@@ -1,4 +1,4 @@
-//! The render node (seed 000 Algorithms A.2, A.4): renders its objects of a scene at the camera
+//! The render node (Jähne 2014 Algorithms A.2, A.4): renders its objects of a scene at the camera
 //! the display sends, chooses fragments with the requested transfer method, encodes, sends.
 //!
 //! # Stages
@@ -706,7 +706,7 @@ fn encode_thread(
             frame_number: request.frame_number,
             fragments_rendered: frame.fragment_count() as u64,
             fragments_sent: sent,
-            // The seed's layout: 4-byte heads, 12-byte colour or 24-byte normal fragments.
+            // The thesis's layout: 4-byte heads, 12-byte colour or 24-byte normal fragments.
             raw_bytes: if request.transfer == TransferMethod::Reprojection {
                 seed_layout_bytes(pixels, sent) + 12 * sent
             } else {

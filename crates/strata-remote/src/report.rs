@@ -1,5 +1,5 @@
 //! What the display measures: one [`FrameStats`] per composed frame (one [`NodeFrame`] per node
-//! in it), and the [`Summary`] of a run — the figures of seed 000's Tables A.1–A.2 and
+//! in it), and the [`Summary`] of a run — the figures of Jähne 2014's Tables A.1–A.2 and
 //! Figures 6.1–6.3.
 //!
 //! Rates, bytes and times are figures of the *delivered* frames only — frames to which at least
@@ -50,14 +50,14 @@ pub struct NodeFrame {
     pub status: NodeStatus,
     /// Encoded bytes received for this frame (delta and fixup messages).
     pub bytes: u64,
-    /// The same fragments in the seed layout (4 bytes per pixel + 12 per fragment).
+    /// The same fragments in the thesis layout (4 bytes per pixel + 12 per fragment).
     pub raw_bytes: u64,
     /// Fragments in the node's whole frame.
     pub fragments_rendered: u64,
     /// Fragments the node sent.
     pub fragments_sent: u64,
     /// Reprojection: held fragments the node removed by position (not counted in
-    /// `fragments_sent`: a removal is a position of a byte or two, not a fragment — the seed sent
+    /// `fragments_sent`: a removal is a position of a byte or two, not a fragment — the thesis sent
     /// each as a flagged fragment).
     pub removals: u64,
     /// Node: clear + capture + DeepFrame export.

@@ -1,4 +1,4 @@
-//! The node's choice of fragments for the `full` and `depth-limited` transfers (seed 000 ch. 3,
+//! The node's choice of fragments for the `full` and `depth-limited` transfers (Jähne 2014 ch. 3,
 //! Algorithms A.2–A.3), and [`restrict`], which keeps only some pixels' runs.
 //!
 //! Runs are sorted front to back, so "the N nearest" is a prefix of each run, and so is "until

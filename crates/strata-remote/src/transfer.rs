@@ -1,4 +1,4 @@
-//! The transfer methods a display can ask for, by name (seed 000 ch. 3–5).
+//! The transfer methods a display can ask for, by name (Jähne 2014 ch. 3–5).
 //!
 //! The method itself travels in every request and frame header as
 //! [`strata_wire::TransferMethod`]; this module is the user-facing side: names, options, checks.

@@ -1,4 +1,4 @@
-//! The camera: OpenGL conventions, right-handed (DESIGN §2).
+//! The camera: OpenGL conventions, right-handed (strata's shared conventions).
 //!
 //! `view = look_at_rh(eye, target, up)`, `projection = perspective_rh_gl(fovy, width/height, near,
 //! far)`: clip-space z runs from `-w` (near) to `+w` (far), window depth is `0.5 * z_ndc + 0.5`.

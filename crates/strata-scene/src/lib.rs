@@ -1,6 +1,6 @@
 //! strata scenes: the TOML scene file, mesh loaders, built-in shapes and scenes, the camera.
 //!
-//! The first stage of the pipeline (DESIGN §1): everything up to a [`Scene`] whose meshes are
+//! The first stage of the pipeline (the pipeline design): everything up to a [`Scene`] whose meshes are
 //! loaded, validated and placed, ready for the rasterizer.
 //!
 //! ```

@@ -10,7 +10,7 @@
 //!
 //! Normals come from the file where it has them. Otherwise each vertex normal is the normalised
 //! sum of the *unnormalised* normals (cross products, so area-weighted) of the faces that use it
-//! (DESIGN §2). A vertex used by no face, or only by degenerate faces, gets a zero normal; the
+//! (strata's shared conventions). A vertex used by no face, or only by degenerate faces, gets a zero normal; the
 //! headlight shading treats that as `N·L = 0`.
 //!
 //! # Memory order

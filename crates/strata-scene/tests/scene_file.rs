@@ -1,4 +1,4 @@
-//! The scene file of DESIGN §2 end to end: every key and its default, the transform order
+//! The scene file of strata's shared conventions end to end: every key and its default, the transform order
 //! `M = T · A(k) · R · S · F · N`, errors (with the key they name and the origin they report),
 //! mesh resolution and sharing, glTF expansion into objects, and the built-in scenes.
 //!
@@ -162,7 +162,7 @@ fn base_bounds(objects: &[SceneObject]) -> Aabb {
 // ---------------------------------------------------------------------------------------------
 // Every key, and the defaults.
 
-/// Every key of DESIGN §2, with values unlike the defaults.
+/// Every key of strata's shared conventions, with values unlike the defaults.
 const COMPLETE: &str = r#"
 width = 800
 height = 600
@@ -287,7 +287,7 @@ fn a_complete_file_parses_to_exactly_its_values() {
 
 #[test]
 fn design_example_values_survive_exactly() {
-    // The DESIGN §2 block, with a built-in shape in place of the dragon.
+    // The strata's shared conventions block, with a built-in shape in place of the dragon.
     let s = scene(
         r#"
 width = 1280

@@ -1,4 +1,4 @@
-//! Prints the k-buffer quality tables of issue 3 (seed 001 Fig. 4.5 / Table 5.1 style, seed 000
+//! Prints the k-buffer quality tables of issue 3 (Tsopouridis 2021 Fig. 4.5 / Table 5.1 style, Jähne 2014
 //! Fig. 6.2 style):
 //!
 //! ```text

@@ -1,7 +1,7 @@
 //! Block allocation from a shared counter: how the pool-based stores (the linked list's nodes,
 //! TFSS's sections) hand out pool entries without an atomic per entry.
 //!
-//! On the GPU every allocation is an `atomicAdd` on the pool counter (seed 000 §2.2; seed 001
+//! On the GPU every allocation is an `atomicAdd` on the pool counter (Jähne 2014 §2.2; Tsopouridis 2021
 //! Alg. 5). Here each rasterizer strip is scanned by one thread, so a strip reserves a block of
 //! entries with one `fetch_add` and hands them out one by one with plain arithmetic: the counter is
 //! touched once per block. A block is written only by the thread that reserved it, and the end of

@@ -1,4 +1,4 @@
-//! The counting pass: fragments per pixel, without storing them (seed 001 Alg. 8, the S-buffer's
+//! The counting pass: fragments per pixel, without storing them (Tsopouridis 2021 Alg. 8, the S-buffer's
 //! "accumulation" pass).
 //!
 //! Each strip owns its rows' counters, so counting needs no atomics. The S-buffer sizes its

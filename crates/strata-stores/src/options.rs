@@ -208,9 +208,9 @@ impl std::str::FromStr for PoolCapacity {
 /// A memory budget for the variable k-buffer, resolved to a number of fragments per frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Budget {
-    /// A share of the frame's fragments (`50%`): the figures of seed 001 Fig. 4.5.
+    /// A share of the frame's fragments (`50%`): the figures of Tsopouridis 2021 Fig. 4.5.
     SceneShare(f64),
-    /// An average number of fragments per pixel, `k_avg` of seed 001 §3.2.2 (`2x`).
+    /// An average number of fragments per pixel, `k_avg` of Tsopouridis 2021 §3.2.2 (`2x`).
     PerPixel(f64),
     /// Bytes of fragment storage (`20MB`, `16MiB`), at 12 bytes a fragment.
     Bytes(u64),
@@ -279,10 +279,10 @@ impl std::str::FromStr for Budget {
 /// Where the variable k-buffer's per-pixel k comes from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum KFrom {
-    /// Importance maps: periphery and depth-complexity heuristics with noise (seed 001 §3.2.2).
+    /// Importance maps: periphery and depth-complexity heuristics with noise (Tsopouridis 2021 §3.2.2).
     #[default]
     Importance,
-    /// The Optimal-K greedy oracle (seed 001 §4.2.2, Algorithm 23).
+    /// The Optimal-K greedy oracle (Tsopouridis 2021 §4.2.2, Algorithm 23).
     Optimal,
 }
 
@@ -300,7 +300,7 @@ impl std::str::FromStr for KFrom {
     }
 }
 
-/// Parameters of the importance function of seed 001 §3.2.2:
+/// Parameters of the importance function of Tsopouridis 2021 §3.2.2:
 /// `I(p) = max(0, I_per · I_d + λ (ρ − ½))`, `I_per = 1 − (‖p − o‖ / √(w² + h²))^d`,
 /// `I_d = α + (1 − α) min(1, N_layers / N_limit)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -310,9 +310,9 @@ pub struct ImportanceParams {
     /// `α`: range bias of the depth-complexity heuristic.
     pub alpha: f64,
     /// `N_limit`: the layer count that counts as full importance; `None` uses the frame's largest
-    /// per-pixel fragment count ("roughly the maximum", as the seed suggests).
+    /// per-pixel fragment count ("roughly the maximum", as the thesis suggests).
     pub n_limit: Option<u32>,
-    /// `λ`: noise level (the seed uses 0.1).
+    /// `λ`: noise level (the thesis uses 0.1).
     pub noise: f64,
     /// The point of interest `o` as a fraction of the image size; `[0.5, 0.5]` is the centre.
     pub point_of_interest: [f64; 2],
@@ -338,7 +338,7 @@ impl Default for ImportanceParams {
 pub struct MethodOptions {
     /// Node pool of the linked-list A-buffer.
     pub pool: PoolCapacity,
-    /// `A`: fragments per pixel of the fixed-array A-buffer (seed 001 uses 8 in Table 3.1).
+    /// `A`: fragments per pixel of the fixed-array A-buffer (Tsopouridis 2021 uses 8 in Table 3.1).
     pub array_size: u32,
     /// `k` of the fixed k-buffer.
     pub k: u32,
@@ -351,9 +351,9 @@ pub struct MethodOptions {
     pub k_from: KFrom,
     /// Importance-map parameters of the variable k-buffer.
     pub importance: ImportanceParams,
-    /// `L_num`: fragments per T-buffer section of TFSS (seed 002 evaluates 1 to 4).
+    /// `L_num`: fragments per T-buffer section of TFSS (Lin 2007 evaluates 1 to 4).
     pub l_num: u32,
-    /// TFSS: leading-zeros elimination with a Length table (seed 002 §3.3).
+    /// TFSS: leading-zeros elimination with a Length table (Lin 2007 §3.3).
     pub leading_zeros: bool,
     /// Depth peeling: most layers to peel; 0 peels until a pass finds nothing.
     pub max_layers: u32,
@@ -422,7 +422,7 @@ impl MethodOptions {
     }
 }
 
-/// The option called `key`, by its name or a short alias (`a`, `d`, `lambda`, the seed's symbols).
+/// The option called `key`, by its name or a short alias (`a`, `d`, `lambda`, the thesis's symbols).
 fn canonical_name(key: &str) -> Option<&'static str> {
     let key = match key {
         "a" => "array-size",

@@ -1,7 +1,7 @@
 //! Per-pixel regions in one fragment array: the storage shared by the fixed-array A-buffer, the
 //! S-buffer and the k-buffers.
 //!
-//! # Layout (the S-buffer layout of seed 001 §3.1.3)
+//! # Layout (the S-buffer layout of Tsopouridis 2021 §3.1.3)
 //!
 //! ```text
 //! offsets: [u32; w*h + 1]   pixel p (row-major) owns slots offsets[p] .. offsets[p+1]
@@ -13,12 +13,12 @@
 //!
 //! | method | capacity of pixel `p` | a fragment arriving at a full region |
 //! | --- | --- | --- |
-//! | fixed-array A-buffer (seed 001 Alg. 1–3) | `A` for every pixel | is dropped and counted ([`Policy::Append`]) |
+//! | fixed-array A-buffer (Tsopouridis 2021 Alg. 1–3) | `A` for every pixel | is dropped and counted ([`Policy::Append`]) |
 //! | S-buffer (Alg. 7–12) | its exact fragment count (a counting pass) | cannot happen |
 //! | k-buffer (Alg. 13–15) | `k` for every pixel | replaces the farthest kept one if nearer ([`Policy::KeepNearest`]) |
 //! | variable k-buffer (Alg. 16–21) | `k(p)` from an importance map | as the k-buffer |
 //!
-//! Under [`Policy::KeepNearest`] a region is kept sorted front to back by insertion (seed 001
+//! Under [`Policy::KeepNearest`] a region is kept sorted front to back by insertion (Tsopouridis 2021
 //! Alg. 14); the fragment that falls off the end — the new one or the farthest kept — is *evicted*
 //! and reported to an optional [`Evicted`] callback, or returned to a store that wraps the sink
 //! with per-strip state of its own ([`RegionSink::insert_nearest`]: the k-buffer's tail blend).
@@ -27,7 +27,7 @@
 //!
 //! Regions are row-major and contiguous, so a strip of rows owns one contiguous range of `fill`
 //! and of `slots`: [`Regions::strips`] hands each rasterizer strip its own `&mut` slices, and
-//! capture needs no atomics (the CPU analogue of the seed's pixel synchronisation).
+//! capture needs no atomics (the CPU analogue of the thesis's pixel synchronisation).
 
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
@@ -401,7 +401,7 @@ impl std::fmt::Debug for RegionSink<'_> {
 }
 
 impl RegionSink<'_> {
-    /// [`Policy::KeepNearest`] insertion of one fragment (seed 001 Alg. 14), whatever this sink's
+    /// [`Policy::KeepNearest`] insertion of one fragment (Tsopouridis 2021 Alg. 14), whatever this sink's
     /// policy: keeps the region sorted front to back and returns the fragment that fell off the
     /// end — the new one or the farthest kept — counting it as lost.
     ///
@@ -468,7 +468,7 @@ impl FragmentSink for RegionSink<'_> {
 }
 
 /// Exclusive prefix sum of per-pixel counts, in parallel: `offsets[p] = Σ counts[..p]`, plus the
-/// total as `offsets[n]`. Replaces the seed S-buffer's hashed group counters (a GPU device for
+/// total as `offsets[n]`. Replaces the thesis S-buffer's hashed group counters (a GPU device for
 /// atomic contention) with the plain two-level parallel scan a CPU wants.
 pub fn exclusive_prefix_sum(counts: &[u32]) -> (Vec<u32>, u64) {
     const BLOCK: usize = 64 * 1024;

@@ -1,5 +1,5 @@
 //! The weight-factor (WF) resolve: every fragment's contribution computed from the fragments in
-//! front of it, without sorting (seed 002 §2.5.2, Eq. 2–4; Amor et al. 2006).
+//! front of it, without sorting (Lin 2007 §2.5.2, Eq. 2–4; Amor et al. 2006).
 //!
 //! # What it computes
 //!
@@ -12,22 +12,22 @@
 //! w_b = Π_j (1 − α_j)                   (every fragment is in front of the background)
 //! ```
 //!
-//! Each fragment is compared with every other fragment of its pixel (the seed's `i(i−1)/2`
+//! Each fragment is compared with every other fragment of its pixel (the thesis's `i(i−1)/2`
 //! comparisons), so the cost is quadratic in the depth complexity but needs no sort.
 //!
 //! "In front" is a strict total order: `j` is in front of `i` iff
 //! `order_key(j) < order_key(i)`, and for equal keys (identical fragments: same depth, object
-//! and colour) iff `j` was stored before `i`. The seed's `Z_j < Z_i` alone would give two
+//! and colour) iff `j` was stored before `i`. The thesis's `Z_j < Z_i` alone would give two
 //! fragments at equal depth the same weight — neither attenuates the other — which differs from
 //! any OVER order; with the total order equal-depth fragments blend exactly as the sorted OVER
 //! does.
 //!
 //! # Storage and passes
 //!
-//! The seed stores each pixel's transparent fragments "sequentially and connectedly" in the
+//! The thesis stores each pixel's transparent fragments "sequentially and connectedly" in the
 //! M-buffer. The S-buffer's contiguous exactly-sized regions are that layout, so capture is the
 //! [`SBuffer`]'s: **clear**, **count** (`capture.count`), **prefix sum** (`capture.prefix_sum`),
-//! **capture** (`capture.capture`). The seed's phase 2 (discard transparent fragments behind the
+//! **capture** (`capture.capture`). The thesis's phase 2 (discard transparent fragments behind the
 //! nearest opaque one) is applied in the resolve: those fragments get a weight of exactly 0
 //! anyway, so skipping them changes nothing but the time.
 //!
@@ -69,7 +69,7 @@ impl WeightFactor {
         Self::default()
     }
 
-    /// The S-buffer holding the fragments (the seed's M-buffer).
+    /// The S-buffer holding the fragments (the thesis's M-buffer).
     pub fn store(&self) -> &SBuffer {
         &self.store
     }

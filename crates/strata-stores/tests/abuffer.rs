@@ -1,6 +1,6 @@
 //! The linked-list A-buffer end to end: scenes in, images and DeepFrames out.
 //!
-//! What would catch a wrong engine: the seed's worked example, results that do not depend on
+//! What would catch a wrong engine: the thesis's worked example, results that do not depend on
 //! triangle order or thread count, agreement with an independent brute-force resolve, overflow
 //! that is counted, and real meshes that render the same fragments every time.
 
@@ -243,8 +243,8 @@ fn method_is_reusable_across_frames_and_sizes() {
 // ----- real meshes ------------------------------------------------------------------------------
 
 /// Fragment counts of the real-mesh scenes at the foundation benchmark's settings (1280×720,
-/// frame 0). The full dragon's 945,834 agrees with the ≈946,000 the seed's GLSL shaders produce
-/// on Mesa llvmpipe (DESIGN §4). A change here means the rasterizer's coverage changed.
+/// frame 0). The full dragon's 945,834 agrees with the ≈946,000 the thesis's GLSL shaders produce
+/// on Mesa llvmpipe (the project's targets). A change here means the rasterizer's coverage changed.
 const REAL_MESH_FRAGMENTS: &[(&str, u64)] = &[
     ("bunny", 590_980),
     ("dragon-res2", 294_440),

@@ -1,6 +1,6 @@
 //! TFSS end to end: every built-in scene captured through the rasterizer gives the A-buffer's
 //! DeepFrame and image for any L_num, with and without leading-zeros elimination, on one or two
-//! threads; its memory is what the model of seed 002 predicts; leading-zeros elimination saves
+//! threads; its memory is what the model of Lin 2007 predicts; leading-zeros elimination saves
 //! memory where colours have leading zeros to drop.
 
 mod common;

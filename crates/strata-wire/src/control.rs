@@ -1,4 +1,4 @@
-//! The small messages of the remote-rendering services (seed 000 ch. 3–5): what the display asks
+//! The small messages of the remote-rendering services (Jähne 2014 ch. 3–5): what the display asks
 //! of a node, how a node introduces itself, its per-frame statistics, and errors.
 //!
 //! Every message starts with the 20-byte prefix of [`crate::message`]; offsets below are from the
@@ -56,7 +56,7 @@
 //!   0  frame_number        u64
 //!   8  fragments_rendered  u64    the node's whole frame
 //!  16  fragments_sent      u64    after the transfer method chose
-//!  24  raw_bytes           u64    the sent frame in the seed layout (4 per pixel + 12 per fragment)
+//!  24  raw_bytes           u64    the sent frame in the thesis layout (4 per pixel + 12 per fragment)
 //!  32  render_us           u64    clear + capture + export to a DeepFrame
 //!  40  select_us           u64    the transfer method's choice (depth limit, difference)
 //!  48  encode_us           u64
@@ -138,7 +138,7 @@ pub struct NodeStats {
     pub fragments_rendered: u64,
     /// Fragments in the message.
     pub fragments_sent: u64,
-    /// The message's frame in the seed layout.
+    /// The message's frame in the thesis layout.
     pub raw_bytes: u64,
     /// Clear + capture + DeepFrame export, µs.
     pub render_us: u64,
@@ -498,8 +498,8 @@ impl NodeStats {
     }
 }
 
-/// Bytes of `frame` in the seed layout (4 per pixel + 12 per fragment): the `raw` codec's
-/// section, the denominator of seed 000's comparisons.
+/// Bytes of `frame` in the thesis layout (4 per pixel + 12 per fragment): the `raw` codec's
+/// section, the denominator of Jähne 2014's comparisons.
 pub fn seed_layout_bytes(pixels: u64, fragments: u64) -> u64 {
     codec::SectionTag::Seed.decoded_range(pixels, fragments).0
 }

@@ -1,15 +1,15 @@
 //! strata's wire format: self-describing, versioned messages that carry DeepFrames between
 //! processes and machines, with lossless codecs and a decoder that is safe on hostile input.
 //!
-//! DeepFrame is the exchange format of the engine (DESIGN §1); this crate is how it crosses a
-//! socket. The remote-rendering services of seed 000 (render nodes, a display node) build on the
+//! DeepFrame is the exchange format of the engine (the pipeline design); this crate is how it crosses a
+//! socket. The remote-rendering services of Jähne 2014 (render nodes, a display node) build on the
 //! message types here. `docs/wire-format.md` is the byte-by-byte specification.
 //!
 //! - [`message`]: the 20-byte prefix every message starts with (magic `STRW`, version, type, body
 //!   length, CRC-32), and the frame message: frame number, node id, the view and projection
 //!   matrices, size, fragment count, transfer method, codec, and a section table giving each
 //!   section's encoded and decoded length so a reader validates before it allocates;
-//! - [`codec`]: the codecs — `raw` (seed 000's 4-byte header + 12-byte nodes), `lz4` and `zstd`
+//! - [`codec`]: the codecs — `raw` (Jähne 2014's 4-byte header + 12-byte nodes), `lz4` and `zstd`
 //!   over that layout, and `deep-lz4` / `deep-zstd`, a DeepFrame-aware layout (varint counts,
 //!   depth and colour predicted from neighbouring pixels' same layer, byte planes, zero-run object
 //!   ids) under LZ4 or zstd;

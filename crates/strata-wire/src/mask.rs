@@ -1,6 +1,6 @@
 //! A set of pixels of a frame, as sorted disjoint runs of row-major pixel indices.
 //!
-//! The `difference` transfer (seed 000 ch. 4) sends only the pixels whose fragment list changed;
+//! The `difference` transfer (Jähne 2014 ch. 4) sends only the pixels whose fragment list changed;
 //! the display asks a node for exact copies of pixels it shares with other nodes. Both name a set
 //! of pixels, and changed regions are spatially coherent (a silhouette, a moving object), so runs
 //! are the natural layout: memory and wire size follow the number of run boundaries, not the

@@ -156,22 +156,22 @@ pub struct Prefix {
     pub body_crc32: u32,
 }
 
-/// How the node chose the fragments it sent (seed 000 ch. 3–5).
+/// How the node chose the fragments it sent (Jähne 2014 ch. 3–5).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum TransferMethod {
     /// Every fragment.
     Full,
     /// The `layers` nearest fragments per pixel, stopping early once the accumulated opacity
-    /// reaches `opacity_threshold` when there is one (seed 000 ch. 3).
+    /// reaches `opacity_threshold` when there is one (Jähne 2014 ch. 3).
     DepthLimited {
         /// N ≥ 1.
         layers: u32,
         /// In (0, 1].
         opacity_threshold: Option<f32>,
     },
-    /// Only pixels whose fragment list changed (seed 000 ch. 4).
+    /// Only pixels whose fragment list changed (Jähne 2014 ch. 4).
     Difference,
-    /// Inserts and removals against the reprojected previous frame (seed 000 ch. 5).
+    /// Inserts and removals against the reprojected previous frame (Jähne 2014 ch. 5).
     Reprojection,
 }
 

@@ -1,9 +1,9 @@
-//! The removal list of a `reprojection` frame (seed 000 ch. 5, fig. 5.10's orange fragments).
+//! The removal list of a `reprojection` frame (Jähne 2014 ch. 5, fig. 5.10's orange fragments).
 //!
 //! Both ends of a reprojection link hold the same per-pixel lists of normal fragments and move
 //! them to the new camera with the same arithmetic, so they agree on every pixel's reprojected,
 //! sorted run. A removal therefore names a fragment by its **position in that run** — an exact
-//! identity — instead of by a depth to be matched within a threshold, the merge the seed found
+//! identity — instead of by a depth to be matched within a threshold, the merge the thesis found
 //! ambiguous (fig. 5.8, 5.9).
 //!
 //! The list has one entry per pixel of the frame's `mask` (the touched pixels), in mask order:

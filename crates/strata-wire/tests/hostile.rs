@@ -1059,9 +1059,9 @@ fn decoder_limits_hold_at_their_boundary() {
 
 #[test]
 fn nonsense_payloads_of_the_right_length_are_rejected() {
-    // Raw: the payload is the seed layout itself; corrupt the counts and the nodes in place.
+    // Raw: the payload is the thesis layout itself; corrupt the counts and the nodes in place.
     let original = message(Codec::Raw, false);
-    // The seed section's payload starts after the one table entry: 6 counts, then 7 nodes.
+    // The thesis section's payload starts after the one table entry: 6 counts, then 7 nodes.
     const P: usize = FRAME_HEADER_LEN + SECTION_ENTRY_LEN;
     let cases = [
         Case {

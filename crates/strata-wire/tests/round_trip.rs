@@ -296,7 +296,7 @@ fn scene(name: &str, search: &SearchPath, width: u32, height: u32) -> Scene {
 }
 
 /// Renders frame 13 of a built-in scene at 256×144 and round-trips it with every codec; the
-/// DeepFrame-aware codecs must beat the seed layout on real frames.
+/// DeepFrame-aware codecs must beat the thesis layout on real frames.
 fn check_builtin_scene(name: &str, min_max_depth: u32) {
     let s = scene(name, &SearchPath::default(), 256, 144);
     let frame = 13;
@@ -322,7 +322,7 @@ fn check_builtin_scene(name: &str, min_max_depth: u32) {
         deep_zstd < zstd && zstd < lz4 && deep_lz4 < lz4 && lz4 < raw,
         "{name} frame {frame}: {sizes:?}"
     );
-    // Raw is the seed layout: exactly 4 bytes a pixel and 12 a fragment after the header.
+    // Raw is the thesis layout: exactly 4 bytes a pixel and 12 a fragment after the header.
     assert_eq!(
         raw,
         FRAME_HEADER_LEN + SECTION_ENTRY_LEN + 4 * 256 * 144 + 12 * deep.fragment_count()
@@ -725,7 +725,7 @@ fn frames_without_pixels_or_fragments_round_trip() {
         let frame = DeepFrame::empty(w, h);
         let sizes = round_trip_all(&FrameHeader::default(), &frame);
         if w * h == 0 {
-            // No pixels: the seed section is empty and the deep sections hold only the object
+            // No pixels: the thesis section is empty and the deep sections hold only the object
             // stream's final run (one byte), all stored.
             assert_eq!(
                 size_of(&sizes, Codec::Raw),
@@ -902,7 +902,7 @@ proptest! {
 // ---------------------------------------------------------------------------------------------
 // The byte layout of docs/wire-format.md
 
-/// The seed layout, written independently of the crate: u32 counts, then 12-byte nodes.
+/// The thesis layout, written independently of the crate: u32 counts, then 12-byte nodes.
 fn seed_layout(frame: &DeepFrame) -> Vec<u8> {
     let mut out = Vec::new();
     for c in frame.counts() {

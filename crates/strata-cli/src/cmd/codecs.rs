@@ -151,7 +151,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         })?;
         fragments.push(deep.fragment_count() as u64);
         let header = header_for(&input, f);
-        // The seed layout under LZ4 is the reference ratio even when not listed.
+        // The thesis layout under LZ4 is the reference ratio even when not listed.
         seed_lz4.push(strata_wire::encode_frame(&header, &deep, Codec::Lz4)?.len() as u64);
         let mut buf = Vec::new();
         for t in &mut tallies {

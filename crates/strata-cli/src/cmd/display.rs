@@ -1,4 +1,4 @@
-//! `strata display`: the display node of seed 000's remote rendering.
+//! `strata display`: the display node of Jähne 2014's remote rendering.
 
 use std::fs;
 use std::path::PathBuf;

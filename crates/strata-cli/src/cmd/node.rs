@@ -1,4 +1,4 @@
-//! `strata node`: a render node of seed 000's remote rendering.
+//! `strata node`: a render node of Jähne 2014's remote rendering.
 
 use std::sync::Arc;
 

@@ -1,4 +1,4 @@
-//! `strata tfss-sim`: seed 002's evaluation (ch. 4) on our frames — the transparent-fragment
+//! `strata tfss-sim`: Lin 2007's evaluation (ch. 4) on our frames — the transparent-fragment
 //! distribution, the memory of R-buffer, WF and TFSS, the access/time model — beside strata's own
 //! layouts and its real TFSS store.
 

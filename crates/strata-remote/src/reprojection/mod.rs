@@ -1,5 +1,5 @@
-//! The reprojection transfer (seed 000 ch. 5, the "bilateral transformation"), without drift and
-//! without the seed's merge artefacts.
+//! The reprojection transfer (Jähne 2014 ch. 5, the "bilateral transformation"), without drift and
+//! without the thesis's merge artefacts.
 //!
 //! # What both ends hold
 //!
@@ -8,14 +8,14 @@
 //! fragment — and the colour fragment that surfel shades to at the current frame. The node
 //! renders **normal fragments** ([`strata_raster::FragmentOutput::PackedNormal`]: window depth, a
 //! [`strata_core::PackedNormal`] in the colour bytes, the object), and the wire carries them unchanged; the
-//! eye-space position is the unprojection of the pixel centre at that depth (the seed stores eye
+//! eye-space position is the unprojection of the pixel centre at that depth (the thesis stores eye
 //! x, y, z per fragment — 24 bytes — strata derives x and y from the pixel, so a normal fragment
 //! costs what a colour fragment does).
 //!
 //! When a normal fragment arrives, [`View::entry`] applies eq. 5.10 once — eye space to object
 //! space with the inverse model-view of the frame it was rendered in — and every later frame
 //! applies eq. 5.9 to that fixed object-space point with the current matrices ([`Held::reproject`]).
-//! The seed re-derived eye positions from the previous frame's eye positions every frame, so
+//! The thesis re-derived eye positions from the previous frame's eye positions every frame, so
 //! rounding accumulated and its difference lists grew over time (fig. 6.3); a surfel here is
 //! transformed from the same object-space coordinates every frame and cannot drift.
 //!
@@ -39,7 +39,7 @@
 //! display shades, in order, to its own render within `tolerance`.
 //!
 //! **Removal by identity.** Both ends run the same code on the same inputs, so their projected
-//! runs are bit-identical and a removal names an entry by its position in the run. The seed
+//! runs are bit-identical and a removal names an entry by its position in the run. The thesis
 //! removed "the nearest fragment by depth" within a threshold, which deleted the wrong fragments
 //! when the threshold was large and kept stale ones when it was small (fig. 5.8, 5.9). To catch
 //! the case where the two ends' arithmetic differs (different platforms, a bug), the node sends a

@@ -1,6 +1,6 @@
 //! One frame's view as both ends compute it: the matrices of every object, their materials, and
-//! the two transforms of seed 000 ch. 5 — eq. 5.10 once for a rendered normal fragment
-//! ([`View::entry`]), eq. 5.9 every frame for a held surfel (`View::project`) — with DESIGN §2's
+//! the two transforms of Jähne 2014 ch. 5 — eq. 5.10 once for a rendered normal fragment
+//! ([`View::entry`]), eq. 5.9 every frame for a held surfel (`View::project`) — with strata's standard
 //! shading of the result.
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
@@ -112,7 +112,7 @@ impl View {
         self.objects.get(id.0 as usize).and_then(Option::as_ref)
     }
 
-    /// The colour of `surfel` of object `o` at eye-space position `eye` (DESIGN §2 shading).
+    /// The colour of `surfel` of object `o` at eye-space position `eye` (strata's shared conventions shading).
     #[inline]
     fn shade(o: &ObjectView, surfel: &Surfel, eye: Vec3) -> Rgba8 {
         if !o.lit {

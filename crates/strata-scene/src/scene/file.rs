@@ -1,6 +1,6 @@
-//! The TOML scene file (DESIGN §2): schema, validation, mesh resolution.
+//! The TOML scene file (strata's shared conventions): schema, validation, mesh resolution.
 //!
-//! Every key of DESIGN §2 is accepted; unknown keys are errors (a typo must not silently fall back
+//! Every key of strata's shared conventions is accepted; unknown keys are errors (a typo must not silently fall back
 //! to a default), and so are arrays of the wrong length (serde's own `[f32; 3]` stops reading
 //! after three elements and the TOML deserializer ignores the rest, so `[r, g, b, a]` would pass
 //! as `[r, g, b]`: `Numbers` counts them all). Every error names the key (`objects[2].color`)

@@ -1,6 +1,6 @@
 //! A loaded scene: image size, background, camera, objects with their meshes, and the animation.
 //!
-//! A [`Scene`] is what the scene file (DESIGN §2, parsed in [`file`](mod@file)) or a built-in scene resolves
+//! A [`Scene`] is what the scene file (strata's shared conventions, parsed in [`file`](mod@file)) or a built-in scene resolves
 //! to: every mesh loaded and validated, every glTF mesh node expanded into its own object with its
 //! own [`ObjectId`], `fit` folded into each object's base transform. Nothing in a `Scene` refers
 //! back to files, so rendering it cannot fail.
@@ -16,10 +16,10 @@
 //! - `N`: the glTF node's world transform (identity for other formats);
 //! - `F`: `fit` — recentre on the bounding-box centre of the whole model (all its nodes), scale the
 //!   largest extent to 1; identity without `fit`;
-//! - `S`, `R = Rz · Ry · Rx`, `T`: `scale`, `rotate_deg`, `translate` (seed 000 eq. 5.2);
+//! - `S`, `R = Rz · Ry · Rx`, `T`: `scale`, `rotate_deg`, `translate` (Jähne 2014 eq. 5.2);
 //! - `A(k) = Rz(k·az) · Ry(k·ay) · Rx(k·ax)` with `[ax, ay, az] = animation.rotate_deg_per_frame`: the
 //!   object turns about its own origin (the point `translate` puts it at) around the world axes —
-//!   the turntable of seed 000 §6.1, 5° a frame about y.
+//!   the turntable of Jähne 2014 §6.1, 5° a frame about y.
 
 pub mod file;
 mod keys;

@@ -1,16 +1,16 @@
-//! The fixed-size array A-buffer (seed 001 §3.1.1, Algorithms 1–3).
+//! The fixed-size array A-buffer (Tsopouridis 2021 §3.1.1, Algorithms 1–3).
 //!
 //! # Layout
 //!
 //! ```text
 //! offsets: [u32; w*h + 1]   p · A: pixel p owns slots p·A .. (p+1)·A      (Regions, uniform)
-//! fill:    [u32; w*h]       the seed's counterTexture: fragments stored in pixel p
-//! slots:   [Fragment; w*h*A] the seed's bufferTexture, 12 bytes a slot (depth, RGBA8, object)
+//! fill:    [u32; w*h]       the thesis's counterTexture: fragments stored in pixel p
+//! slots:   [Fragment; w*h*A] the thesis's bufferTexture, 12 bytes a slot (depth, RGBA8, object)
 //! ```
 //!
 //! The storage is [`Regions::uniform`]: every pixel gets the same `A` slots
 //! ([`MethodOptions::array_size`]) whether it needs them or not, which is the method's memory cost
-//! (seed 001 Table 3.1: three times the linked list's memory on the same scene). The offsets are
+//! (Tsopouridis 2021 Table 3.1: three times the linked list's memory on the same scene). The offsets are
 //! kept although they are `p · A`, so the fixed array shares its capture and resolve with the
 //! S-buffer and the k-buffers; they cost 4 bytes a pixel and are reported.
 //!
@@ -19,7 +19,7 @@
 //! - **clear** (Alg. 1): every counter to 0.
 //! - **capture** (Alg. 2, `capture.capture`): each fragment goes to slot `counter` of its pixel and
 //!   the counter is incremented — in arrival (primitive) order, so a pixel keeps its *first* `A`
-//!   fragments. The seed's atomic increment is a plain one here: each rasterizer strip owns its
+//!   fragments. The thesis's atomic increment is a plain one here: each rasterizer strip owns its
 //!   rows' counters and slots ([`Policy::Append`]). A fragment arriving at a full array is dropped
 //!   and counted ([`CaptureReport::dropped`]), never silently.
 //! - **resolve** (Alg. 3): per pixel, sort the stored fragments front to back and composite them
@@ -29,7 +29,7 @@
 //!
 //! With `A` at least the frame's largest depth complexity nothing is dropped, and the image and
 //! the DeepFrame are identical to the linked-list A-buffer's. With a smaller `A`, which fragments
-//! survive depends on primitive order (the seed's flickering), but not on the thread count.
+//! survive depends on primitive order (the thesis's flickering), but not on the thread count.
 
 use std::time::Instant;
 

@@ -1,4 +1,4 @@
-//! The per-pixel linked-list A-buffer (seed 000 §2.1–2.2; seed 001 §3.1.2, Algorithms 4–6).
+//! The per-pixel linked-list A-buffer (Jähne 2014 §2.1–2.2; Tsopouridis 2021 §3.1.2, Algorithms 4–6).
 //!
 //! # Layout
 //!
@@ -7,10 +7,10 @@
 //! nodes: [Node; capacity]  the node pool, 16 bytes a node:
 //!                            word 0 = depth bits | rgba << 32
 //!                            word 1 = object id  | next << 32     (next: older node or EMPTY)
-//! next_free: AtomicU32     the allocation counter (seed 000's atomic counter)
+//! next_free: AtomicU32     the allocation counter (Jähne 2014's atomic counter)
 //! ```
 //!
-//! The seed's colour node is 12 bytes (colour, depth, next); strata adds the object id.
+//! The thesis's colour node is 12 bytes (colour, depth, next); strata adds the object id.
 //!
 //! # Passes
 //!
@@ -26,7 +26,7 @@
 //!   x86-64 and AArch64), which keeps the pool shareable without `unsafe`. The end of the parallel
 //!   pass is the synchronisation point before anything reads the pool.
 //! - **resolve** (Alg. 6): per pixel, walk the list into a local array, sort it front to back
-//!   (insertion sort for short lists, as seed 000 Alg. A.1 does with bubble sort), composite with
+//!   (insertion sort for short lists, as Jähne 2014 Alg. A.1 does with bubble sort), composite with
 //!   OVER onto the background with early exit at full opacity. Rows are resolved in parallel.
 //!   Walking a list is a chain of dependent loads into a pool that has left the cache by the
 //!   time it is resolved, so lists are gathered breadth-first over batches of [`GATHER_BATCH`]

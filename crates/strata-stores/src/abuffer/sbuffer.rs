@@ -1,13 +1,13 @@
-//! The S-buffer: count, prefix-sum, then capture into exactly-sized contiguous regions (seed 001
+//! The S-buffer: count, prefix-sum, then capture into exactly-sized contiguous regions (Tsopouridis 2021
 //! §3.1.3, Algorithms 7–12; Vasilakis & Fudos 2012).
 //!
 //! # Layout
 //!
 //! ```text
-//! counts:  [u32; w*h]        the seed's counterTexture: fragments of pixel p (counting pass)
+//! counts:  [u32; w*h]        the thesis's counterTexture: fragments of pixel p (counting pass)
 //! offsets: [u32; w*h + 1]    exclusive prefix sum of counts: pixel p owns offsets[p] .. offsets[p+1]
-//! fill:    [u32; w*h]        the seed's addressTexture, as a count: slots pixel p has written
-//! slots:   [Fragment; n]     the seed's data buffer, n = Σ counts exactly, 12 bytes a fragment
+//! fill:    [u32; w*h]        the thesis's addressTexture, as a count: slots pixel p has written
+//! slots:   [Fragment; n]     the thesis's data buffer, n = Σ counts exactly, 12 bytes a fragment
 //! ```
 //!
 //! `offsets`, `fill` and `slots` are a [`Regions`] sized with [`Regions::with_capacities`]; that
@@ -19,7 +19,7 @@
 //! - **count** (Alg. 8, `capture.count`): a geometry pass that only counts fragments per pixel
 //!   ([`FragmentCounts`]).
 //! - **prefix sum** (Alg. 9–10, `capture.prefix_sum`): `offsets = exclusive_prefix_sum(counts)`.
-//!   The seed hashes pixels into `S` groups with one atomic counter each, prefix-sums the group
+//!   The thesis hashes pixels into `S` groups with one atomic counter each, prefix-sums the group
 //!   totals and adds a pixel's offset within its group: a device against atomic contention on a
 //!   GPU. A CPU has no such contention, so [`exclusive_prefix_sum`] replaces the hashed group
 //!   counters with a plain two-level parallel scan (block sums, then per-block scans); regions come

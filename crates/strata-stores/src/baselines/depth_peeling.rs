@@ -1,11 +1,11 @@
 //! Front-to-back depth peeling (Everitt 2001, "Interactive Order-Independent Transparency";
-//! seed 001 §1.1, seed 000 §1.1): one rasterisation per layer.
+//! Tsopouridis 2021 §1.1, Jähne 2014 §1.1): one rasterisation per layer.
 //!
 //! # Layout
 //!
 //! ```text
 //! state:  [PeelPixel; w*h]   36 bytes a pixel:
-//!           last:  Fragment   the layer peeled in the previous pass (the seed's second Z-buffer)
+//!           last:  Fragment   the layer peeled in the previous pass (the thesis's second Z-buffer)
 //!           taken: u32        copies of `last` peeled so far (0: nothing peeled yet)
 //!           best:  Fragment   nearest fragment behind `last` seen this pass (the ordinary Z-buffer)
 //!           eq:    u32        copies of `last` seen this pass

@@ -1,5 +1,5 @@
 //! Dual depth peeling (Bavoil & Myers 2008, "Order Independent Transparency with Dual Depth
-//! Peeling"; seed 000 §1.1), structured as VTK's `vtkDualDepthPeelingPass` does it: every
+//! Peeling"; Jähne 2014 §1.1), structured as VTK's `vtkDualDepthPeelingPass` does it: every
 //! geometry pass peels the nearest *and* the farthest remaining fragment of each pixel.
 //!
 //! # Layout

@@ -3,7 +3,7 @@
 //!
 //! | name | module | source |
 //! | --- | --- | --- |
-//! | `depth-peeling` | [`depth_peeling`] | Everitt 2001 (seed 001 §1.1, seed 000 §1.1) |
+//! | `depth-peeling` | [`depth_peeling`] | Everitt 2001 (Tsopouridis 2021 §1.1, Jähne 2014 §1.1) |
 //! | `dual-depth-peeling` | [`dual_depth_peeling`] | Bavoil & Myers 2008, as VTK's `vtkDualDepthPeelingPass` |
 //! | `wboit` | [`wboit`] | McGuire & Bavoil 2013 (JCGT 2(2)) |
 //!

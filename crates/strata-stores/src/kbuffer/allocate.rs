@@ -1,7 +1,7 @@
-//! The k pass of the variable k-buffer (seed 001 Algorithm 17): per-pixel k from an importance
-//! map under a budget of M fragments, with guarantees the seed's formula lacks.
+//! The k pass of the variable k-buffer (Tsopouridis 2021 Algorithm 17): per-pixel k from an importance
+//! map under a budget of M fragments, with guarantees the thesis's formula lacks.
 //!
-//! The seed sets `k(p) = ⌊M · I(p) / I_tot⌋`. That loses up to one fragment per pixel to the
+//! The thesis sets `k(p) = ⌊M · I(p) / I_tot⌋`. That loses up to one fragment per pixel to the
 //! floor, gives 0 to covered pixels of low importance, and can hand a pixel more slots than it has
 //! fragments (wasted memory, since a pixel never fills them). strata allocates instead:
 //!

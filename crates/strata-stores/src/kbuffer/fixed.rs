@@ -1,4 +1,4 @@
-//! The fixed-k k-buffer (seed 001 §3.2.1, Algorithms 13–15): the k nearest fragments of every
+//! The fixed-k k-buffer (Tsopouridis 2021 §3.2.1, Algorithms 13–15): the k nearest fragments of every
 //! pixel, kept sorted by insertion in one geometry pass; optionally with nvpro's tail blend.
 //!
 //! # Layout
@@ -15,7 +15,7 @@
 //! - **capture** (Alg. 14, `capture.capture`): each fragment is inserted into its pixel's sorted
 //!   region ([`Policy::KeepNearest`]); when the region is full the farthest of the k + 1 falls
 //!   off — it is *evicted*. The rasterizer hands each strip of rows to one thread, which plays the
-//!   part of the seed's pixel synchronisation: no two threads touch one pixel.
+//!   part of the thesis's pixel synchronisation: no two threads touch one pixel.
 //! - **resolve** (Alg. 15): the regions are already sorted, so each pixel is composited front to
 //!   back with OVER directly (no sort), onto the background — or onto its tail.
 //!
@@ -32,7 +32,7 @@
 //! exact in front of it.
 //!
 //! The sample's tail is blended by the hardware with OVER in submission order, so it depends on
-//! the order the triangles were drawn in. strata's images must not (DESIGN §1), so the tail is
+//! the order the triangles were drawn in. strata's images must not (the pipeline design), so the tail is
 //! accumulated *order-independently*, as the weighted average of Bavoil & Myers (2008): per pixel
 //!
 //! ```text

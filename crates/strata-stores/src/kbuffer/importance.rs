@@ -1,4 +1,4 @@
-//! The importance map of the variable k-buffer (seed 001 §3.2.2, Algorithm 16): periphery and
+//! The importance map of the variable k-buffer (Tsopouridis 2021 §3.2.2, Algorithm 16): periphery and
 //! depth-complexity heuristics with a noise bias.
 //!
 //! ```text
@@ -10,13 +10,13 @@
 //! - `p` is the pixel's centre `(x + ½, y + ½)` in pixels, `o` the point of interest
 //!   ([`ImportanceParams::point_of_interest`], a fraction of the image size) in pixels;
 //! - `N_layers` is the pixel's fragment count from the counting pass, `N_limit` the configured
-//!   limit or, by default, the frame's largest count ("roughly the maximum", as the seed says);
+//!   limit or, by default, the frame's largest count ("roughly the maximum", as the thesis says);
 //! - `ρ` comes from a hash of the pixel's `(x, y)` and [`ImportanceParams::seed`] ([`noise`]), so a
 //!   frame's map is reproducible and independent of the thread count and of the image width;
 //! - a pixel without fragments has importance 0 (Algorithm 17, line 3: such a pixel gets no k).
 //!
 //! The map is stored as `f32`, one per pixel, row-major: the values the k pass reads are exactly
-//! those exported. The pass is per-pixel parallel; the seed's `importanceSum` atomic counter is a
+//! those exported. The pass is per-pixel parallel; the thesis's `importanceSum` atomic counter is a
 //! sum over fixed chunks of pixels added in order, so it too is the same for any thread count.
 
 use rayon::prelude::*;
@@ -40,7 +40,7 @@ pub fn periphery(
     let dx = f64::from(x) + 0.5 - point_of_interest[0] * w;
     let dy = f64::from(y) + 0.5 - point_of_interest[1] * h;
     // (‖p − o‖ / √(w² + h²))^d = (‖p − o‖² / (w² + h²))^(d/2): one power, no square roots, and
-    // an integer power when d is even (the seed's d = 2 needs none at all).
+    // an integer power when d is even (the thesis's d = 2 needs none at all).
     let q = (dx * dx + dy * dy) / (w * w + h * h);
     let half = 0.5 * d;
     let falloff = if half == half.trunc() && half.abs() <= 64.0 {

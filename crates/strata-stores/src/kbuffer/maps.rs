@@ -1,4 +1,4 @@
-//! Per-pixel maps (k, importance) as heat-map images, like seed 001 Figure 3.9.
+//! Per-pixel maps (k, importance) as heat-map images, like Tsopouridis 2021 Figure 3.9.
 //!
 //! The ramp runs black → red → yellow → white over `[0, max]` (the "hot" colour map): brighter and
 //! redder is more. Values are row-major, one per pixel; the image is 8-bit RGB, written as PNG with

@@ -1,4 +1,4 @@
-//! k-buffers: stores that keep the k nearest fragments of each pixel (seed 001 §3.2).
+//! k-buffers: stores that keep the k nearest fragments of each pixel (Tsopouridis 2021 §3.2).
 //!
 //! | module | what | seed |
 //! | --- | --- | --- |

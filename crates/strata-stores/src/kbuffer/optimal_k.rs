@@ -1,4 +1,4 @@
-//! The Optimal-K oracle (seed 001 §4.2.2, Algorithm 23): the per-pixel k that a greedy search
+//! The Optimal-K oracle (Tsopouridis 2021 §4.2.2, Algorithm 23): the per-pixel k that a greedy search
 //! finds closest to the A-buffer under a budget of M fragments.
 //!
 //! # Algorithm
@@ -17,17 +17,17 @@
 //! loses its farthest fragment, its `cd` is recomputed and it goes back into the heap, until
 //! `Σ k` reaches the budget.
 //!
-//! - **Floor of one.** As in the seed ("eligible ... if it has more than one fragment left") no
+//! - **Floor of one.** As in the thesis ("eligible ... if it has more than one fragment left") no
 //!   pixel drops below one fragment in the greedy phase — the same guarantee the importance-map
 //!   allocation gives ([`super::allocate`]). If the budget is below the number of covered pixels
-//!   `C`, a second phase (beyond the seed, which would stop above the budget) takes the last
+//!   `C`, a second phase (beyond the thesis, which would stop above the budget) takes the last
 //!   fragment from the `C − M` pixels whose single fragment matters least
 //!   (`‖F − background‖`, ties to the higher pixel index), as the importance allocation keeps the
 //!   `M` most important ones. So `Σ k = min(M, N)` always, and `k(p) ≥ 1` for every covered pixel
 //!   when `M ≥ C`.
 //! - **Colours in float.** `F` and `C` are the resolve's `f32` colours before the 8-bit
 //!   quantisation (the exact values [`composite::over_front_to_back`] returns, so `C(p, count)` is
-//!   bit-identical to what the resolve composites). The seed compares with the A-buffer's exported
+//!   bit-identical to what the resolve composites). The thesis compares with the A-buffer's exported
 //!   8-bit colour; quantising both sides would make most removals cost exactly 0 and hide the
 //!   differences in contribution below half a step, which are what the ranking needs (and what a
 //!   learned model regresses). The choice costs nothing in quality: removals the float cost ranks

@@ -1,11 +1,11 @@
-//! The variable k-buffer (seed 001 §3.2.2, Algorithms 16–21): a per-pixel k under a memory budget
+//! The variable k-buffer (Tsopouridis 2021 §3.2.2, Algorithms 16–21): a per-pixel k under a memory budget
 //! of M fragments, from importance maps or from the Optimal-K oracle (§4.2.2, Algorithm 23).
 //!
 //! # Layout
 //!
 //! ```text
 //! counts:     [u32; w*h]   fragments per pixel (the counting pass)
-//! importance: [f32; w*h]   I(p) (importance maps), or k(p)/N (Optimal-K: the seed's label)
+//! importance: [f32; w*h]   I(p) (importance maps), or k(p)/N (Optimal-K: the thesis's label)
 //! k:          [u32; w*h]   k(p)
 //! regions:    Regions      S-buffer layout: offsets = prefix sum of the capacities, fill,
 //!                          slots [Fragment; Σ capacity] (12 bytes each)
@@ -24,7 +24,7 @@
 //!
 //! The budget is `M = options.budget.fragments(w·h, N)` with `N` the fragments counted, and the
 //! allocation guarantees `Σ k = min(M, N)`, `k(p) ≤ count(p)`, and `k(p) ≥ 1` on every covered
-//! pixel when `M` allows it ([`super::allocate`]). The seed's hashed group counters of the prefix
+//! pixel when `M` allows it ([`super::allocate`]). The thesis's hashed group counters of the prefix
 //! sum are replaced by a plain parallel scan ([`crate::regions::exclusive_prefix_sum`]), and its
 //! pixel synchronisation by the rasterizer's one-thread-per-strip rule.
 //!
@@ -120,7 +120,7 @@ impl VariableKBuffer {
     }
 
     /// Per-pixel importance of the last capture, row-major: `I(p)` from the importance maps, or
-    /// `k(p) / N` from Optimal-K (seed 001 §4.2.2: the label the learned k-buffer trains on).
+    /// `k(p) / N` from Optimal-K (Tsopouridis 2021 §4.2.2: the label the learned k-buffer trains on).
     pub fn importance_map(&self) -> &[f32] {
         &self.importance
     }

@@ -1,6 +1,6 @@
-//! Leading-zeros elimination of a fragment's colour (seed 002 §3.3), lossless.
+//! Leading-zeros elimination of a fragment's colour (Lin 2007 §3.3), lossless.
 //!
-//! The seed drops the leading zero bits the three colour components R, G, B have in common —
+//! The thesis drops the leading zero bits the three colour components R, G, B have in common —
 //! "eliminate leading zero bits of three color components simultaneously until leading 1 occurs in
 //! any one of the three": a fixed length for all three, the *minimum* leading-zero count — and
 //! records the remaining length in the Length table. With 8-bit components the remaining length
@@ -16,12 +16,12 @@
 //!
 //! # The step strata does not take
 //!
-//! The seed then shifts RGB right "by several bits based on fragment's alpha value" (Figure 3-14:
+//! The thesis then shifts RGB right "by several bits based on fragment's alpha value" (Figure 3-14:
 //! alpha 0.125, three bits), i.e. premultiplies by alpha and truncates. That throws bits away:
 //! the stored colour is no longer the fragment's colour, and the image changes. strata's TFSS must
 //! give the A-buffer's image bit for bit, so the store never applies it. [`alpha_shift`] exists
 //! only for the *memory model* (`tfss::model`), where the lossy variant is reported apart and
-//! labelled lossy, to show what the seed's full scheme would save on our frames.
+//! labelled lossy, to show what the thesis's full scheme would save on our frames.
 
 /// Bits of the colour components left after elimination: the bit length of `R | G | B`
 /// (`8 − the minimum leading-zero count`), in `0..=8`.
@@ -56,7 +56,7 @@ pub fn record_bits(len: u32) -> u32 {
     8 + 3 * len
 }
 
-/// The seed's alpha shift (lossy; the memory model's "alpha shift" variant only): how many bits
+/// The thesis's alpha shift (lossy; the memory model's "alpha shift" variant only): how many bits
 /// multiplying by alpha removes, `floor(log2(256 / a))` — alpha read as a fraction of 256, as
 /// Figure 3-14 reads `0010 0000` as 0.125 and shifts by three. 0 for `a ≥ 129`, 8 for `a ≤ 1`.
 #[inline]
@@ -124,7 +124,7 @@ mod tests {
         assert_eq!(bits, (0b10_0101 << 12) | (0b01_0010 << 6) | 0b00_1111);
         assert_eq!(record_bits(len), 8 + 18);
         assert_eq!(unpack_rgb(len, bits), rgb);
-        // The seed's lossy step would shift by three more for alpha 0010 0000 (0.125): 3 bits.
+        // The thesis's lossy step would shift by three more for alpha 0010 0000 (0.125): 3 bits.
         assert_eq!(alpha_shift(0b0010_0000), 3);
         assert_eq!(len - alpha_shift(0b0010_0000), 3);
     }

@@ -1,4 +1,4 @@
-//! TFSS, the transparent fragment storage system of seed 002 (ch. 3): an SSA table, a T-buffer of
+//! TFSS, the transparent fragment storage system of Lin 2007 (ch. 3): an SSA table, a T-buffer of
 //! `L_num`-fragment sections and an NSA table, with optional leading-zeros elimination (§3.3).
 //!
 //! # Layout
@@ -20,8 +20,8 @@
 //! next_free: AtomicU32         the section allocation counter
 //! ```
 //!
-//! strata's fragment keeps its object id, so a plain section is `L_num × 12` bytes where the seed's
-//! is `L_num × 8` (depth and RGBA); `tfss::model` evaluates the seed's sizes.
+//! strata's fragment keeps its object id, so a plain section is `L_num × 12` bytes where the thesis's
+//! is `L_num × 8` (depth and RGBA); `tfss::model` evaluates the thesis's sizes.
 //!
 //! # Passes
 //!
@@ -33,9 +33,9 @@
 //!   its NSA entry. A section gets a successor only once it is full, so the first section with
 //!   room is always the last of the chain: the walk reads NSA entries only (`⌊k / L_num⌋` of them
 //!   for a pixel's `k`-th fragment, as `model::tfss_store_accesses` counts) and tests the last
-//!   section alone, where the seed's flowchart tests each section on the way. Every fragment
-//!   walks its pixel's chain from the start, as the seed's flow does — no per-pixel tail pointer,
-//!   which would cost a second `w*h` table the seed does not have — and a pixel's fragments sit
+//!   section alone, where the thesis's flowchart tests each section on the way. Every fragment
+//!   walks its pixel's chain from the start, as the thesis's flow does — no per-pixel tail pointer,
+//!   which would cost a second `w*h` table the thesis does not have — and a pixel's fragments sit
 //!   in its chain in arrival order.
 //!   As in the linked list, the rasterizer hands each strip of rows to one thread, so SSA entries
 //!   are plain stores into the strip's `chunks_mut` slice; sections are reserved from the shared
@@ -47,14 +47,14 @@
 //! - **resolve** — the read flow of §3.2.3.2 (Figure 3-9): per pixel, read the SSA entry, read the
 //!   start section's fragments and its NSA entry, follow the chain to NULL. The pixel's fragments
 //!   are then sorted front to back and composited with the shared OVER
-//!   ([`composite::resolve_pixel`]), so the image is the A-buffer's bit for bit. (The seed composites
+//!   ([`composite::resolve_pixel`]), so the image is the A-buffer's bit for bit. (The thesis composites
 //!   with the weight factors of §2.5.2 instead; that resolve is the `wf` method's, which works on
 //!   any exact store, and equals OVER only within float rounding.)
 //!
 //! # Leading-zeros elimination (`options.leading_zeros`)
 //!
 //! Each fragment's colour loses the leading zero bits common to R, G and B (`tfss::lz`, lossless:
-//! the seed's lossy alpha shift is not applied). A section keeps `L_num` slots but its colour area
+//! the thesis's lossy alpha shift is not applied). A section keeps `L_num` slots but its colour area
 //! is sized for components of `b` bits: `area = max(L_num · (8 + 3b), 32)` bits (alpha plus three
 //! components per slot, and never less than one full-width record, so any fragment fits an empty
 //! section). Records are packed back to back; the Length table entry of each slot says how long
@@ -62,7 +62,7 @@
 //! fit in what is left of the area *seals* the section (code 15), and the fragment moves on to the
 //! next section of the chain, so a section holds up to `L_num` fragments and arrival order is kept.
 //!
-//! `b` is `M_section` in disguise (the section is `64·L_num + area` bits): the seed evaluates
+//! `b` is `M_section` in disguise (the section is `64·L_num + area` bits): the thesis evaluates
 //! leading-zeros elimination by shrinking `M_section` (Figure 4-5) and leaves what happens to a
 //! fragment that does not fit open. [`LzBudget::Auto`] (the default) fits `b` to the frame: after
 //! a capture the store counts, from the Length table, exactly how many sections each `b` in 0..=8

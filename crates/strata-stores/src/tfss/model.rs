@@ -1,4 +1,4 @@
-//! The memory and access model of seed 002 ch. 4, fed with our frames: the transparent-fragment
+//! The memory and access model of Lin 2007 ch. 4, fed with our frames: the transparent-fragment
 //! distribution (Table 4-1), the memory of R-buffer, WF and TFSS (Table 4-2, Figures 4-3 to 4-6),
 //! the access-count / execution-time model (§4.3.2, Figure 4-7) — and, beside them, the layouts
 //! strata uses and one that beats TFSS.
@@ -6,11 +6,11 @@
 //! Everything here is a pure function of plain data: a [`Distribution`] (pixels per number of
 //! transparent fragments, what Table 4-1 prints) and, for leading-zeros elimination, a
 //! [`ColourTrace`] (each pixel's colour lengths). Both come from a DeepFrame
-//! ([`frame_model`]) or from the seed's own table ([`Distribution::from_table`]).
+//! ([`frame_model`]) or from the thesis's own table ([`Distribution::from_table`]).
 //!
 //! # Sizes ([`Sizes`])
 //!
-//! The seed states the TFSS section (`L_num × 8` bytes: depth and RGBA, 4 bytes each), the state
+//! The thesis states the TFSS section (`L_num × 8` bytes: depth and RGBA, 4 bytes each), the state
 //! memory (3 bits a pixel) and the bit width of the colour components (8); it does not state the
 //! R-buffer fragment, the depth or the address size. strata takes
 //!
@@ -19,11 +19,11 @@
 //! | `S_f` R-buffer fragment | 12 B | x, y (2 B each: the R-buffer is a FIFO, it must store the location), z (4 B), RGBA (4 B) |
 //! | fragment in WF / TFSS | 8 B | z (4 B) and RGBA (4 B); the pixel is implied by the section |
 //! | `Z` | 4 B | a 32-bit depth; the second z-buffer is `W·H·Z` |
-//! | state memory | 3 bit / pixel | as the seed |
+//! | state memory | 3 bit / pixel | as the thesis |
 //! | `S_A` address | 4 B ([`Sizes::default`]) | 32-bit addresses: our 1280×720 frames need more than 2^16 sections |
 //! | Length-table entry | 4 bit | lengths 0..=8 plus the empty/sealed codes (`lz::LengthCode`) |
 //!
-//! [`Sizes::seed_fit`] takes `S_A` = 2 B instead. The seed's figures are not given as numbers, but
+//! [`Sizes::seed_fit`] takes `S_A` = 2 B instead. The thesis's figures are not given as numbers, but
 //! with 2-byte addresses its Table 4-1 frames give what its text quotes: TFSS(1) saves 41.2 %
 //! against R-buffer on average (the top of Figure 4-4's 18–41 % range); over `L_num` 1–4 TFSS saves
 //! 26.2 % against R-buffer and 66.6 % against WF (the conclusion: 29 % and 67 %); and frame480 at
@@ -43,16 +43,16 @@
 //! `D_avg`, "the average number of fragments per pixel", is read over the transparent pixels (the
 //! seed's "fragments per transparent pixel", Table 4-1) and rounded to the nearest integer (halves
 //! up), at least 1: a section holds whole fragments. Rounding down instead lowers WF's memory
-//! and the seed's quoted 67 % saving of TFSS over WF is reproduced only with rounding to nearest.
+//! and the thesis's quoted 67 % saving of TFSS over WF is reproduced only with rounding to nearest.
 //!
-//! **With leading-zeros elimination** the seed shrinks `M_section` and assumes the compressed
+//! **With leading-zeros elimination** the thesis shrinks `M_section` and assumes the compressed
 //! fragments fit (§4.3.1, Figure 4-5). Here the compressed sizes are measured: each fragment's
 //! colour length `len` (`lz::rgb_length`) comes from the frame, a section of `L_num` slots holds
 //! depths (32 bit each) plus a colour area of [`colour_area_bits`]`(L_num, b)` bits, and
 //! fragments are packed into sections exactly as the store packs them — a record that does not fit
 //! seals the section ([`packed_sections_of`]). For each `L_num` the budget `b` (bits per
 //! component, 0..=8) with the least memory is reported as `TFSS(L_num, M_section)`, `M_section`
-//! in bytes, plus the Length table (`⌈4·L_num / 8⌉` bytes a section). The seed's lossy alpha
+//! in bytes, plus the Length table (`⌈4·L_num / 8⌉` bytes a section). The thesis's lossy alpha
 //! shift (`lz::alpha_shift`) is evaluated apart and labelled lossy; the store never applies it.
 //!
 //! Beside them ([`Layouts`]): strata's DeepFrame (`4·(W·H+1) + 12·N_f`), the S-buffer regions
@@ -61,7 +61,7 @@
 //! runs**, a layout that beats TFSS with the same 8-byte fragment: a per-pixel count (1 byte, 2
 //! if a pixel holds more than 255), a 4-byte offset per 64 pixels, and every pixel's fragments
 //! contiguous — no NSA table, no half-empty sections, and a count instead of a 4-byte address per
-//! pixel. It needs the counts first (the S-buffer's counting pass, seed 001 Alg. 8), which is
+//! pixel. It needs the counts first (the S-buffer's counting pass, Tsopouridis 2021 Alg. 8), which is
 //! what TFSS avoids. *Compact runs + LZ* stores each fragment as depth (32) + Length code (4) +
 //! alpha (8) + `3·len` colour bits, bit-packed, with bit offsets per 64 pixels.
 //!
@@ -81,8 +81,8 @@
 //! R-buffer on every frame of Table 4-1, against Figure 4-7 ("just a little higher than WF"); an
 //! SSA read that finds NULL is taken to overlap with the previous pixel's work. On Table 4-1 the
 //! model gives TFSS 52.7 % less time than R-buffer on average (59.3 % on frame120, 39.0 % on
-//! frame480); the seed's conclusion quotes 45 %, and Figure 4-7's values are not in its text, so
-//! the gap cannot be traced further. Beyond the seed,
+//! frame480); the thesis's conclusion quotes 45 %, and Figure 4-7's values are not in its text, so
+//! the gap cannot be traced further. Beyond the thesis,
 //! [`tfss_store_accesses`] counts the accesses of the *store* flow (Figure 3-8): per fragment one
 //! SSA read, one NSA read per full section walked past, one T-buffer write, and one address write
 //! per section allocated.
@@ -253,7 +253,7 @@ impl ColourTrace {
         self.lengths.is_empty()
     }
 
-    /// Pixel `p`'s colour lengths; with `lossy`, after the seed's alpha shift.
+    /// Pixel `p`'s colour lengths; with `lossy`, after the thesis's alpha shift.
     pub fn pixel(&self, p: usize, lossy: bool) -> impl Iterator<Item = u8> + '_ {
         let r = self.offsets[p] as usize..self.offsets[p + 1] as usize;
         self.lengths[r.clone()]
@@ -346,7 +346,7 @@ impl Default for Sizes {
 }
 
 impl Sizes {
-    /// The sizes closest to the seed's quoted figures: 2-byte addresses (see the module docs).
+    /// The sizes closest to the thesis's quoted figures: 2-byte addresses (see the module docs).
     pub fn seed_fit() -> Self {
         Sizes {
             address: 2,
@@ -358,7 +358,7 @@ impl Sizes {
 /// One technique's memory, part by part.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Memory {
-    /// The technique as the seed's figures name it: `R-buffer`, `WF(2)`, `TFSS(2)`,
+    /// The technique as the thesis's figures name it: `R-buffer`, `WF(2)`, `TFSS(2)`,
     /// `TFSS(2, 13)` (with `M_section`), …
     pub name: String,
     /// `(part, bytes)`, e.g. `("T-buffer", 401120)`.
@@ -466,7 +466,7 @@ pub fn packed_sections(trace: &ColourTrace, l_num: u32, b: u32, lossy: bool) -> 
 
 /// TFSS with leading-zeros elimination at colour budget `b`: `TFSS(L_num, M_section)` with
 /// sections of `32·L_num` depth bits plus the colour area, rounded up to bytes, and the Length
-/// table (`⌈length_bits·L_num / 8⌉` bytes a section). `lossy` applies the seed's alpha shift.
+/// table (`⌈length_bits·L_num / 8⌉` bytes a section). `lossy` applies the thesis's alpha shift.
 pub fn tfss_lz(
     d: &Distribution,
     trace: &ColourTrace,
@@ -515,7 +515,7 @@ pub fn tfss_lz_best(
         .expect("nine budgets")
 }
 
-/// The layouts beside the seed's techniques; see the module docs.
+/// The layouts beside the thesis's techniques; see the module docs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Layouts {
     /// strata's DeepFrame: offsets + 12-byte fragment columns.
@@ -524,7 +524,7 @@ pub struct Layouts {
     pub sbuffer: Memory,
     /// The linked-list A-buffer: heads + 16-byte nodes + counter.
     pub linked_list: Memory,
-    /// Compact runs with the seed's 8-byte fragment.
+    /// Compact runs with the thesis's 8-byte fragment.
     pub compact: Memory,
     /// Compact runs with leading-zeros-eliminated colours (lossless), if a trace was given.
     pub compact_lz: Option<Memory>,
@@ -668,7 +668,7 @@ pub fn tfss_time(d: &Distribution) -> Time {
 
 /// Accesses of TFSS's store flow (Figure 3-8) with sections of `l_num`: per fragment `k` (0-based)
 /// of a pixel one SSA read, `⌊k / L_num⌋` NSA reads and one T-buffer write, plus one SSA or NSA
-/// write per section allocated. Beyond the seed, which times only the read side.
+/// write per section allocated. Beyond the thesis, which times only the read side.
 pub fn tfss_store_accesses(d: &Distribution, l_num: u32) -> u64 {
     let l = u64::from(l_num.max(1));
     sum_over(d, |i| {
@@ -695,7 +695,7 @@ pub struct TfssRow {
     pub plain: Memory,
     /// With lossless leading-zeros elimination, at the best budget `b`.
     pub lz: Option<(u32, Memory)>,
-    /// With the seed's lossy alpha shift too, at its best budget.
+    /// With the thesis's lossy alpha shift too, at its best budget.
     pub lz_lossy: Option<(u32, Memory)>,
     /// strata's TFSS store (12-byte fragments), without leading-zeros elimination.
     pub store: Memory,

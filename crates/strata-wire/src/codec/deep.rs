@@ -5,7 +5,7 @@
 //! neighbours hold about as many; each run is sorted; a surface seen at layer `k` of one pixel is
 //! usually seen at layer `k` of the next pixel too, and there its window depth is an affine function
 //! of the screen position (planar triangles) and its shaded colour varies slowly; the object id
-//! hardly ever changes. The seed layout hides all of that from LZ4. This layout exposes it.
+//! hardly ever changes. The thesis layout hides all of that from LZ4. This layout exposes it.
 //!
 //! # Neighbourhood
 //!

@@ -5,8 +5,8 @@
 //!
 //! | codec | id | layout | compressor |
 //! | --- | --- | --- | --- |
-//! | `raw` | 0 | [`seed`]: one section, the seed's header + 12-byte nodes | none |
-//! | `lz4` | 1 | [`seed`] | LZ4 block — seed 000's comparison (Table A.1) |
+//! | `raw` | 0 | [`seed`]: one section, the thesis's header + 12-byte nodes | none |
+//! | `lz4` | 1 | [`seed`] | LZ4 block — Jähne 2014's comparison (Table A.1) |
 //! | `zstd` | 2 | [`seed`] | zstd, level configurable (default 3) |
 //! | `deep-lz4` | 3 | [`deep`]: counts, depth, colour, object sections after prediction | LZ4 block |
 //! | `deep-zstd` | 4 | [`deep`] | zstd (default level 1) |
@@ -37,11 +37,11 @@ pub const DEFAULT_DEEP_ZSTD_LEVEL: i32 = 1;
 /// A lossless DeepFrame codec; see the module docs for the table of codecs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Codec {
-    /// Seed layout, uncompressed: the baseline.
+    /// List layout, uncompressed: the baseline.
     Raw,
-    /// Seed layout under LZ4.
+    /// List layout under LZ4.
     Lz4,
-    /// Seed layout under zstd.
+    /// List layout under zstd.
     Zstd {
         /// zstd level, -128..=22.
         level: i32,
@@ -207,7 +207,7 @@ impl FromStr for Codec {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum SectionTag {
-    /// The seed layout: per-pixel u32 counts, then 12-byte nodes.
+    /// The thesis layout: per-pixel u32 counts, then 12-byte nodes.
     Seed = 1,
     /// Deep layout: per-pixel fragment counts as varints.
     Counts = 16,

@@ -1,4 +1,4 @@
-//! The seed layout (seed 000 §2.1, ch. 3): a 4-byte header per pixel, then 12-byte nodes.
+//! The thesis layout (Jähne 2014 §2.1, ch. 3): a 4-byte header per pixel, then 12-byte nodes.
 //!
 //! The baseline every other codec is measured against, and what `raw`, `lz4` and `zstd` compress.
 //! One section, `seed`, of exactly `4·w·h + 12·n` bytes:
@@ -9,10 +9,10 @@
 //!   node = depth f32 LE (4) | r g b a u8 (4) | object id u32 LE (4)
 //! ```
 //!
-//! The seed's header holds a pointer into the node buffer and its nodes a `next` pointer (the GPU
+//! The thesis's header holds a pointer into the node buffer and its nodes a `next` pointer (the GPU
 //! linked list as captured); a DeepFrame is already compacted and sorted, so the header holds the
 //! count and the node's third word carries the object id instead of the link — the same 4 + 12
-//! bytes the seed sends (before its driver pads nodes to 16).
+//! bytes the thesis sends (before its driver pads nodes to 16).
 
 use strata_core::{DeepFrame, ObjectId, Rgba8};
 

@@ -1,4 +1,4 @@
-//! The model on the seed's own Table 4-1 and on distributions small enough to count by hand.
+//! The model on the thesis's own Table 4-1 and on distributions small enough to count by hand.
 
 use super::*;
 use strata_core::{Fragment, ObjectId};
@@ -154,7 +154,7 @@ fn frame_120_time_model_by_hand() {
 
 #[test]
 fn seed_frames_time_reduction() {
-    // The seed's conclusion quotes 45 % less execution time than R-buffer on average; the model
+    // The thesis's conclusion quotes 45 % less execution time than R-buffer on average; the model
     // as §4.3.2 states it gives 52.7 % on Table 4-1 (39.0 % on frame480, 59.3 % on frame120).
     let mut sum = 0.0;
     for k in 0..8 {
