@@ -93,8 +93,8 @@ pub(crate) struct ImageOptions {
     #[arg(long, value_enum, default_value_t = ExrCompression::Zips)]
     pub(crate) compression: ExrCompression,
 
-    /// Write EXR colour and alpha as 16-bit half floats (half the size; lossy). Depth stays
-    /// 32-bit float.
+    /// Write EXR colour and alpha as 16-bit half floats: smaller files, and still exact for
+    /// strata's 8-bit colours. Depth stays 32-bit float.
     #[arg(long)]
     pub(crate) half: bool,
 }

@@ -45,7 +45,7 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Render one frame of a scene to a PNG, optionally with statistics.
+    // The about text is `cmd::render::Args`'s doc comment (first paragraph in the list).
     Render(cmd::render::Args),
     /// Render every built-in scene (and the real meshes when found) into a folder with a report.
     Demo(cmd::demo::Args),
@@ -95,9 +95,9 @@ enum Command {
     /// before any connection is tried; 3 the run finished degraded: some node missed frames
     /// (lost, stalled, failed or left out), and the summary names it.
     Display(cmd::display::Args),
-    /// Deep-merge deep OpenEXR images (strata's or any tool's) and flatten them to EXR or PNG.
+    // About: `cmd::composite::Args`'s doc comment.
     Composite(cmd::composite::Args),
-    /// Show what an OpenEXR file holds: header, sample statistics, one pixel's samples.
+    // About: `cmd::inspect::Args`'s doc comment.
     Inspect(cmd::inspect::Args),
 }
 

@@ -34,9 +34,6 @@ pub(crate) struct Args {
     #[arg(long, value_name = "FILE.exr")]
     pub(crate) deep: Option<PathBuf>,
 
-    #[command(flatten)]
-    pub(crate) image: ImageOptions,
-
     /// Also write statistics (fragments, depth complexity and histogram, memory, per-pass
     /// milliseconds) as JSON to this file.
     #[arg(long)]
@@ -54,6 +51,9 @@ pub(crate) struct Args {
 
     #[command(flatten)]
     pub(crate) render: RenderOptions,
+
+    #[command(flatten)]
+    pub(crate) image: ImageOptions,
 }
 
 /// The scene's short name as a scene would report it: a file's stem, or the built-in's name.
