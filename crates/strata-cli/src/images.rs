@@ -258,6 +258,40 @@ impl ImageOptions {
     }
 }
 
+/// Refuses an output that names the same file as another output or as an input (after
+/// resolving `.`/`..` and links where the file exists), so nothing is overwritten unseen.
+pub(crate) fn check_distinct(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
+    let key = |p: &Path| -> PathBuf {
+        if let Ok(c) = std::fs::canonicalize(p) {
+            return c;
+        }
+        // Not there yet: its directory resolved, plus its name.
+        let dir = p.parent().filter(|d| !d.as_os_str().is_empty());
+        let dir = dir.map_or_else(|| std::fs::canonicalize("."), std::fs::canonicalize);
+        match (dir, p.file_name()) {
+            (Ok(d), Some(name)) => d.join(name),
+            _ => p.to_owned(),
+        }
+    };
+    for (i, out) in outputs.iter().enumerate() {
+        let k = key(out);
+        if let Some(other) = outputs[..i].iter().find(|o| key(o) == k) {
+            bail!(
+                "{} and {} name the same file; give each output its own name",
+                other.display(),
+                out.display()
+            );
+        }
+        if let Some(input) = inputs.iter().find(|p| key(p) == k) {
+            bail!(
+                "{} is both an input and an output; write the output elsewhere",
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// A file's bytes, made before any file is written so that a late error leaves nothing behind.
 pub(crate) struct EncodedFile {
     path: PathBuf,

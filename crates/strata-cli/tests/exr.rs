@@ -177,6 +177,11 @@ fn bad_outputs_are_refused_before_anything_is_written() {
             &["wboit", "deep image"],
         ),
         (
+            &["-m", "kbuffer", "--tail-blend", "--deep", "d.exr"],
+            &["--tail-blend", "leave the tail out"],
+        ),
+        (&["-o", "same.exr", "--deep", "same.exr"], &["same file"]),
+        (
             &["-m", "wboit", "-o", "x.png", "--alpha"],
             &["wboit", "transparent"],
         ),
@@ -462,6 +467,23 @@ fn composite_and_inspect_refuse_bad_inputs_clearly() {
             vec!["9999,1", "outside the data window"],
         ),
         (vec!["inspect", p(&garbage)], vec!["garbage.exr"]),
+        (
+            vec![
+                "composite",
+                p(&deep),
+                "-o",
+                p(&out),
+                "--compression",
+                "none",
+            ],
+            vec!["--compression", "PNG"],
+        ),
+        (
+            vec!["composite", p(&deep), "-o", p(&deep)],
+            vec!["both an input and an output"],
+        ),
+        (vec!["inspect", "/dev/zero"], vec!["not a regular file"]),
+        (vec!["inspect", p(d)], vec!["directory"]),
     ];
     for (args, words) in cases {
         let mut cmd = strata();

@@ -76,9 +76,7 @@ pub enum ExrError {
     #[error("not supported: {0}")]
     Unsupported(String),
     /// The file is valid but larger than the caller's [`crate::Limits`] allow.
-    #[error(
-        "{what} ({value}) exceeds the limit of {limit}; raise the limit if the file is trusted"
-    )]
+    #[error("{what} ({value}) exceeds the reader's limit of {limit}")]
     LimitExceeded {
         /// The quantity that is too large.
         what: &'static str,

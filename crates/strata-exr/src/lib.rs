@@ -91,7 +91,7 @@ pub use frame::{
 };
 pub use header::LineOrder;
 pub use image::{Attribute, Box2i, Channel, Column, DeepImage, FlatImage, SampleType};
-pub use ops::{DeepStats, flatten, merge, sort, stats};
+pub use ops::{DeepStats, MAX_SPLIT_SAMPLES_PER_PIXEL, flatten, merge, sort, stats};
 pub use read::{
     FileInfo, Limits, read_all, read_deep, read_deep_file, read_file_bytes, read_flat,
     read_flat_file, read_info,

@@ -26,7 +26,7 @@ use crate::error::{ExrError, Result};
 use crate::image::{Box2i, Channel, Column, DeepImage, FlatImage, SampleType};
 
 /// The largest data window a merge produces (the union of its inputs' windows).
-const MAX_MERGED_PIXELS: u64 = 1 << 28;
+const MAX_MERGED_PIXELS: u64 = 1 << 28; // = Limits::default().max_pixels: what merges can be read back
 
 /// `Z`/`ZBack` of a pixel without samples after flattening (OIIO's value).
 const EMPTY_DEPTH: f32 = 1.0e30;
@@ -193,16 +193,6 @@ impl Pixel {
         });
         self.data = rows.concat();
     }
-
-    fn insert_copy(&mut self, s: usize) {
-        let row = self.row(s).to_vec();
-        let at = (s + 1) * self.stride;
-        self.data.splice(at..at, row);
-    }
-
-    fn erase(&mut self, s: usize) {
-        self.data.drain(s * self.stride..(s + 1) * self.stride);
-    }
 }
 
 fn cmp_nan_last(a: f32, b: f32) -> std::cmp::Ordering {
@@ -280,10 +270,11 @@ pub fn merge(images: &[DeepImage]) -> Result<DeepImage> {
     let mut out = empty_like(first, window, capacity);
     out.channels = channels;
     out.display_window = display;
-    let (mut dst, mut src) = (Pixel::default(), Pixel::default());
+    let mut work = MergeScratch::default();
     for y in i64::from(window.y_min)..=i64::from(window.y_max) {
         for x in i64::from(window.x_min)..=i64::from(window.x_max) {
-            merge_one_pixel(images, &roles, x, y, &mut dst, &mut src);
+            merge_one_pixel(images, &roles, x, y, &mut work)?;
+            let dst = &work.dst;
             dst.store(&mut out.columns);
             let total = u32::try_from(out.columns[0].len()).map_err(|_| {
                 ExrError::InvalidImage("the merged image holds over 2^32 - 1 samples".into())
@@ -294,27 +285,49 @@ pub fn merge(images: &[DeepImage]) -> Result<DeepImage> {
     Ok(out)
 }
 
+/// Buffers one pixel's merge reuses from pixel to pixel.
+#[derive(Default)]
+struct MergeScratch {
+    dst: Pixel,
+    src: Pixel,
+    pieces: Pixel,
+    bounds: Vec<f32>,
+}
+
+/// Most samples one pixel may hold after overlapping volumetric samples are split: `n` samples
+/// that all overlap split into up to `n · 2n` pieces, so a small hostile file could otherwise ask
+/// for unbounded work.
+pub const MAX_SPLIT_SAMPLES_PER_PIXEL: usize = 1 << 16;
+
 fn merge_one_pixel(
     images: &[DeepImage],
     roles: &Roles,
     x: i64,
     y: i64,
-    dst: &mut Pixel,
-    src: &mut Pixel,
-) {
+    work: &mut MergeScratch,
+) -> Result<()> {
+    let dst = &mut work.dst;
     dst.stride = images[0].columns.len();
     dst.data.clear();
     if let Some(range) = images[0].pixel_at(x, y) {
         dst.load(&images[0], range);
     }
+    // Every input's samples in depth order, even where only one image covers the pixel.
+    dst.sort(roles, false);
     for image in &images[1..] {
         let Some(range) = image.pixel_at(x, y) else {
             continue;
         };
-        src.load(image, range);
-        merge_pixels(dst, src, roles);
-        occlusion_cull(dst, roles);
+        work.src.load(image, range);
+        merge_pixels(work, roles).map_err(|n| {
+            ExrError::InvalidImage(format!(
+                "pixel ({x},{y}): splitting its overlapping volumetric samples would make {n} \
+                 samples (at most {MAX_SPLIT_SAMPLES_PER_PIXEL})"
+            ))
+        })?;
+        occlusion_cull(&mut work.dst, roles);
     }
+    Ok(())
 }
 
 fn merged_channels(images: &[DeepImage]) -> Result<Vec<Channel>> {
@@ -348,86 +361,124 @@ fn merged_channels(images: &[DeepImage]) -> Result<Vec<Channel>> {
     Ok(channels)
 }
 
-/// OIIO's `DeepData::merge_deep_pixels`.
-fn merge_pixels(dst: &mut Pixel, src: &Pixel, roles: &Roles) {
+/// OIIO's `DeepData::merge_deep_pixels`: `src` joins `dst`, sorted by `Z`; every volumetric
+/// sample is split at every sample boundary inside it; samples covering the same range combine.
+/// Linear in the pieces made (OIIO inserts and erases rows one at a time). Fails with the number
+/// of pieces if they would exceed [`MAX_SPLIT_SAMPLES_PER_PIXEL`].
+fn merge_pixels(work: &mut MergeScratch, roles: &Roles) -> std::result::Result<(), usize> {
+    let MergeScratch {
+        dst,
+        src,
+        pieces,
+        bounds,
+    } = work;
     if src.len() == 0 {
-        return;
+        return Ok(());
     }
-    if dst.len() == 0 {
-        dst.data.clone_from(&src.data);
-        return;
-    }
+    let was_empty = dst.len() == 0;
     dst.data.extend_from_slice(&src.data);
     dst.sort(roles, false);
+    if was_empty {
+        // As OIIO: the first samples a pixel gets are taken as they are (sorted here).
+        return Ok(());
+    }
     if let (Some(z), Some(zb)) = (roles.z, roles.zback) {
-        let mut s = 0;
-        while s < dst.len() {
-            let (front, back) = (dst.f(s, z), dst.f(s, zb));
-            split(dst, roles, z, zb, front);
-            split(dst, roles, z, zb, back);
-            s += 1;
-        }
+        split_at_boundaries(dst, pieces, bounds, roles, z, zb)?;
         dst.sort(roles, false);
     }
-    merge_overlaps(dst, roles);
+    merge_overlaps(dst, pieces, roles);
+    Ok(())
 }
 
-/// Splits every volumetric sample that spans `depth` in two (OIIO's `DeepData::split`).
-fn split(px: &mut Pixel, roles: &Roles, z: usize, zb: usize, depth: f32) {
-    let mut s = 0;
-    while s < px.len() {
-        let (zf, zbk) = (px.f(s, z), px.f(s, zb));
-        if zf < depth && zbk > depth {
-            px.insert_copy(s);
-            px.set_value(roles, s, zb, depth);
-            px.set_value(roles, s + 1, z, depth);
-            let xf = (depth - zf) / (zbk - zf);
-            let xb = (zbk - depth) / (zbk - zf);
-            // Colours first: they read their alpha before it is split.
-            for pass_alpha in [false, true] {
-                for c in 0..px.stride {
-                    let Some(ac) = roles.alpha_of[c] else {
-                        continue;
-                    };
-                    if (ac == c) != pass_alpha {
-                        continue;
-                    }
-                    let a = px.f(s, ac).clamp(0.0, 1.0);
-                    if a == 1.0 {
-                        continue;
-                    }
-                    let v = px.f(s, c);
-                    let (front, back) = if a > f32::MIN_POSITIVE {
-                        let af = -(xf * (-a).ln_1p()).exp_m1();
-                        let ab = -(xb * (-a).ln_1p()).exp_m1();
-                        if pass_alpha {
-                            (af, ab)
-                        } else {
-                            ((af / a) * v, (ab / a) * v)
-                        }
-                    } else {
-                        (v * xf, v * xb)
-                    };
-                    px.set_value(roles, s, c, front);
-                    px.set_value(roles, s + 1, c, back);
-                }
-            }
-        }
-        s += 1;
+/// Splits every volumetric sample (`Z < ZBack`) at every `Z` or `ZBack` of the pixel that lies
+/// strictly inside it, as OIIO's repeated `DeepData::split` does. A piece spanning the fraction
+/// `x` of its sample's depth range gets alpha `1 − (1 − a)^x` and colour `v · alpha_piece / a`
+/// (`v · x` for a sample with no alpha; an opaque channel keeps its value) — what splitting the
+/// pieces one after another gives, since `(1 − a)^x` multiplies across pieces.
+fn split_at_boundaries(
+    px: &mut Pixel,
+    pieces: &mut Pixel,
+    bounds: &mut Vec<f32>,
+    roles: &Roles,
+    z: usize,
+    zb: usize,
+) -> std::result::Result<(), usize> {
+    bounds.clear();
+    for s in 0..px.len() {
+        bounds.extend(
+            [px.f(s, z), px.f(s, zb)]
+                .into_iter()
+                .filter(|v| !v.is_nan()),
+        );
     }
+    bounds.sort_by(|a, b| a.total_cmp(b));
+    bounds.dedup();
+    pieces.stride = px.stride;
+    pieces.data.clear();
+    for s in 0..px.len() {
+        let (front, back) = (px.f(s, z), px.f(s, zb));
+        let inside = if front < back {
+            let lo = bounds.partition_point(|&b| b <= front);
+            let hi = bounds.partition_point(|&b| b < back);
+            &bounds[lo..hi.max(lo)]
+        } else {
+            &[][..]
+        };
+        if pieces.len() + inside.len() + 1 > MAX_SPLIT_SAMPLES_PER_PIXEL {
+            return Err(pieces.len() + inside.len() + 1);
+        }
+        if inside.is_empty() {
+            pieces.data.extend_from_slice(px.row(s));
+            continue;
+        }
+        let span = back - front;
+        let mut start = front;
+        for &end in inside.iter().chain(std::iter::once(&back)) {
+            let at = pieces.len();
+            pieces.data.extend_from_slice(px.row(s));
+            pieces.set_value(roles, at, z, start);
+            pieces.set_value(roles, at, zb, end);
+            let x = (end - start) / span;
+            for c in 0..px.stride {
+                let Some(ac) = roles.alpha_of[c] else {
+                    continue;
+                };
+                let a = px.f(s, ac).clamp(0.0, 1.0);
+                if a == 1.0 {
+                    continue;
+                }
+                let v = px.f(s, c);
+                let piece = if a > f32::MIN_POSITIVE {
+                    let a_piece = -(x * (-a).ln_1p()).exp_m1();
+                    if ac == c { a_piece } else { (a_piece / a) * v }
+                } else {
+                    v * x
+                };
+                pieces.set_value(roles, at, c, piece);
+            }
+            start = end;
+        }
+    }
+    std::mem::swap(&mut px.data, &mut pieces.data);
+    Ok(())
 }
 
 /// Combines consecutive samples covering exactly the same depth range (OIIO's
-/// `DeepData::merge_overlaps`).
-fn merge_overlaps(px: &mut Pixel, roles: &Roles) {
+/// `DeepData::merge_overlaps`), in one pass: each sample either starts a new row of `out` or is
+/// combined into its last row.
+fn merge_overlaps(px: &mut Pixel, out: &mut Pixel, roles: &Roles) {
     let Some(z) = roles.z else { return };
     let zb = roles.zback.unwrap_or(z);
-    let mut s = 1;
-    while s < px.len() {
-        if px.f(s, z) != px.f(s - 1, z) || px.f(s, zb) != px.f(s - 1, zb) {
-            s += 1;
+    out.stride = px.stride;
+    out.data.clear();
+    for s in 0..px.len() {
+        let last = out.len().checked_sub(1);
+        let same = last.is_some_and(|l| out.f(l, z) == px.f(s, z) && out.f(l, zb) == px.f(s, zb));
+        let Some(l) = last.filter(|_| same) else {
+            out.data.extend_from_slice(px.row(s));
             continue;
-        }
+        };
+        // Colours first: they read both alphas before the combined alpha is written.
         for pass_alpha in [false, true] {
             for c in 0..px.stride {
                 let Some(ac) = roles.alpha_of[c] else {
@@ -436,19 +487,19 @@ fn merge_overlaps(px: &mut Pixel, roles: &Roles) {
                 if (ac == c) != pass_alpha {
                     continue;
                 }
-                let a1 = px.f(s - 1, ac).clamp(0.0, 1.0);
+                let a1 = out.f(l, ac).clamp(0.0, 1.0);
                 let a2 = px.f(s, ac).clamp(0.0, 1.0);
                 let am = a1 + a2 - a1 * a2;
                 let merged = if pass_alpha {
                     am
                 } else {
-                    merged_colour(px.f(s - 1, c), px.f(s, c), a1, a2, am)
+                    merged_colour(out.f(l, c), px.f(s, c), a1, a2, am)
                 };
-                px.set_value(roles, s - 1, c, merged);
+                out.set_value(roles, l, c, merged);
             }
         }
-        px.erase(s);
     }
+    std::mem::swap(&mut px.data, &mut out.data);
 }
 
 fn merged_colour(c1: f32, c2: f32, a1: f32, a2: f32, am: f32) -> f32 {

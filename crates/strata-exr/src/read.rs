@@ -39,11 +39,12 @@ pub struct Limits {
 }
 
 impl Default for Limits {
-    /// 4 GiB files, 2^26 pixels (8192×8192), 2^28 samples, 4 GiB of decoded data.
+    /// 4 GiB files, 2^28 pixels (16384×16384, the largest frame strata renders), 2^28 samples,
+    /// 4 GiB of decoded data.
     fn default() -> Self {
         Limits {
             max_file_bytes: 4 << 30,
-            max_pixels: 1 << 26,
+            max_pixels: 1 << 28,
             max_samples: 1 << 28,
             max_bytes: 4 << 30,
         }
@@ -106,7 +107,21 @@ pub fn read_file_bytes(path: &Path, limits: &Limits) -> Result<Vec<u8>> {
         source,
     };
     let file = std::fs::File::open(path).map_err(io)?;
-    let len = file.metadata().map_err(io)?.len();
+    let meta = file.metadata().map_err(io)?;
+    if !meta.is_file() {
+        return Err(ExrError::Io {
+            path: path.to_owned(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                if meta.is_dir() {
+                    "it is a directory, not an image file"
+                } else {
+                    "it is not a regular file (a device, pipe or socket)"
+                },
+            ),
+        });
+    }
+    let len = meta.len();
     limits.check("the file size", len, limits.max_file_bytes)?;
     let mut bytes = Vec::with_capacity(len as usize);
     file.take(limits.max_file_bytes + 1)
@@ -187,7 +202,8 @@ pub fn read_flat(bytes: &[u8], limits: &Limits) -> Result<FlatImage> {
         .iter()
         .map(|c| c.sample_type.bytes() as u64)
         .sum();
-    let decoded = (layout.pixels as u64).saturating_mul(bytes_per_pixel);
+    // In memory every value is 4 bytes (HALF decodes to f32), whatever the file stores.
+    let decoded = (layout.pixels as u64).saturating_mul(4 * h.channels.len() as u64);
     limits.check("the decoded pixel data (bytes)", decoded, limits.max_bytes)?;
     // Grown chunk by chunk (see `read_sample_counts`).
     let mut columns: Vec<Column> = h
@@ -436,8 +452,9 @@ fn read_sample_counts(
             unpacked: unpacked_data as usize,
         });
     }
+    // In memory: 4 bytes a value (HALF decodes to f32) plus the offsets.
     let decoded = total
-        .saturating_mul(bytes_per_sample)
+        .saturating_mul(4 * h.channels.len() as u64)
         .saturating_add(4 * (layout.pixels as u64 + 1));
     limits.check("the decoded pixel data (bytes)", decoded, limits.max_bytes)?;
     Ok((offsets, chunks))

@@ -8,8 +8,8 @@ use common::{assert_same_pixels, synthetic};
 use proptest::prelude::*;
 use strata_exr::{
     Attribute, Box2i, Channel, Column, Compression, DeepImage, ExrError, FlatImage, Limits,
-    LineOrder, SampleType, WriteOptions, flatten, merge, read_deep, read_flat, read_info, sort,
-    stats, write_deep, write_flat,
+    LineOrder, MAX_SPLIT_SAMPLES_PER_PIXEL, SampleType, WriteOptions, flatten, merge, read_deep,
+    read_flat, read_info, sort, stats, write_deep, write_flat,
 };
 
 const DEEP_COMPRESSIONS: [Compression; 3] =
@@ -509,4 +509,63 @@ fn images_are_checked_on_construction() {
     }
     assert!(Box2i::from_origin(i32::MAX, 0, 2, 1).is_err());
     assert!(Box2i::from_origin(0, 0, 0, 1).is_err());
+}
+
+/// One pixel of an image with channels A, B, G, R, Z, ZBack (all FLOAT) from `(a, r, z, zback)`.
+fn volumes(samples: &[(f32, f32, f32, f32)]) -> DeepImage {
+    let window = Box2i::from_origin(0, 0, 1, 1).expect("window");
+    let channels = ["A", "B", "G", "R", "Z", "ZBack"]
+        .iter()
+        .map(|n| Channel::new(*n, SampleType::Float))
+        .collect();
+    let col = |f: fn(&(f32, f32, f32, f32)) -> f32| Column::F32(samples.iter().map(f).collect());
+    let columns = vec![
+        col(|s| s.0),
+        col(|_| 0.0),
+        col(|_| 0.0),
+        col(|s| s.1),
+        col(|s| s.2),
+        col(|s| s.3),
+    ];
+    DeepImage::new(window, channels, vec![0, samples.len() as u32], columns).expect("image")
+}
+
+#[test]
+fn merge_puts_every_pixel_in_depth_order_even_with_one_input() {
+    // Stored back to front: an opaque sample at Z 2, then one at Z 1.
+    let unsorted = volumes(&[(1.0, 0.25, 2.0, 2.0), (1.0, 0.75, 1.0, 1.0)]);
+    let merged = merge(std::slice::from_ref(&unsorted)).expect("merged");
+    let z = merged.column(merged.channel_index("Z").expect("Z"));
+    assert_eq!(z.as_f32().expect("float"), &[1.0, 2.0]);
+    let flat = flatten(&merged).expect("flat");
+    assert_eq!(flat.value("R", 0), Some(0.75), "the front sample shows");
+}
+
+#[test]
+fn splitting_overlapping_volumes_is_bounded_per_pixel() {
+    // n volumetric samples that all overlap, merged with the same shifted by a half: every
+    // sample splits at about 2n boundaries.
+    let n = 200usize;
+    let a: Vec<(f32, f32, f32, f32)> = (0..n)
+        .map(|i| (0.01, 0.01, i as f32, (n + i) as f32))
+        .collect();
+    let b: Vec<(f32, f32, f32, f32)> = a.iter().map(|s| (s.0, s.1, s.2 + 0.5, s.3 + 0.5)).collect();
+    let err = merge(&[volumes(&a), volumes(&b)]).expect_err("too many pieces");
+    let text = err.to_string();
+    assert!(text.contains("pixel (0,0)"), "{text}");
+    assert!(
+        text.contains(&MAX_SPLIT_SAMPLES_PER_PIXEL.to_string()),
+        "{text}"
+    );
+    // A smaller case still merges, into as many pieces as there are distinct ranges.
+    let small: Vec<(f32, f32, f32, f32)> = a[..20]
+        .iter()
+        .map(|s| (s.0, s.1, s.2, s.2 + 20.0))
+        .collect();
+    let shifted: Vec<(f32, f32, f32, f32)> = small
+        .iter()
+        .map(|s| (s.0, s.1, s.2 + 0.5, s.3 + 0.5))
+        .collect();
+    let merged = merge(&[volumes(&small), volumes(&shifted)]).expect("merged");
+    assert!(merged.sample_count() > 40, "{}", merged.sample_count());
 }

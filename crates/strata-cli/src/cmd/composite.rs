@@ -74,11 +74,29 @@ pub(crate) fn run(args: Args) -> Result<()> {
             bail!("--compression zip is for flat EXR files; deep files take none, rle or zips");
         }
     }
+    if format == FlatFormat::Png
+        && args.deep_out.is_none()
+        && args.compression != ExrCompression::Zips
+    {
+        bail!(
+            "--compression is for EXR files, and {} is a PNG (add --deep-out FILE.exr to write one)",
+            args.out.display()
+        );
+    }
     crate::options::check_output(&args.out)?;
+    let mut outputs = vec![args.out.as_path()];
+    if let Some(deep) = &args.deep_out {
+        crate::options::check_output(deep)?;
+        outputs.push(deep.as_path());
+    }
+    let inputs: Vec<&std::path::Path> = args.inputs.iter().map(PathBuf::as_path).collect();
+    crate::images::check_distinct(&outputs, &inputs)?;
 
     let images = common_channels(read_inputs(&args.inputs)?)?;
     let merged = strata_exr::merge(&images).context("cannot merge the inputs")?;
-    let flat = strata_exr::flatten(&merged).context("cannot flatten the merged image")?;
+    let flat = without_window_depth(
+        strata_exr::flatten(&merged).context("cannot flatten the merged image")?,
+    )?;
     let options = WriteOptions {
         compression: args.compression.into(),
         ..WriteOptions::default()
@@ -179,6 +197,24 @@ fn common_channels(images: Vec<DeepImage>) -> Result<Vec<DeepImage>> {
             Ok(out)
         })
         .collect()
+}
+
+/// The flat image without strata's per-sample window depth, which has no flat meaning.
+fn without_window_depth(flat: FlatImage) -> Result<FlatImage> {
+    let Some(skip) = flat.channel_index(strata_exr::WINDOW_DEPTH_CHANNEL) else {
+        return Ok(flat);
+    };
+    let keep: Vec<usize> = (0..flat.channels().len()).filter(|&c| c != skip).collect();
+    let mut out = FlatImage::new(
+        flat.data_window(),
+        keep.iter().map(|&c| flat.channels()[c].clone()).collect(),
+        keep.iter().map(|&c| flat.column(c).clone()).collect(),
+    )?;
+    out.set_display_window(flat.display_window());
+    for a in flat.attributes() {
+        out.set_attribute(a.clone());
+    }
+    Ok(out)
 }
 
 /// Reads every input as a deep image, saying which file is wrong.

@@ -78,6 +78,16 @@ fn check_outputs(
         args.image.check_deep(deep)?;
     }
     args.image.check_exr_options(out, args.deep.as_deref())?;
+    if let Some(deep) = &args.deep {
+        crate::images::check_distinct(&[out, deep.as_path()], &[])?;
+    }
+    if options.tail_blend && (args.deep.is_some() || args.image.needs_float(format)) {
+        anyhow::bail!(
+            "--tail-blend blends the fragments beyond the k nearest into the 8-bit opaque image \
+             only; the DeepFrame holds the k nearest, so a deep, EXR, 16-bit or transparent \
+             output would silently leave the tail out"
+        );
+    }
     let info = strata_stores::find(&args.render.method)?;
     if info.fidelity(options) == strata_stores::Fidelity::Approximate {
         let what = if args.deep.is_some() {
