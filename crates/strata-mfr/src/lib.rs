@@ -1,0 +1,35 @@
+//! strata-mfr: multi-frame-rate rendering (Springer 2008) on strata's DeepFrames.
+//!
+//! A *slow client* (SC) renders the heavy, static part of a scene at whatever rate it manages; a
+//! *fast client* (FC) renders the objects the user manipulates at its own rate and composites
+//! every frame with the newest SC buffer. Both follow one **state authority**, which replays what
+//! the user does and publishes what the scene looks like as numbered, immutable snapshots.
+//!
+//! ```text
+//! interaction trace ─► Authority ──Arc<Snapshot>──► SC loop (latest wins) ─┐ transfer buffer
+//! (view, pointer,       Fig. 6.5 states,            FC loop (own rate) ◄───┘ (triple buffer)
+//!  button, drag)        transforms + versions                │
+//!                                                            ▼ composite (deep / digital / optical)
+//! ```
+//!
+//! This crate holds the interaction side, the part every client shares:
+//!
+//! - [`trace`]: interaction traces — view changes, pointer rays, button presses, drags, with times
+//!   in milliseconds — read from TOML or JSON-lines files (format in `docs/mfr.md`) or made by the
+//!   built-in generators `grab` and `orbit`;
+//! - [`state`]: the per-object selection states of Springer's Fig. 6.5 (INACTIVE → OVER →
+//!   SELECTED → OVER → INACTIVE) and the rule of his Table 6.1 deciding which objects the FC draws;
+//! - [`authority`]: replays a trace against a scene (ray picking against the objects' world
+//!   bounding boxes, drags moving the selected object) and publishes [`authority::Snapshot`]s:
+//!   view, per-object transforms with versions, states.
+//!
+//! The render loops, the transfer buffer and its transports, the composition modes, migration and
+//! the audit against a single renderer build on these types.
+
+pub mod authority;
+pub mod state;
+pub mod trace;
+
+pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
+pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
+pub use trace::{Button, Event, TimedEvent, Trace, TraceError};

@@ -1,0 +1,596 @@
+//! Interaction traces: what the user does, when, as data the state authority replays.
+//!
+//! A trace is a list of events in time order, times in milliseconds from the start:
+//!
+//! | event | fields | meaning |
+//! | --- | --- | --- |
+//! | `view` | `eye`, `target`, optional `up` (default `[0, 1, 0]`) | the camera moves there |
+//! | `pointer` | `origin`, `dir` (any non-zero length) | the pointer ray (a 6-DOF wand or a mouse ray) |
+//! | `button` | `"down"` or `"up"` | select the object under the pointer / release it |
+//! | `drag` | `by` (world units), `duration_ms` | the selected object, and the pointer holding it, move by `by`, linearly over `duration_ms` |
+//!
+//! Two file forms carry the same events (`docs/mfr.md`):
+//!
+//! ```toml
+//! [[event]]
+//! t_ms = 0
+//! view = { eye = [0.0, 0.5, 3.0], target = [0.0, 0.0, 0.0] }
+//!
+//! [[event]]
+//! t_ms = 400
+//! pointer = { origin = [0.0, 0.5, 3.0], dir = [0.0, -0.1, -1.0] }
+//!
+//! [[event]]
+//! t_ms = 700
+//! button = "down"
+//! ```
+//!
+//! or JSON lines, one event a line: `{"t_ms": 700, "button": "down"}`. Each event has `t_ms` and
+//! exactly one kind; unknown keys, a second kind, times out of order, non-finite numbers and
+//! zero-length directions are errors naming the file and the event (and its line).
+//!
+//! Generators make the traces the evaluation sweeps: [`grab`] (approach an object, pre-select
+//! it, grab, drag, release, leave; Springer 2008 §6.1) and [`orbit`] (the camera circles the
+//! target).
+
+use std::path::Path;
+
+use glam::Vec3;
+use serde::Deserialize;
+use strata_scene::Scene;
+
+/// The pointer button's two events.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Button {
+    /// Pressed: selects the object under the pointer.
+    Down,
+    /// Released: releases the selected object.
+    Up,
+}
+
+/// One thing the user does.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// The camera moves.
+    View {
+        /// Eye position.
+        eye: Vec3,
+        /// The point looked at.
+        target: Vec3,
+        /// Up direction.
+        up: Vec3,
+    },
+    /// The pointer ray.
+    Pointer {
+        /// Where the ray starts.
+        origin: Vec3,
+        /// Its direction (normalised).
+        dir: Vec3,
+    },
+    /// The button.
+    Button(Button),
+    /// The selected object moves by `by` over `duration_ms`.
+    Drag {
+        /// World-space displacement.
+        by: Vec3,
+        /// How long the move takes (> 0).
+        duration_ms: f64,
+    },
+}
+
+/// An event and when it happens.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimedEvent {
+    /// Milliseconds from the start of the trace.
+    pub t_ms: f64,
+    /// What happens.
+    pub event: Event,
+}
+
+/// A list of events in time order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trace {
+    events: Vec<TimedEvent>,
+}
+
+/// Why a trace could not be read or made.
+#[derive(Debug, thiserror::Error)]
+#[error("{origin}: {what}")]
+pub struct TraceError {
+    /// The file or generator the trace came from.
+    pub origin: String,
+    /// What is wrong, with the event and line where known.
+    pub what: String,
+}
+
+impl TraceError {
+    fn new(origin: &str, what: impl Into<String>) -> Self {
+        TraceError {
+            origin: origin.to_owned(),
+            what: what.into(),
+        }
+    }
+}
+
+/// The events as written in a file, before checking.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawEvent {
+    t_ms: f64,
+    view: Option<RawView>,
+    pointer: Option<RawPointer>,
+    button: Option<Button>,
+    drag: Option<RawDrag>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawView {
+    eye: Vec<f64>,
+    target: Vec<f64>,
+    up: Option<Vec<f64>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPointer {
+    origin: Vec<f64>,
+    dir: Vec<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDrag {
+    by: Vec<f64>,
+    duration_ms: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFile {
+    #[serde(default)]
+    event: Vec<RawEvent>,
+}
+
+/// A finite vector from a file's numbers (read as a list so that a wrong length is an error:
+/// TOML readers drop the extra elements of a fixed-size array).
+fn vec3(v: Vec<f64>, what: &str) -> Result<Vec3, String> {
+    let Ok(v) = <[f64; 3]>::try_from(v.as_slice()) else {
+        return Err(format!("{what} needs 3 numbers, found {}", v.len()));
+    };
+    if v.iter()
+        .any(|x| !x.is_finite() || x.abs() > f64::from(f32::MAX))
+    {
+        return Err(format!("{what} {v:?} is not a finite vector"));
+    }
+    Ok(Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32))
+}
+
+fn unit(v: Vec3, what: &str) -> Result<Vec3, String> {
+    let n = v
+        .try_normalize()
+        .ok_or_else(|| format!("{what} has zero length"))?;
+    Ok(n)
+}
+
+impl RawEvent {
+    fn check(self) -> Result<TimedEvent, String> {
+        if !(self.t_ms.is_finite() && self.t_ms >= 0.0) {
+            return Err(format!(
+                "t_ms {} must be a time in milliseconds, 0 or more",
+                self.t_ms
+            ));
+        }
+        let kinds = [
+            self.view.is_some(),
+            self.pointer.is_some(),
+            self.button.is_some(),
+            self.drag.is_some(),
+        ];
+        let count = kinds.iter().filter(|&&k| k).count();
+        if count != 1 {
+            return Err(format!(
+                "has {count} kinds of event; give exactly one of view, pointer, button, drag"
+            ));
+        }
+        let event = if let Some(v) = self.view {
+            let eye = vec3(v.eye, "view.eye")?;
+            let target = vec3(v.target, "view.target")?;
+            unit(target - eye, "view: target - eye")?;
+            let up = unit(
+                vec3(v.up.unwrap_or(vec![0.0, 1.0, 0.0]), "view.up")?,
+                "view.up",
+            )?;
+            Event::View { eye, target, up }
+        } else if let Some(p) = self.pointer {
+            Event::Pointer {
+                origin: vec3(p.origin, "pointer.origin")?,
+                dir: unit(vec3(p.dir, "pointer.dir")?, "pointer.dir")?,
+            }
+        } else if let Some(b) = self.button {
+            Event::Button(b)
+        } else if let Some(d) = self.drag {
+            if !(d.duration_ms.is_finite() && d.duration_ms > 0.0) {
+                return Err(format!(
+                    "drag.duration_ms {} must be more than 0",
+                    d.duration_ms
+                ));
+            }
+            Event::Drag {
+                by: vec3(d.by, "drag.by")?,
+                duration_ms: d.duration_ms,
+            }
+        } else {
+            unreachable!("exactly one kind was counted")
+        };
+        Ok(TimedEvent {
+            t_ms: self.t_ms,
+            event,
+        })
+    }
+}
+
+impl Trace {
+    /// A trace of `events`, which must be in time order.
+    pub fn new(events: Vec<TimedEvent>) -> Result<Self, TraceError> {
+        Self::ordered("trace", events, |i| format!("event {i}"))
+    }
+
+    fn ordered(
+        origin: &str,
+        events: Vec<TimedEvent>,
+        name: impl Fn(usize) -> String,
+    ) -> Result<Self, TraceError> {
+        for (i, w) in events.windows(2).enumerate() {
+            if w[1].t_ms < w[0].t_ms {
+                return Err(TraceError::new(
+                    origin,
+                    format!(
+                        "{} at {} ms comes before {} at {} ms; list events in time order",
+                        name(i + 1),
+                        w[1].t_ms,
+                        name(i),
+                        w[0].t_ms
+                    ),
+                ));
+            }
+        }
+        Ok(Trace { events })
+    }
+
+    /// The events, in time order.
+    pub fn events(&self) -> &[TimedEvent] {
+        &self.events
+    }
+
+    /// The time of the last event (0 for an empty trace).
+    pub fn duration_ms(&self) -> f64 {
+        self.events.last().map_or(0.0, |e| e.t_ms)
+    }
+
+    /// Reads a trace file: `.toml`, or JSON lines (`.jsonl`, `.json`).
+    pub fn read(path: &Path) -> Result<Self, TraceError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| TraceError::new(&origin, format!("cannot read: {e}")))?;
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("toml") => Self::from_toml(&origin, &text),
+            Some("jsonl" | "json") => Self::from_json_lines(&origin, &text),
+            _ => Err(TraceError::new(
+                &origin,
+                "name a trace file .toml or .jsonl (JSON lines)",
+            )),
+        }
+    }
+
+    /// Parses the TOML form: `[[event]]` tables.
+    pub fn from_toml(origin: &str, text: &str) -> Result<Self, TraceError> {
+        let raw: RawFile = toml::from_str(text).map_err(|e| {
+            let at = e
+                .span()
+                .map(|s| format!("line {}: ", line_of(text, s.start)))
+                .unwrap_or_default();
+            TraceError::new(origin, format!("{at}{}", e.message()))
+        })?;
+        let lines = event_lines(text);
+        let name = |i: usize| match lines.get(i) {
+            Some(line) => format!("event {} (line {line})", i + 1),
+            None => format!("event {}", i + 1),
+        };
+        let events = raw
+            .event
+            .into_iter()
+            .enumerate()
+            .map(|(i, e)| {
+                e.check()
+                    .map_err(|w| TraceError::new(origin, format!("{}: {w}", name(i))))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Self::ordered(origin, events, name)
+    }
+
+    /// Parses JSON lines: one event object a line; blank lines and lines starting with `#` are
+    /// skipped.
+    pub fn from_json_lines(origin: &str, text: &str) -> Result<Self, TraceError> {
+        let mut events = Vec::new();
+        let mut lines = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            let trimmed = line.trim();
+            if trimmed.is_empty() || trimmed.starts_with('#') {
+                continue;
+            }
+            let at = n + 1;
+            let raw: RawEvent = serde_json::from_str(trimmed)
+                .map_err(|e| TraceError::new(origin, format!("line {at}: {e}")))?;
+            events.push(
+                raw.check()
+                    .map_err(|w| TraceError::new(origin, format!("line {at}: {w}")))?,
+            );
+            lines.push(at);
+        }
+        Self::ordered(origin, events, |i| {
+            format!("the event on line {}", lines[i])
+        })
+    }
+}
+
+/// The 1-based line of byte `at`.
+fn line_of(text: &str, at: usize) -> usize {
+    text.as_bytes()[..at.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// The lines of the `[[event]]` headers, in order.
+fn event_lines(text: &str) -> Vec<usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.trim_start().starts_with("[[event]]"))
+        .map(|(i, _)| i + 1)
+        .collect()
+}
+
+/// Parameters of the [`grab`] generator.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GrabParams {
+    /// The object to grab, by name (default: the first object).
+    pub object: Option<String>,
+    /// When the pointer reaches the object (ms).
+    pub start_ms: f64,
+    /// How long the object is OVER before the button goes down: the lead the seed's
+    /// pre-selection gives the clients (0 = grab at once).
+    pub over_lead_ms: f64,
+    /// How long the object stays selected, moving.
+    pub hold_ms: f64,
+    /// How far it moves while held (world units, along the camera's right).
+    pub distance: f32,
+    /// How long the pointer stays on the object after the release before leaving.
+    pub linger_ms: f64,
+}
+
+impl Default for GrabParams {
+    fn default() -> Self {
+        GrabParams {
+            object: None,
+            start_ms: 100.0,
+            over_lead_ms: 300.0,
+            hold_ms: 1000.0,
+            distance: 0.3,
+            linger_ms: 300.0,
+        }
+    }
+}
+
+impl GrabParams {
+    /// Parses `key=value,…` (`object`, `start_ms`, `over_lead_ms`, `hold_ms`, `distance`,
+    /// `linger_ms`) over the defaults.
+    pub fn parse(spec: &str) -> Result<Self, TraceError> {
+        let mut p = GrabParams::default();
+        let origin = format!("grab:{spec}");
+        for item in spec.split(',').filter(|s| !s.trim().is_empty()) {
+            let (key, value) = item
+                .split_once('=')
+                .ok_or_else(|| TraceError::new(&origin, format!("'{item}': expected key=value")))?;
+            let (key, value) = (key.trim(), value.trim());
+            let ms = |v: &str| -> Result<f64, TraceError> {
+                v.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite() && *x >= 0.0)
+                    .ok_or_else(|| {
+                        TraceError::new(
+                            &origin,
+                            format!("{key}={v}: expected milliseconds, 0 or more"),
+                        )
+                    })
+            };
+            match key {
+                "object" => p.object = Some(value.to_owned()),
+                "start_ms" => p.start_ms = ms(value)?,
+                "over_lead_ms" => p.over_lead_ms = ms(value)?,
+                "hold_ms" => p.hold_ms = ms(value)?,
+                "linger_ms" => p.linger_ms = ms(value)?,
+                "distance" => {
+                    p.distance = value
+                        .parse::<f32>()
+                        .ok()
+                        .filter(|d| d.is_finite() && d.abs() <= 1e6)
+                        .ok_or_else(|| {
+                            TraceError::new(&origin, format!("distance={value}: expected a number"))
+                        })?
+                }
+                _ => {
+                    return Err(TraceError::new(
+                        &origin,
+                        format!(
+                            "unknown parameter '{key}' (grab takes object, start_ms, over_lead_ms, \
+                             hold_ms, distance, linger_ms)"
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(p)
+    }
+}
+
+/// The trace of grabbing one object: the pointer (from the eye) reaches the object's centre at
+/// `start_ms` (OVER), the button goes down `over_lead_ms` later (SELECTED) and the object moves
+/// by `distance` along the camera's right over `hold_ms`, the button goes up (OVER), and
+/// `linger_ms` later the pointer turns away (INACTIVE). The camera stays where the scene puts it.
+pub fn grab(scene: &Scene, p: &GrabParams) -> Result<Trace, TraceError> {
+    let origin = "grab";
+    let object = match &p.object {
+        Some(name) => scene
+            .objects
+            .iter()
+            .find(|o| &o.name == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = scene.objects.iter().map(|o| o.name.as_str()).collect();
+                TraceError::new(
+                    origin,
+                    format!(
+                        "no object '{name}' in {} (objects: {})",
+                        scene.name,
+                        names.join(", ")
+                    ),
+                )
+            })?,
+        None => scene
+            .objects
+            .first()
+            .ok_or_else(|| TraceError::new(origin, format!("{} has no object", scene.name)))?,
+    };
+    let cam = &scene.camera;
+    let index = scene
+        .objects
+        .iter()
+        .position(|o| o.id == object.id)
+        .unwrap_or_default();
+    let toward = aim_at(scene, index, cam.eye).ok_or_else(|| {
+        TraceError::new(
+            origin,
+            format!(
+                "object '{}' is hidden from the eye: no ray from the eye reaches it before the \
+                 other objects",
+                object.name
+            ),
+        )
+    })?;
+    let right = (cam.target - cam.eye).cross(cam.up).normalize_or(Vec3::X);
+    let away = -toward;
+    let mut t = p.start_ms;
+    let mut events = vec![TimedEvent {
+        t_ms: 0.0,
+        event: Event::View {
+            eye: cam.eye,
+            target: cam.target,
+            up: cam.up,
+        },
+    }];
+    let mut at = |t_ms: f64, event: Event| events.push(TimedEvent { t_ms, event });
+    at(
+        t,
+        Event::Pointer {
+            origin: cam.eye,
+            dir: toward,
+        },
+    );
+    t += p.over_lead_ms;
+    at(t, Event::Button(Button::Down));
+    if p.hold_ms > 0.0 {
+        at(
+            t,
+            Event::Drag {
+                by: right * p.distance,
+                duration_ms: p.hold_ms,
+            },
+        );
+    }
+    t += p.hold_ms;
+    at(t, Event::Button(Button::Up));
+    t += p.linger_ms;
+    at(
+        t,
+        Event::Pointer {
+            origin: cam.eye,
+            dir: away,
+        },
+    );
+    Trace::ordered(origin, events, |i| format!("event {i}"))
+}
+
+/// A direction from `eye` whose ray meets object `index` before any other: toward its centre if
+/// that works, else toward the first of up to 512 of its vertices (pulled a little toward the
+/// centre, to hit the surface rather than graze an edge) that does.
+fn aim_at(scene: &Scene, index: usize, eye: Vec3) -> Option<Vec3> {
+    let picker = crate::Authority::new(scene, Trace::default());
+    let object = &scene.objects[index];
+    let model = object.model_matrix(None, 0);
+    let centre = object.mesh.bounds().center();
+    let positions = object.mesh.positions();
+    let stride = (positions.len() / 512).max(1);
+    std::iter::once(centre)
+        .chain(
+            positions
+                .iter()
+                .step_by(stride)
+                .map(|p| Vec3::from(*p).lerp(centre, 0.05)),
+        )
+        .filter_map(|p| (model.transform_point3(p) - eye).try_normalize())
+        .find(|&dir| picker.nearest_hit(eye, dir) == Some(index))
+}
+
+/// The camera circling its target about the scene's up axis: a view event every `step_ms` for
+/// `duration_ms`, one turn every `period_ms`, at the scene camera's distance and height.
+pub fn orbit(
+    scene: &Scene,
+    period_ms: f64,
+    duration_ms: f64,
+    step_ms: f64,
+) -> Result<Trace, TraceError> {
+    let origin = "orbit";
+    for (name, v) in [
+        ("period_ms", period_ms),
+        ("duration_ms", duration_ms),
+        ("step_ms", step_ms),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(TraceError::new(
+                origin,
+                format!("{name}={v}: must be more than 0"),
+            ));
+        }
+    }
+    let cam = &scene.camera;
+    let up = cam.up.normalize_or(Vec3::Y);
+    let offset = cam.eye - cam.target;
+    let along = up * offset.dot(up);
+    let radial = offset - along;
+    let side = up.cross(radial);
+    let steps = (duration_ms / step_ms).floor() as usize;
+    if steps > 1_000_000 {
+        return Err(TraceError::new(
+            origin,
+            "more than a million steps; raise step_ms",
+        ));
+    }
+    let events = (0..=steps)
+        .map(|i| {
+            let t_ms = i as f64 * step_ms;
+            let angle = (std::f64::consts::TAU * t_ms / period_ms) as f32;
+            let (s, c) = angle.sin_cos();
+            TimedEvent {
+                t_ms,
+                event: Event::View {
+                    eye: cam.target + along + radial * c + side * s,
+                    target: cam.target,
+                    up,
+                },
+            }
+        })
+        .collect();
+    Trace::ordered(origin, events, |i| format!("step {i}"))
+}
