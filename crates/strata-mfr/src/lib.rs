@@ -23,13 +23,19 @@
 //!   bounding boxes, drags moving the selected object) and publishes [`authority::Snapshot`]s:
 //!   view, per-object transforms with versions, states.
 //!
-//! The render loops, the transfer buffer and its transports, the composition modes, migration and
-//! the audit against a single renderer build on these types.
+//! - [`transfer`]: the transfer buffer the SC hands the FC (frame counter, snapshot, view, the
+//!   objects rendered with their versions and the objects left out, the DeepFrame) and the
+//!   wait-free triple buffer it travels through in one process.
+//!
+//! The render loops, the TCP transport, the composition modes, migration and the audit against a
+//! single renderer build on these types.
 
 pub mod authority;
 pub mod state;
 pub mod trace;
+pub mod transfer;
 
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};
+pub use transfer::{Latest, Publisher, TransferBuffer, exchange};
