@@ -27,15 +27,23 @@
 //!   objects rendered with their versions and the objects left out, the DeepFrame) and the
 //!   wait-free triple buffer it travels through in one process.
 //!
-//! The render loops, the TCP transport, the composition modes, migration and the audit against a
-//! single renderer build on these types.
+//! - [`client`], [`compose`], [`simulate`]: the clients' rendering (every fragment kept), deep
+//!   composition (the SC's runs minus the objects the FC draws, merged with the FC's), and both
+//!   clients on a virtual clock with naive or predictive migration.
+//!
+//! Real-time loops on threads, the TCP transport, the digital and optical composition modes and
+//! the audit against a single renderer build on these types.
 
 pub mod authority;
+pub mod client;
+pub mod compose;
+pub mod simulate;
 pub mod state;
 pub mod trace;
 pub mod transfer;
 
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
+pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};
 pub use transfer::{Latest, Publisher, TransferBuffer, exchange};

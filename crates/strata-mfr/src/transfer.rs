@@ -38,6 +38,8 @@ pub struct TransferBuffer {
     pub snapshot_id: u64,
     /// World → eye of that snapshot.
     pub view: Mat4,
+    /// The camera of that snapshot (the FC renders through it to compose exactly).
+    pub view_pose: crate::authority::ViewPose,
     /// Eye → clip.
     pub projection: Mat4,
     /// Frame width in pixels.

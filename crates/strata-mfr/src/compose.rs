@@ -1,0 +1,50 @@
+//! Deep composition: the slow client's runs without the objects the fast client draws, merged
+//! with the fast client's runs.
+//!
+//! Per pixel `p`, with `F` the ids the FC draws this frame:
+//!
+//! ```text
+//! run(p) = merge( [f ∈ run_sc(p) : f.object ∉ F],  run_fc(p) )      (both sorted front to back)
+//! ```
+//!
+//! Every run is sorted by [`strata_core::Fragment::order_key`] (depth, object, colour), so merging
+//! two sorted runs gives exactly the sorted union. If every object is rendered by exactly one of
+//! the two sides at the FC's transforms and through the same view, the result is the run the whole
+//! scene rendered at once would hold, bit for bit — whatever the timing. The SC's fragments of an
+//! object in `F` are stale (the object moved, or is being handed over) and are dropped; that is
+//! what removes the seed's selection and release artefacts and lets transparent objects cross
+//! between the clients.
+
+use strata_core::{DeepFrame, DeepFrameError, ObjectId};
+
+/// The deep composition of `sc` minus the objects in `fc_objects` (sorted ids) with `fc`.
+///
+/// # Errors
+/// When the frames differ in size or the result holds more fragments than a DeepFrame can.
+pub fn compose_deep(
+    sc: &DeepFrame,
+    fc: &DeepFrame,
+    fc_objects: &[ObjectId],
+) -> Result<DeepFrame, DeepFrameError> {
+    let (w, h) = (fc.width(), fc.height());
+    let pixels = w as usize * h as usize;
+    if sc.width() != w || sc.height() != h {
+        return Err(DeepFrameError::PixelCount {
+            width: w,
+            height: h,
+            expected: pixels as u64,
+            found: sc.width() as u64 * sc.height() as u64,
+        });
+    }
+    let dropped = |o: &ObjectId| fc_objects.binary_search(o).is_ok();
+    let counts: Vec<u32> = (0..pixels)
+        .map(|p| {
+            let kept = sc.run(p).object.iter().filter(|o| !dropped(o)).count();
+            (kept + fc.run(p).len()) as u32
+        })
+        .collect();
+    DeepFrame::build(w, h, &counts, |p, out| {
+        out.extend(sc.run(p).iter().filter(|f| !dropped(&f.object)));
+        out.extend(fc.run(p).iter());
+    })
+}

@@ -1,0 +1,234 @@
+//! Slow and fast clients on a virtual clock: rendering is real, time is simulated, so every run is
+//! reproducible and any SC:FC ratio can be tested on any machine.
+//!
+//! # Timeline
+//!
+//! ```text
+//! SC:  start s0=0 ──render── s1=sc_ms ──render── s2 …      each start takes the newest snapshot
+//!                    └─ delivered at s0 + sc_ms + transfer_ms (then latest wins)
+//! FC:  t = 0, fc_ms, 2·fc_ms …  newest snapshot + newest delivered SC buffer → compose
+//! ```
+//!
+//! The authority is advanced in time order across both clients. At an SC start the SC renders
+//! the objects its migration policy leaves it (naive: all but the SELECTED; predictive: all but
+//! the OVER and SELECTED) at that snapshot. At an FC tick the FC decides which objects it draws,
+//! `F`, renders them at the current snapshot through the SC buffer's view and composes
+//! ([`crate::compose::compose_deep`]):
+//!
+//! - **predictive** (Springer 2008 §6.1, Table 6.1, plus versions): `F` = every object not
+//!   INACTIVE, and every object the SC buffer does not hold at its current version;
+//! - **naive**: `F` = the SELECTED objects — so an object released before an SC buffer holds it
+//!   again is missing (a *hole*), and one moved while the SC buffer still shows it elsewhere is
+//!   drawn twice (a *ghost*) unless the SC buffer is deep and its copy is dropped, as here.
+//!
+//! Before the first SC buffer arrives the FC draws every object itself.
+
+use std::sync::Arc;
+
+use strata_core::{DeepFrame, ObjectId};
+use strata_scene::Scene;
+
+use crate::authority::{Authority, Snapshot};
+use crate::client::{Client, ClientError};
+use crate::compose::compose_deep;
+use crate::state::ObjectState;
+use crate::trace::Trace;
+use crate::transfer::TransferBuffer;
+
+/// How objects move between the clients.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Migration {
+    /// The SC drops an object when it is selected and takes it back when it is released; the FC
+    /// draws the selected objects only.
+    Naive,
+    /// Pre-selection (OVER) hands objects over early; the FC follows Table 6.1 with versions.
+    Predictive,
+}
+
+/// The simulated periods (milliseconds).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VirtualClock {
+    /// Time the SC takes for a frame.
+    pub sc_ms: f64,
+    /// Time between FC frames.
+    pub fc_ms: f64,
+    /// Time from an SC frame's end until the FC can use it.
+    pub transfer_ms: f64,
+}
+
+/// One FC frame of a run.
+#[derive(Clone, Debug)]
+pub struct FcFrame {
+    /// FC frame number.
+    pub index: u64,
+    /// Its time (ms).
+    pub t_ms: f64,
+    /// The snapshot it shows.
+    pub snapshot: Arc<Snapshot>,
+    /// The SC buffer it composed with (`None` before the first arrived).
+    pub sc: Option<Arc<TransferBuffer>>,
+    /// Indices of the objects the FC drew.
+    pub fc_objects: Vec<usize>,
+    /// The composed frame.
+    pub frame: DeepFrame,
+}
+
+/// Why a run stopped.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimulateError {
+    /// A client could not render.
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    /// Composition failed.
+    #[error("cannot compose: {0}")]
+    Compose(#[from] strata_core::DeepFrameError),
+    /// The clock's periods are not positive, finite numbers.
+    #[error("sc_ms, fc_ms must be more than 0 and transfer_ms 0 or more (got {0:?})")]
+    Clock(VirtualClock),
+}
+
+/// Runs `fc_frames` FC frames of `trace` on `scene` at `width × height`; calls `on_frame` with
+/// each as it is composed.
+pub fn run_virtual(
+    scene: &Scene,
+    trace: Trace,
+    clock: VirtualClock,
+    migration: Migration,
+    (width, height): (u32, u32),
+    fc_frames: u64,
+    mut on_frame: impl FnMut(&FcFrame),
+) -> Result<(), SimulateError> {
+    let ok = |v: f64| v.is_finite() && v > 0.0;
+    if !(ok(clock.sc_ms)
+        && ok(clock.fc_ms)
+        && clock.transfer_ms.is_finite()
+        && clock.transfer_ms >= 0.0)
+    {
+        return Err(SimulateError::Clock(clock));
+    }
+    let mut authority = Authority::new(scene, trace);
+    let (mut sc_client, mut fc_client) = (Client::new(width, height), Client::new(width, height));
+    let mut next_sc_start = 0.0f64;
+    let mut sc_frame = 0u64;
+    // Buffers rendered but not yet delivered: (delivery time, buffer), in delivery order.
+    let mut in_flight: Vec<(f64, Arc<TransferBuffer>)> = Vec::new();
+    let mut delivered: Option<Arc<TransferBuffer>> = None;
+    for index in 0..fc_frames {
+        let t = index as f64 * clock.fc_ms;
+        // Every SC frame that starts at or before this FC tick, in time order.
+        while next_sc_start <= t {
+            let snapshot = authority.advance_to(next_sc_start);
+            let buffer = sc_render(
+                scene,
+                &mut sc_client,
+                &snapshot,
+                migration,
+                sc_frame,
+                (width, height),
+            )?;
+            in_flight.push((
+                next_sc_start + clock.sc_ms + clock.transfer_ms,
+                Arc::new(buffer),
+            ));
+            sc_frame += 1;
+            next_sc_start += clock.sc_ms;
+        }
+        // Latest wins: the newest buffer delivered by now.
+        while in_flight.first().is_some_and(|(at, _)| *at <= t) {
+            delivered = Some(in_flight.remove(0).1);
+        }
+        let snapshot = authority.advance_to(t);
+        let fc_objects = fc_draws(scene, &snapshot, delivered.as_deref(), migration);
+        let ids: Vec<ObjectId> = {
+            let mut ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
+            ids.sort_unstable();
+            ids
+        };
+        let frame = match &delivered {
+            Some(sc) => {
+                let view = view_of(sc);
+                let fc = fc_client.render(scene, &snapshot, &view, &fc_objects)?;
+                compose_deep(&sc.frame, &fc, &ids)?
+            }
+            None => fc_client.render(scene, &snapshot, &snapshot.view, &fc_objects)?,
+        };
+        on_frame(&FcFrame {
+            index,
+            t_ms: t,
+            snapshot,
+            sc: delivered.clone(),
+            fc_objects,
+            frame,
+        });
+    }
+    Ok(())
+}
+
+/// The view an SC buffer was rendered with.
+fn view_of(sc: &TransferBuffer) -> crate::authority::ViewPose {
+    sc.view_pose
+}
+
+/// The SC's frame: the objects its policy leaves it, at `snapshot`.
+fn sc_render(
+    scene: &Scene,
+    client: &mut Client,
+    snapshot: &Snapshot,
+    migration: Migration,
+    sc_frame: u64,
+    (width, height): (u32, u32),
+) -> Result<TransferBuffer, SimulateError> {
+    let keeps = |state: ObjectState| match migration {
+        Migration::Naive => state != ObjectState::Selected,
+        Migration::Predictive => state == ObjectState::Inactive,
+    };
+    let (mut rendered, mut excluded, mut indices) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, pose) in snapshot.objects.iter().enumerate() {
+        if keeps(pose.state) {
+            rendered.push((pose.id, pose.version));
+            indices.push(i);
+        } else {
+            excluded.push(pose.id);
+        }
+    }
+    rendered.sort_unstable();
+    excluded.sort_unstable();
+    let frame = client.render(scene, snapshot, &snapshot.view, &indices)?;
+    Ok(TransferBuffer {
+        sc_frame,
+        snapshot_id: snapshot.id,
+        view: snapshot.view.matrix(),
+        view_pose: snapshot.view,
+        projection: client.projection(scene),
+        width,
+        height,
+        rendered,
+        excluded,
+        frame,
+    })
+}
+
+/// The objects the FC draws (indices, scene order).
+fn fc_draws(
+    scene: &Scene,
+    snapshot: &Snapshot,
+    sc: Option<&TransferBuffer>,
+    migration: Migration,
+) -> Vec<usize> {
+    let Some(sc) = sc else {
+        return (0..scene.objects.len()).collect();
+    };
+    snapshot
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| match migration {
+            Migration::Naive => o.state == ObjectState::Selected,
+            Migration::Predictive => {
+                crate::state::fc_renders(o.state, sc.contains(o.id, o.version))
+            }
+        })
+        .map(|(i, _)| i)
+        .collect()
+}
