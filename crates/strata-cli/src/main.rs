@@ -99,6 +99,8 @@ enum Command {
     Composite(cmd::composite::Args),
     // About: `cmd::inspect::Args`'s doc comment.
     Inspect(cmd::inspect::Args),
+    // About: `cmd::mfr::Args`'s doc comment.
+    Mfr(cmd::mfr::Args),
 }
 
 impl Command {
@@ -169,6 +171,7 @@ fn main() -> ExitCode {
             Command::Display(a) => cmd::display::run(a),
             Command::Composite(a) => cmd::composite::run(a),
             Command::Inspect(a) => cmd::inspect::run(a),
+            Command::Mfr(a) => cmd::mfr::run(a),
         });
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -31,9 +31,13 @@
 //!   composition (the SC's runs minus the objects the FC draws, merged with the FC's), and both
 //!   clients on a virtual clock with naive or predictive migration.
 //!
-//! Real-time loops on threads, the TCP transport, the digital and optical composition modes and
-//! the audit against a single renderer build on these types.
+//! - [`audit`]: a composed frame against the single renderer — bad pixels, and ghost, hole and
+//!   blend pixels from the objects visible in each pixel.
+//!
+//! Real-time loops on threads, the TCP transport and the digital and optical composition modes
+//! build on these types.
 
+pub mod audit;
 pub mod authority;
 pub mod client;
 pub mod compose;
@@ -42,6 +46,7 @@ pub mod state;
 pub mod trace;
 pub mod transfer;
 
+pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};

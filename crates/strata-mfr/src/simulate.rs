@@ -198,6 +198,7 @@ fn sc_render(
     Ok(TransferBuffer {
         sc_frame,
         snapshot_id: snapshot.id,
+        snapshot_t_ms: snapshot.t_ms,
         view: snapshot.view.matrix(),
         view_pose: snapshot.view,
         projection: client.projection(scene),

@@ -36,6 +36,8 @@ pub struct TransferBuffer {
     pub sc_frame: u64,
     /// The snapshot it rendered.
     pub snapshot_id: u64,
+    /// That snapshot's time (ms): the buffer's age at an FC frame is that frame's time minus this.
+    pub snapshot_t_ms: f64,
     /// World → eye of that snapshot.
     pub view: Mat4,
     /// The camera of that snapshot (the FC renders through it to compose exactly).

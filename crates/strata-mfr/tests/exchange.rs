@@ -71,6 +71,7 @@ fn contained_means_rendered_at_the_same_version() {
     let buffer = TransferBuffer {
         sc_frame: 7,
         snapshot_id: 3,
+        snapshot_t_ms: 30.0,
         view: glam::Mat4::IDENTITY,
         view_pose: strata_mfr::ViewPose {
             eye: glam::Vec3::Z,

@@ -8,6 +8,7 @@ pub(crate) mod demo;
 pub(crate) mod display;
 pub(crate) mod inspect;
 pub(crate) mod methods;
+pub(crate) mod mfr;
 pub(crate) mod node;
 pub(crate) mod render;
 pub(crate) mod scenes;
