@@ -31,7 +31,7 @@
 //!   composition (the SC's runs minus the objects the FC draws, merged with the FC's), and both
 //!   clients on a virtual clock with naive or predictive migration.
 //!
-//! - [`audit`]: a composed frame against the single renderer — bad pixels, and ghost, hole and
+//! - [`audit`](mod@audit): a composed frame against the single renderer — bad pixels, and ghost, hole and
 //!   blend pixels from the objects visible in each pixel.
 //!
 //! Real-time loops on threads, the TCP transport and the digital and optical composition modes
