@@ -258,6 +258,26 @@ impl ImageOptions {
     }
 }
 
+/// A DeepFrame rendered with `view` and `projection` by a camera with clip planes `near`, `far`,
+/// as the bytes of a deep EXR (float colour, ZIPS): what `--save-deep` writes.
+pub(crate) fn deep_exr_bytes(
+    frame: &DeepFrame,
+    (near, far): (f32, f32),
+    view: glam::Mat4,
+    projection: glam::Mat4,
+) -> Result<Vec<u8>> {
+    let mapping = DepthMapping::new(f64::from(near), f64::from(far))?;
+    let options = FrameOptions {
+        camera: Some(CameraMatrices {
+            view: view.to_cols_array(),
+            projection: projection.to_cols_array(),
+        }),
+        ..FrameOptions::default()
+    };
+    let image = strata_exr::deep_from_frame(frame, mapping, &options)?;
+    Ok(strata_exr::write_deep(&image, &WriteOptions::default())?)
+}
+
 /// Refuses an output that names the same file as another output or as an input (after
 /// resolving `.`/`..` and links where the file exists), so nothing is overwritten unseen.
 pub(crate) fn check_distinct(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {

@@ -63,6 +63,27 @@ fn predictive_deep_composition_equals_the_single_renderer_and_naive_leaves_holes
 }
 
 #[test]
+fn save_deep_writes_frames_that_resolve_to_the_saved_pngs() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut cmd = strata();
+    cmd.args([
+        "mfr", "mixed", "--size", "64x36", "--trace", GRAB, "--frames", "12",
+    ])
+    .args(["--clock", "virtual:sc_ms=90,fc_ms=30", "--out-dir"])
+    .arg(dir.path())
+    .args(["--save-frames", "--save-deep"]);
+    run_ok(&mut cmd);
+    for t in [0, 5, 11] {
+        let exr = dir.path().join(format!("frame-{t:04}.exr"));
+        let image = strata_exr::read_deep_file(&exr, &strata_exr::Limits::default())
+            .unwrap_or_else(|e| panic!("{}: {e}", exr.display()));
+        let frame = strata_exr::frame_from_deep(&image, None).expect("a DeepFrame");
+        let png = common::read_png(&dir.path().join(format!("frame-{t:04}.png")));
+        assert_eq!(frame.resolve([0.92, 0.92, 0.95]), png, "frame {t}");
+    }
+}
+
+#[test]
 fn bad_mfr_input_is_refused_clearly() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bad_trace = dir.path().join("t.toml");

@@ -147,19 +147,13 @@ impl Progress {
             return Ok(());
         };
         let path = dir.join(format!("frame-{t:04}.exr"));
-        let mapping = strata_exr::DepthMapping::new(f64::from(camera.near), f64::from(camera.far))?;
-        let options = strata_exr::FrameOptions {
-            camera: Some(strata_exr::CameraMatrices {
-                view: camera.view().to_cols_array(),
-                projection: camera
-                    .projection(deep.width(), deep.height())
-                    .to_cols_array(),
-            }),
-            ..strata_exr::FrameOptions::default()
-        };
-        let image = strata_exr::deep_from_frame(deep, mapping, &options)?;
-        strata_exr::write_deep_file(&path, &image, &strata_exr::WriteOptions::default())
-            .with_context(|| format!("writing {}", path.display()))
+        let bytes = crate::images::deep_exr_bytes(
+            deep,
+            (camera.near, camera.far),
+            camera.view(),
+            camera.projection(deep.width(), deep.height()),
+        )?;
+        std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))
     }
 }
 

@@ -52,13 +52,19 @@ pub(crate) struct Args {
     #[arg(long, value_parser = parse_size)]
     pub(crate) size: Option<(u32, u32)>,
 
-    /// Folder for summary.json, frames.jsonl and (with --save-frames) the frames as PNG.
+    /// Folder for summary.json, frames.jsonl and (with --save-frames, --save-deep) the frames as
+    /// PNG and deep EXR.
     #[arg(long)]
     pub(crate) out_dir: Option<PathBuf>,
 
     /// Write every composed FC frame as frame-NNNN.png into --out-dir.
     #[arg(long, requires = "out_dir")]
     pub(crate) save_frames: bool,
+
+    /// Write every composed FC frame's fragments as an OpenEXR deep image, frame-NNNN.exr, into
+    /// --out-dir (see `strata render --deep`).
+    #[arg(long, requires = "out_dir")]
+    pub(crate) save_deep: bool,
 
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
@@ -217,6 +223,20 @@ pub(crate) fn run(args: Args) -> Result<()> {
             {
                 let path = dir.join(format!("frame-{:04}.png", f.index));
                 f.frame.resolve(scene.background).write_png(&path)?;
+            }
+            if args.save_deep
+                && let Some(dir) = &args.out_dir
+            {
+                let path = dir.join(format!("frame-{:04}.exr", f.index));
+                let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+                let bytes = crate::images::deep_exr_bytes(
+                    &f.frame,
+                    (scene.camera.near, scene.camera.far),
+                    view.matrix(),
+                    scene.camera.projection(size.0, size.1),
+                )?;
+                std::fs::write(&path, bytes)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
             }
             bar.set_message(format!("bad pixels {}", a.bad_pixels));
             bar.inc(1);
