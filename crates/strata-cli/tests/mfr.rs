@@ -114,3 +114,28 @@ fn bad_mfr_input_is_refused_clearly() {
         assert_mentions(&err, &words);
     }
 }
+
+#[test]
+fn digital_mode_shows_the_transparency_artefact_deep_mode_does_not() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let run = |mode: &str| {
+        let out = dir.path().join(mode);
+        let mut cmd = strata();
+        cmd.args(["mfr", "mixed", "--size", "96x54", "--mode", mode])
+            .args([
+                "--trace",
+                "grab:object=glass torus,over_lead_ms=700,hold_ms=300",
+            ])
+            .args(["--clock", "virtual:sc_ms=300,fc_ms=30", "--out-dir"])
+            .arg(&out);
+        let ran = run_ok(&mut cmd);
+        assert_mentions(&ran.stdout, &[&format!("{mode} composition")]);
+        read_json(&out.join("summary.json"))
+    };
+    let digital = run("digital");
+    assert_eq!(digital["mode"], "digital");
+    assert!(digital["frames_with_bad_pixels"].as_u64().expect("count") > 0);
+    assert!(digital["blend_pixel_frames"].as_u64().expect("count") > 0);
+    let deep = run("deep");
+    assert_eq!(deep["frames_with_bad_pixels"], 0);
+}

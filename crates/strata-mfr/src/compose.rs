@@ -1,5 +1,4 @@
-//! Deep composition: the slow client's runs without the objects the fast client draws, merged
-//! with the fast client's runs.
+//! Composition of the two clients' frames: deep (strata) and digital (the seed's colour + depth).
 //!
 //! Per pixel `p`, with `F` the ids the FC draws this frame:
 //!
@@ -16,6 +15,17 @@
 //! between the clients.
 
 use strata_core::{DeepFrame, DeepFrameError, ObjectId};
+
+/// How the FC combines its fragments with the SC buffer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Composition {
+    /// Merge fragment lists, dropping the SC's fragments of the objects the FC draws (exact).
+    Deep,
+    /// The seed's digital composition (Springer 2008 §3.2): the SC's resolved colour and the
+    /// depth of its front fragment; FC fragments in front of that depth are blended over the
+    /// colour, the others are lost. Stale SC copies cannot be removed.
+    Digital,
+}
 
 /// The deep composition of `sc` minus the objects in `fc_objects` (sorted ids) with `fc`.
 ///
@@ -46,5 +56,38 @@ pub fn compose_deep(
     DeepFrame::build(w, h, &counts, |p, out| {
         out.extend(sc.run(p).iter().filter(|f| !dropped(&f.object)));
         out.extend(fc.run(p).iter());
+    })
+}
+
+/// The seed's digital composition as the run it shows: per pixel, the FC fragments in front of
+/// the SC's front fragment (`D_sc`; 1 where the SC has none; a transparent fragment writes depth,
+/// as in GL), then the whole SC run. Resolving it gives `resolve_over(C_sc, kept FC fragments)`,
+/// the seed's image, and the audit can see which objects it shows.
+///
+/// # Errors
+/// When the frames differ in size.
+pub fn compose_digital(sc: &DeepFrame, fc: &DeepFrame) -> Result<DeepFrame, DeepFrameError> {
+    let (w, h) = (fc.width(), fc.height());
+    let pixels = w as usize * h as usize;
+    if sc.width() != w || sc.height() != h {
+        return Err(DeepFrameError::PixelCount {
+            width: w,
+            height: h,
+            expected: pixels as u64,
+            found: sc.width() as u64 * sc.height() as u64,
+        });
+    }
+    let front = |p: usize| sc.run(p).depth.first().copied().unwrap_or(f32::INFINITY);
+    let counts: Vec<u32> = (0..pixels)
+        .map(|p| {
+            let d = front(p);
+            let kept = fc.run(p).depth.iter().filter(|&&z| z < d).count();
+            (kept + sc.run(p).len()) as u32
+        })
+        .collect();
+    DeepFrame::build(w, h, &counts, |p, out| {
+        let d = front(p);
+        out.extend(fc.run(p).iter().filter(|f| f.depth < d));
+        out.extend(sc.run(p).iter());
     })
 }

@@ -34,8 +34,9 @@
 //! - [`audit`](mod@audit): a composed frame against the single renderer — bad pixels, and ghost, hole and
 //!   blend pixels from the objects visible in each pixel.
 //!
-//! Real-time loops on threads, the TCP transport and the digital and optical composition modes
-//! build on these types.
+//! Composition is deep (exact) or digital (the seed's colour + depth, kept to show its
+//! artefacts). Real-time loops on threads, the TCP transport and the optical mode build on these
+//! types.
 
 pub mod audit;
 pub mod authority;
@@ -48,6 +49,7 @@ pub mod transfer;
 
 pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
+pub use compose::Composition;
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};

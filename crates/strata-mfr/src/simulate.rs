@@ -30,7 +30,7 @@ use strata_scene::Scene;
 
 use crate::authority::{Authority, Snapshot};
 use crate::client::{Client, ClientError};
-use crate::compose::compose_deep;
+use crate::compose::{Composition, compose_deep, compose_digital};
 use crate::state::ObjectState;
 use crate::trace::Trace;
 use crate::transfer::TransferBuffer;
@@ -88,13 +88,18 @@ pub enum SimulateError {
     Clock(VirtualClock),
 }
 
-/// Runs `fc_frames` FC frames of `trace` on `scene` at `width × height`; calls `on_frame` with
-/// each as it is composed.
+/// Runs `fc_frames` FC frames of `trace` on `scene` at `width × height`, composing with
+/// `composition`; calls `on_frame` with each as it is composed.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the run's parameters, each documented"
+)]
 pub fn run_virtual(
     scene: &Scene,
     trace: Trace,
     clock: VirtualClock,
     migration: Migration,
+    composition: Composition,
     (width, height): (u32, u32),
     fc_frames: u64,
     mut on_frame: impl FnMut(&FcFrame),
@@ -149,7 +154,10 @@ pub fn run_virtual(
             Some(sc) => {
                 let view = view_of(sc);
                 let fc = fc_client.render(scene, &snapshot, &view, &fc_objects)?;
-                compose_deep(&sc.frame, &fc, &ids)?
+                match composition {
+                    Composition::Deep => compose_deep(&sc.frame, &fc, &ids)?,
+                    Composition::Digital => compose_digital(&sc.frame, &fc)?,
+                }
             }
             None => fc_client.render(scene, &snapshot, &snapshot.view, &fc_objects)?,
         };

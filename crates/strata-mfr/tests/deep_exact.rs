@@ -5,7 +5,7 @@ use proptest::prelude::*;
 use strata_core::DeepFrame;
 use strata_mfr::client::Client;
 use strata_mfr::trace::{GrabParams, grab};
-use strata_mfr::{FcFrame, Migration, VirtualClock, run_virtual};
+use strata_mfr::{Composition, FcFrame, Migration, VirtualClock, run_virtual};
 use strata_scene::{Scene, SearchPath, open_scene};
 
 const SIZE: (u32, u32) = (48, 36);
@@ -60,7 +60,7 @@ proptest! {
         let frames = frames_for(trace.duration_ms(), &clock).min(400);
         let mut refs = Client::new(SIZE.0, SIZE.1);
         let mut bad = Vec::new();
-        run_virtual(&scene, trace, clock, Migration::Predictive, SIZE, frames, |f| {
+        run_virtual(&scene, trace, clock, Migration::Predictive, Composition::Deep, SIZE, frames, |f| {
             if f.frame != reference(&scene, &mut refs, f) {
                 bad.push(f.index);
             }
@@ -97,16 +97,25 @@ fn naive_migration_leaves_holes_after_a_release() {
     let mut refs = Client::new(SIZE.0, SIZE.1);
     let (mut holes, mut after_release) = (Vec::new(), 0);
     let frames = frames_for(trace.duration_ms(), &clock);
-    run_virtual(&scene, trace, clock, Migration::Naive, SIZE, frames, |f| {
-        let count = |d: &DeepFrame| d.objects().iter().filter(|&&o| o == id).count();
-        let r = reference(&scene, &mut refs, f);
-        if f.t_ms >= released_at {
-            after_release += 1;
-        }
-        if count(&f.frame) < count(&r) {
-            holes.push(f.t_ms);
-        }
-    })
+    run_virtual(
+        &scene,
+        trace,
+        clock,
+        Migration::Naive,
+        Composition::Deep,
+        SIZE,
+        frames,
+        |f| {
+            let count = |d: &DeepFrame| d.objects().iter().filter(|&&o| o == id).count();
+            let r = reference(&scene, &mut refs, f);
+            if f.t_ms >= released_at {
+                after_release += 1;
+            }
+            if count(&f.frame) < count(&r) {
+                holes.push(f.t_ms);
+            }
+        },
+    )
     .expect("the run completes");
     assert!(after_release > 0);
     // The object vanished right after the release, until an SC frame started after it arrived.
@@ -124,4 +133,67 @@ fn naive_migration_leaves_holes_after_a_release() {
             .all(|&t| t < released_at + 2.0 * clock.sc_ms + clock.transfer_ms),
         "a hole lasts less than two SC frames: {holes:?}"
     );
+}
+
+/// Springer 2008 fig. 6.6: with colour + depth composition an FC object behind a transparent SC
+/// object is lost (the SC's front depth hides it) — even with predictive migration and a lead long
+/// enough that every SC buffer used after the grab has left the object out. Deep composition
+/// shows none of it.
+#[test]
+fn digital_composition_loses_fc_objects_behind_transparent_sc_objects_and_deep_does_not() {
+    let scene = mixed();
+    let params = GrabParams {
+        object: Some("opaque cube".into()),
+        start_ms: 30.0,
+        over_lead_ms: 700.0,
+        hold_ms: 300.0,
+        distance: 0.2,
+        linger_ms: 50.0,
+    };
+    let cube = scene
+        .objects
+        .iter()
+        .find(|o| o.name == "opaque cube")
+        .map(|o| o.id)
+        .expect("object");
+    let clock = VirtualClock {
+        sc_ms: 300.0,
+        fc_ms: 30.0,
+        transfer_ms: 0.0,
+    };
+    let selected_at = params.start_ms + params.over_lead_ms;
+    for (composition, expect_artefacts) in
+        [(Composition::Digital, true), (Composition::Deep, false)]
+    {
+        let trace = grab(&scene, &params).expect("trace");
+        let frames = frames_for(trace.duration_ms(), &clock);
+        let mut refs = Client::new(SIZE.0, SIZE.1);
+        let mut artefacts = 0u64;
+        run_virtual(
+            &scene,
+            trace,
+            clock,
+            Migration::Predictive,
+            composition,
+            SIZE,
+            frames,
+            |f| {
+                if f.t_ms < selected_at || f.t_ms > selected_at + params.hold_ms {
+                    return;
+                }
+                // No stale copy: the SC buffer in use left the cube out.
+                let sc = f.sc.as_ref().expect("an SC buffer by then");
+                assert!(sc.excluded.contains(&cube), "frame {}", f.index);
+                let a =
+                    strata_mfr::audit(&f.frame, &reference(&scene, &mut refs, f), scene.background);
+                artefacts += a.bad_pixels + a.ghost_pixels + a.hole_pixels + a.blend_pixels;
+            },
+        )
+        .expect("the run completes");
+        assert_eq!(
+            artefacts > 0,
+            expect_artefacts,
+            "{composition:?}: {artefacts}"
+        );
+    }
 }

@@ -9,7 +9,7 @@ use serde_json::json;
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 use strata_mfr::trace::{GrabParams, Trace, grab, orbit};
-use strata_mfr::{FrameAudit, audit, table_6_1_row};
+use strata_mfr::{Composition, FrameAudit, audit, table_6_1_row};
 
 use crate::options::{open_scene, search_path};
 
@@ -40,6 +40,12 @@ pub(crate) struct Args {
     #[arg(long, value_enum, default_value_t = MigrationArg::Predictive)]
     pub(crate) migration: MigrationArg,
 
+    /// How the FC combines its objects with the SC buffer: `deep` (merge fragment lists; exact)
+    /// or `digital` (the seed's colour + front depth, which loses FC objects behind transparent
+    /// SC objects and cannot remove stale SC copies).
+    #[arg(long, value_enum, default_value_t = ModeArg::Deep)]
+    pub(crate) mode: ModeArg,
+
     /// The simulated clock: `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]`.
     #[arg(long, default_value = "virtual:sc_ms=300,fc_ms=33")]
     pub(crate) clock: String,
@@ -69,6 +75,15 @@ pub(crate) struct Args {
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
+}
+
+/// `--mode`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum ModeArg {
+    /// Merge fragment lists (exact).
+    Deep,
+    /// Colour + front depth (the seed's digital composition).
+    Digital,
 }
 
 /// `--migration`.
@@ -208,44 +223,57 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let mut reference = Client::new(size.0, size.1);
     let mut totals = Totals::default();
     let mut failure: Option<anyhow::Error> = None;
-    run_virtual(&scene, trace, clock, migration, size, frames, |f| {
-        if failure.is_some() {
-            return;
-        }
-        let result = audit_frame(&scene, &mut reference, f).and_then(|a| {
-            record(&mut totals, f, &a);
-            if let Some((w, path)) = &mut log {
-                writeln!(w, "{}", frame_json(&scene, f, &a))
-                    .with_context(|| format!("cannot write {}", path.display()))?;
+    let composition = match args.mode {
+        ModeArg::Deep => Composition::Deep,
+        ModeArg::Digital => Composition::Digital,
+    };
+    run_virtual(
+        &scene,
+        trace,
+        clock,
+        migration,
+        composition,
+        size,
+        frames,
+        |f| {
+            if failure.is_some() {
+                return;
             }
-            if args.save_frames
-                && let Some(dir) = &args.out_dir
-            {
-                let path = dir.join(format!("frame-{:04}.png", f.index));
-                f.frame.resolve(scene.background).write_png(&path)?;
+            let result = audit_frame(&scene, &mut reference, f).and_then(|a| {
+                record(&mut totals, f, &a);
+                if let Some((w, path)) = &mut log {
+                    writeln!(w, "{}", frame_json(&scene, f, &a))
+                        .with_context(|| format!("cannot write {}", path.display()))?;
+                }
+                if args.save_frames
+                    && let Some(dir) = &args.out_dir
+                {
+                    let path = dir.join(format!("frame-{:04}.png", f.index));
+                    f.frame.resolve(scene.background).write_png(&path)?;
+                }
+                if args.save_deep
+                    && let Some(dir) = &args.out_dir
+                {
+                    let path = dir.join(format!("frame-{:04}.exr", f.index));
+                    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+                    let bytes = crate::images::deep_exr_bytes(
+                        &f.frame,
+                        (scene.camera.near, scene.camera.far),
+                        view.matrix(),
+                        scene.camera.projection(size.0, size.1),
+                    )?;
+                    std::fs::write(&path, bytes)
+                        .with_context(|| format!("cannot write {}", path.display()))?;
+                }
+                bar.set_message(format!("bad pixels {}", a.bad_pixels));
+                bar.inc(1);
+                Ok(())
+            });
+            if let Err(e) = result {
+                failure = Some(e);
             }
-            if args.save_deep
-                && let Some(dir) = &args.out_dir
-            {
-                let path = dir.join(format!("frame-{:04}.exr", f.index));
-                let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
-                let bytes = crate::images::deep_exr_bytes(
-                    &f.frame,
-                    (scene.camera.near, scene.camera.far),
-                    view.matrix(),
-                    scene.camera.projection(size.0, size.1),
-                )?;
-                std::fs::write(&path, bytes)
-                    .with_context(|| format!("cannot write {}", path.display()))?;
-            }
-            bar.set_message(format!("bad pixels {}", a.bad_pixels));
-            bar.inc(1);
-            Ok(())
-        });
-        if let Err(e) = result {
-            failure = Some(e);
-        }
-    })?;
+        },
+    )?;
     bar.finish_and_clear();
     if let Some(e) = failure {
         return Err(e);
@@ -338,7 +366,7 @@ fn summary_json(
         "scene": scene.name,
         "trace": args.trace,
         "migration": format!("{:?}", args.migration).to_lowercase(),
-        "mode": "deep",
+        "mode": format!("{:?}", args.mode).to_lowercase(),
         "clock": {"kind": "virtual", "sc_ms": clock.sc_ms, "fc_ms": clock.fc_ms, "transfer_ms": clock.transfer_ms},
         "width": size.0,
         "height": size.1,
@@ -355,7 +383,7 @@ fn summary_json(
 
 fn summary_text(s: &serde_json::Value) -> String {
     format!(
-        "strata mfr: {} ({}x{}), {} migration, deep composition, virtual clock SC {} ms / FC {} ms / transfer {} ms\n  \
+        "strata mfr: {} ({}x{}), {} migration, {} composition, virtual clock SC {} ms / FC {} ms / transfer {} ms\n  \
          {} FC frames with {} SC buffers; SC buffer age median {} ms\n  \
          against the single renderer: {} frame(s) with bad pixels (> 2/255, at most {} in a frame); \
          frames with ghost / hole / blend pixels: {} / {} / {}",
@@ -363,6 +391,7 @@ fn summary_text(s: &serde_json::Value) -> String {
         s["width"],
         s["height"],
         s["migration"].as_str().unwrap_or("?"),
+        s["mode"].as_str().unwrap_or("?"),
         s["clock"]["sc_ms"],
         s["clock"]["fc_ms"],
         s["clock"]["transfer_ms"],
