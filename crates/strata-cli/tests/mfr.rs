@@ -94,8 +94,12 @@ fn bad_mfr_input_is_refused_clearly() {
             vec!["no object 'nothing'", "glass torus"],
         ),
         (
-            vec!["--clock".into(), "real".into()],
-            vec!["--clock real", "virtual:sc_ms"],
+            vec!["--clock".into(), "wall".into()],
+            vec!["--clock wall", "virtual:sc_ms", "real"],
+        ),
+        (
+            vec!["--clock".into(), "real:fc_hz=5000".into()],
+            vec!["fc_hz=5000", "1000"],
         ),
         (
             vec!["--clock".into(), "virtual:sc_ms=0".into()],
@@ -138,4 +142,29 @@ fn digital_mode_shows_the_transparency_artefact_deep_mode_does_not() {
     assert!(digital["blend_pixel_frames"].as_u64().expect("count") > 0);
     let deep = run("deep");
     assert_eq!(deep["frames_with_bad_pixels"], 0);
+}
+
+#[test]
+fn real_time_clients_compose_exactly_and_report_their_times() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut cmd = strata();
+    cmd.args([
+        "mfr", "mixed", "--size", "64x36", "--trace", GRAB, "--frames", "24",
+    ])
+    .args(["--clock", "real:fc_hz=60", "--out-dir"])
+    .arg(dir.path());
+    let ran = run_ok(&mut cmd);
+    assert_mentions(&ran.stdout, &["clock real", "FC at 60", "hand-over"]);
+    let s = read_json(&dir.path().join("summary.json"));
+    assert_eq!(s["clock"]["kind"], "real");
+    assert_eq!(s["fc_frames"], 24);
+    assert_eq!(s["frames_with_bad_pixels"], 0, "exact whatever the timing");
+    for key in ["fc_frame_ms", "sc_frame_ms"] {
+        assert!(
+            s[key]["median"].as_f64().is_some_and(|v| v > 0.0),
+            "{key}: {s}"
+        );
+    }
+    assert!(s["swap_us"]["max"].as_f64().is_some(), "{s}");
+    assert!(s["cpu"].as_str().is_some_and(|c| !c.is_empty()));
 }

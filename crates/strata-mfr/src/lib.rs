@@ -34,14 +34,17 @@
 //! - [`audit`](mod@audit): a composed frame against the single renderer — bad pixels, and ghost, hole and
 //!   blend pixels from the objects visible in each pixel.
 //!
+//! - [`realtime`]: the same clients on their own threads in real time, handing over through
+//!   triple buffers; the FC never waits for the SC.
+//!
 //! Composition is deep (exact) or digital (the seed's colour + depth, kept to show its
-//! artefacts). Real-time loops on threads, the TCP transport and the optical mode build on these
-//! types.
+//! artefacts). The TCP transport and the optical mode build on these types.
 
 pub mod audit;
 pub mod authority;
 pub mod client;
 pub mod compose;
+pub mod realtime;
 pub mod simulate;
 pub mod state;
 pub mod trace;
@@ -50,6 +53,7 @@ pub mod transfer;
 pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use compose::Composition;
+pub use realtime::{RealStats, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};

@@ -86,6 +86,12 @@ pub enum SimulateError {
     /// The clock's periods are not positive, finite numbers.
     #[error("sc_ms, fc_ms must be more than 0 and transfer_ms 0 or more (got {0:?})")]
     Clock(VirtualClock),
+    /// A real-time FC rate outside (0, 1000] Hz.
+    #[error("fc_hz {0} must be more than 0 and at most 1000")]
+    Rate(f64),
+    /// A client thread could not start, or panicked.
+    #[error("client thread: {0}")]
+    Thread(String),
 }
 
 /// Runs `fc_frames` FC frames of `trace` on `scene` at `width × height`, composing with
@@ -179,7 +185,7 @@ fn view_of(sc: &TransferBuffer) -> crate::authority::ViewPose {
 }
 
 /// The SC's frame: the objects its policy leaves it, at `snapshot`.
-fn sc_render(
+pub(crate) fn sc_render(
     scene: &Scene,
     client: &mut Client,
     snapshot: &Snapshot,
@@ -219,7 +225,7 @@ fn sc_render(
 }
 
 /// The objects the FC draws (indices, scene order).
-fn fc_draws(
+pub(crate) fn fc_draws(
     scene: &Scene,
     snapshot: &Snapshot,
     sc: Option<&TransferBuffer>,

@@ -84,9 +84,14 @@ pub fn exchange<T: Send + Sync>() -> (Publisher<T>, Latest<T>) {
 
 impl<T: Send + Sync> Publisher<T> {
     /// Publishes `value`; the reader's next [`Latest::latest`] returns it unless a newer one is
-    /// published first. Never blocks.
-    pub fn publish(&mut self, value: Arc<T>) {
-        self.input.write(Some(value));
+    /// published first. Never blocks. Returns the value the slot held before (one the reader no
+    /// longer uses), so the caller chooses when to drop it: freeing a large frame takes far longer
+    /// than the hand-over itself.
+    #[must_use = "the old value is dropped where the caller drops it; bind it to time the swap alone"]
+    pub fn publish(&mut self, value: Arc<T>) -> Option<Arc<T>> {
+        let old = self.input.input_buffer_mut().replace(value);
+        self.input.publish();
+        old
     }
 }
 

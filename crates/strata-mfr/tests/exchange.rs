@@ -19,7 +19,7 @@ fn the_reader_sees_whole_values_in_order_and_ends_on_the_last() {
     assert!(latest.latest().is_none(), "empty before the first publish");
     let writer = std::thread::spawn(move || {
         for seq in 0..N {
-            publisher.publish(Arc::new(Pair {
+            let _ = publisher.publish(Arc::new(Pair {
                 seq,
                 check: seq.wrapping_mul(0x9E37_79B9_7F4A_7C15),
             }));
@@ -52,8 +52,8 @@ fn the_reader_sees_whole_values_in_order_and_ends_on_the_last() {
 #[test]
 fn a_value_is_read_until_a_newer_one_arrives() {
     let (mut publisher, mut latest) = exchange::<u64>();
-    publisher.publish(Arc::new(1));
-    publisher.publish(Arc::new(2));
+    let _ = publisher.publish(Arc::new(1));
+    let _ = publisher.publish(Arc::new(2));
     assert!(latest.updated());
     assert_eq!(latest.latest().map(|v| **v), Some(2), "1 was skipped");
     assert!(!latest.updated());
@@ -62,7 +62,7 @@ fn a_value_is_read_until_a_newer_one_arrives() {
         Some(2),
         "read again, same value"
     );
-    publisher.publish(Arc::new(3));
+    let _ = publisher.publish(Arc::new(3));
     assert_eq!(latest.latest().map(|v| **v), Some(3));
 }
 

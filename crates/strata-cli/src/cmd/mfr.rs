@@ -10,6 +10,7 @@ use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 use strata_mfr::trace::{GrabParams, Trace, grab, orbit};
 use strata_mfr::{Composition, FrameAudit, audit, table_6_1_row};
+use strata_mfr::{RealStats, run_real};
 
 use crate::options::{open_scene, search_path};
 
@@ -72,10 +73,18 @@ pub(crate) struct Args {
     #[arg(long, requires = "out_dir")]
     pub(crate) save_deep: bool,
 
+    /// Real clock only: do not keep the frames to audit them after the run (for long or large
+    /// benchmark runs; the summary then has no artefact figures).
+    #[arg(long)]
+    pub(crate) no_audit: bool,
+
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
 }
+
+/// Composed frames a real-time run keeps to audit afterwards, at most (bytes).
+const AUDIT_BUDGET: u64 = 1 << 30;
 
 /// `--mode`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -106,13 +115,45 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-/// `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]`.
-fn parse_clock(s: &str) -> Result<VirtualClock> {
+/// `--clock`.
+#[derive(Clone, Copy, Debug)]
+enum Clock {
+    /// Simulated time.
+    Virtual(VirtualClock),
+    /// Real time: the FC at `fc_hz`, the SC on its own thread as fast as it can.
+    Real { fc_hz: f64 },
+}
+
+/// `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]` or `real[:fc_hz=N]`.
+fn parse_clock(s: &str) -> Result<Clock> {
+    if s == "real" || s.starts_with("real:") {
+        let mut fc_hz = 30.0;
+        for item in s
+            .trim_start_matches("real")
+            .trim_start_matches(':')
+            .split(',')
+        {
+            if item.trim().is_empty() {
+                continue;
+            }
+            match item.split_once('=') {
+                Some(("fc_hz", v)) => {
+                    fc_hz = v
+                        .trim()
+                        .parse()
+                        .ok()
+                        .filter(|v: &f64| v.is_finite() && *v > 0.0 && *v <= 1000.0)
+                        .with_context(|| {
+                            format!("--clock: {item}: expected a rate in (0, 1000] Hz")
+                        })?;
+                }
+                _ => bail!("--clock real: '{item}': expected fc_hz=N"),
+            }
+        }
+        return Ok(Clock::Real { fc_hz });
+    }
     let Some(params) = s.strip_prefix("virtual:") else {
-        bail!(
-            "--clock {s}: expected virtual:sc_ms=N,fc_ms=N[,transfer_ms=N] (real time is not \
-             built yet)"
-        );
+        bail!("--clock {s}: expected virtual:sc_ms=N,fc_ms=N[,transfer_ms=N] or real[:fc_hz=N]");
     };
     let mut clock = VirtualClock {
         sc_ms: 300.0,
@@ -139,7 +180,7 @@ fn parse_clock(s: &str) -> Result<VirtualClock> {
     if clock.sc_ms <= 0.0 || clock.fc_ms <= 0.0 {
         bail!("--clock: sc_ms and fc_ms must be more than 0");
     }
-    Ok(clock)
+    Ok(Clock::Virtual(clock))
 }
 
 /// The trace `spec` names for `scene`.
@@ -194,9 +235,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
         MigrationArg::Naive => Migration::Naive,
     };
     let size = args.size.unwrap_or((scene.width, scene.height));
-    let frames = args.frames.unwrap_or_else(|| {
-        ((trace.duration_ms() + 3.0 * clock.sc_ms + clock.transfer_ms) / clock.fc_ms).ceil() as u64
-            + 1
+    let frames = args.frames.unwrap_or_else(|| match clock {
+        Clock::Virtual(c) => {
+            ((trace.duration_ms() + 3.0 * c.sc_ms + c.transfer_ms) / c.fc_ms).ceil() as u64 + 1
+        }
+        // The trace, then a second for the SC to catch up.
+        Clock::Real { fc_hz } => ((trace.duration_ms() + 1000.0) * fc_hz / 1000.0).ceil() as u64,
     });
     if frames == 0 || frames > 1_000_000 {
         bail!("--frames must be 1 to 1000000");
@@ -227,53 +271,86 @@ pub(crate) fn run(args: Args) -> Result<()> {
         ModeArg::Deep => Composition::Deep,
         ModeArg::Digital => Composition::Digital,
     };
-    run_virtual(
-        &scene,
-        trace,
-        clock,
-        migration,
-        composition,
-        size,
-        frames,
-        |f| {
-            if failure.is_some() {
-                return;
+    let mut handle = |f: &FcFrame| {
+        if failure.is_some() {
+            return;
+        }
+        let result = audit_frame(&scene, &mut reference, f).and_then(|a| {
+            record(&mut totals, f, &a);
+            if let Some((w, path)) = &mut log {
+                writeln!(w, "{}", frame_json(&scene, f, &a))
+                    .with_context(|| format!("cannot write {}", path.display()))?;
             }
-            let result = audit_frame(&scene, &mut reference, f).and_then(|a| {
-                record(&mut totals, f, &a);
-                if let Some((w, path)) = &mut log {
-                    writeln!(w, "{}", frame_json(&scene, f, &a))
-                        .with_context(|| format!("cannot write {}", path.display()))?;
-                }
-                if args.save_frames
-                    && let Some(dir) = &args.out_dir
-                {
-                    let path = dir.join(format!("frame-{:04}.png", f.index));
-                    f.frame.resolve(scene.background).write_png(&path)?;
-                }
-                if args.save_deep
-                    && let Some(dir) = &args.out_dir
-                {
-                    let path = dir.join(format!("frame-{:04}.exr", f.index));
-                    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
-                    let bytes = crate::images::deep_exr_bytes(
-                        &f.frame,
-                        (scene.camera.near, scene.camera.far),
-                        view.matrix(),
-                        scene.camera.projection(size.0, size.1),
-                    )?;
-                    std::fs::write(&path, bytes)
-                        .with_context(|| format!("cannot write {}", path.display()))?;
-                }
-                bar.set_message(format!("bad pixels {}", a.bad_pixels));
-                bar.inc(1);
-                Ok(())
-            });
-            if let Err(e) = result {
-                failure = Some(e);
+            if args.save_frames
+                && let Some(dir) = &args.out_dir
+            {
+                let path = dir.join(format!("frame-{:04}.png", f.index));
+                f.frame.resolve(scene.background).write_png(&path)?;
             }
-        },
-    )?;
+            if args.save_deep
+                && let Some(dir) = &args.out_dir
+            {
+                let path = dir.join(format!("frame-{:04}.exr", f.index));
+                let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+                let bytes = crate::images::deep_exr_bytes(
+                    &f.frame,
+                    (scene.camera.near, scene.camera.far),
+                    view.matrix(),
+                    scene.camera.projection(size.0, size.1),
+                )?;
+                std::fs::write(&path, bytes)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+            }
+            bar.set_message(format!("bad pixels {}", a.bad_pixels));
+            bar.inc(1);
+            Ok(())
+        });
+        if let Err(e) = result {
+            failure = Some(e);
+        }
+    };
+    let real = match clock {
+        Clock::Virtual(c) => {
+            run_virtual(
+                &scene,
+                trace,
+                c,
+                migration,
+                composition,
+                size,
+                frames,
+                |f| handle(f),
+            )?;
+            None
+        }
+        Clock::Real { fc_hz } => {
+            // Audited after the run, so auditing does not take the FC thread's time; frames past
+            // the memory budget are not kept.
+            let mut shown = Vec::new();
+            let mut kept = 0u64;
+            let scene = std::sync::Arc::new(scene.clone());
+            let stats = run_real(
+                scene,
+                trace,
+                fc_hz,
+                migration,
+                composition,
+                size,
+                frames,
+                |f| {
+                    let bytes = f.frame.memory_bytes();
+                    if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
+                        kept += bytes;
+                        shown.push(f.clone());
+                    }
+                },
+            )?;
+            for f in &shown {
+                handle(f);
+            }
+            Some(stats)
+        }
+    };
     bar.finish_and_clear();
     if let Some(e) = failure {
         return Err(e);
@@ -282,7 +359,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
         w.flush()
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
-    let summary = summary_json(&args, &scene, clock, size, &mut totals);
+    if args.no_audit && matches!(clock, Clock::Virtual(_)) {
+        eprintln!("note: --no-audit applies to real-clock runs; this run was audited");
+    }
+    let summary = summary_json(&args, &scene, clock, size, &mut totals, real);
     outln!("{}", summary_text(&summary))?;
     if let Some(dir) = &args.out_dir {
         let path = dir.join("summary.json");
@@ -358,19 +438,27 @@ fn median_p95(v: &mut [f64]) -> serde_json::Value {
 fn summary_json(
     args: &Args,
     scene: &strata_scene::Scene,
-    clock: VirtualClock,
+    clock: Clock,
     size: (u32, u32),
     t: &mut Totals,
+    real: Option<RealStats>,
 ) -> serde_json::Value {
-    json!({
+    let clock_json = match clock {
+        Clock::Virtual(c) => {
+            json!({"kind": "virtual", "sc_ms": c.sc_ms, "fc_ms": c.fc_ms, "transfer_ms": c.transfer_ms})
+        }
+        Clock::Real { fc_hz } => json!({"kind": "real", "fc_hz": fc_hz}),
+    };
+    let mut v = json!({
         "scene": scene.name,
         "trace": args.trace,
         "migration": format!("{:?}", args.migration).to_lowercase(),
         "mode": format!("{:?}", args.mode).to_lowercase(),
-        "clock": {"kind": "virtual", "sc_ms": clock.sc_ms, "fc_ms": clock.fc_ms, "transfer_ms": clock.transfer_ms},
+        "clock": clock_json,
         "width": size.0,
         "height": size.1,
-        "fc_frames": t.frames,
+        "fc_frames": real.as_ref().map_or(t.frames, |r| r.fc_frame_ms.len() as u64),
+        "audited_frames": t.frames,
         "sc_frames_used": t.sc_frames_used.len(),
         "sc_age_ms": median_p95(&mut t.sc_age_ms),
         "frames_with_bad_pixels": t.frames_with_bad_pixels,
@@ -378,26 +466,73 @@ fn summary_json(
         "ghost_pixel_frames": t.ghost_pixel_frames,
         "hole_pixel_frames": t.hole_pixel_frames,
         "blend_pixel_frames": t.blend_pixel_frames,
-    })
+    });
+    if let Some(mut r) = real {
+        let mut swap: Vec<f64> = r.publish_us.iter().chain(&r.read_us).copied().collect();
+        let max = swap.iter().copied().fold(0.0, f64::max);
+        v["cpu"] = json!(crate::report::cpu_model());
+        v["fc_frame_ms"] = median_p95(&mut r.fc_frame_ms);
+        v["sc_frame_ms"] = median_p95(&mut r.sc_frame_ms);
+        v["sc_frames"] = json!(r.sc_frame_ms.len());
+        v["swap_us"] = json!({"median": median_p95(&mut swap)["median"], "max": max});
+        v["fc_deadlines_missed"] = json!(r.fc_deadlines_missed);
+    }
+    v
+}
+
+fn clock_text(s: &serde_json::Value) -> String {
+    let c = &s["clock"];
+    if c["kind"] == "real" {
+        format!(
+            "real, FC at {} Hz: FC frame {} ms median / {} p95, SC frame {} ms median ({} SC frames), \
+             hand-over {} µs median / {} max, {} FC deadlines missed ({})",
+            c["fc_hz"],
+            fmt(&s["fc_frame_ms"]["median"]),
+            fmt(&s["fc_frame_ms"]["p95"]),
+            fmt(&s["sc_frame_ms"]["median"]),
+            s["sc_frames"],
+            fmt(&s["swap_us"]["median"]),
+            fmt(&s["swap_us"]["max"]),
+            s["fc_deadlines_missed"],
+            s["cpu"].as_str().unwrap_or("?"),
+        )
+    } else {
+        format!(
+            "virtual, SC {} ms / FC {} ms / transfer {} ms",
+            c["sc_ms"], c["fc_ms"], c["transfer_ms"]
+        )
+    }
+}
+
+fn fmt(v: &serde_json::Value) -> String {
+    v.as_f64()
+        .map_or_else(|| "-".to_owned(), |x| format!("{x:.2}"))
 }
 
 fn summary_text(s: &serde_json::Value) -> String {
-    format!(
-        "strata mfr: {} ({}x{}), {} migration, {} composition, virtual clock SC {} ms / FC {} ms / transfer {} ms\n  \
-         {} FC frames with {} SC buffers; SC buffer age median {} ms\n  \
-         against the single renderer: {} frame(s) with bad pixels (> 2/255, at most {} in a frame); \
-         frames with ghost / hole / blend pixels: {} / {} / {}",
+    let head = format!(
+        "strata mfr: {} ({}x{}), {} migration, {} composition, clock {}",
         s["scene"].as_str().unwrap_or("?"),
         s["width"],
         s["height"],
         s["migration"].as_str().unwrap_or("?"),
         s["mode"].as_str().unwrap_or("?"),
-        s["clock"]["sc_ms"],
-        s["clock"]["fc_ms"],
-        s["clock"]["transfer_ms"],
+        clock_text(s),
+    );
+    if s["audited_frames"] == 0 {
+        return format!(
+            "{head}\n  {} FC frames, not audited (--no-audit)",
+            s["fc_frames"]
+        );
+    }
+    format!(
+        "{head}\n  {} FC frames with {} SC buffers; age of the state in the SC buffer, median {} ms\n  \
+         audited {} of them against the single renderer: {} frame(s) with bad pixels (> 2/255, at \
+         most {} in a frame); frames with ghost / hole / blend pixels: {} / {} / {}",
         s["fc_frames"],
         s["sc_frames_used"],
-        s["sc_age_ms"]["median"],
+        fmt(&s["sc_age_ms"]["median"]),
+        s["audited_frames"],
         s["frames_with_bad_pixels"],
         s["max_bad_pixels"],
         s["ghost_pixel_frames"],
