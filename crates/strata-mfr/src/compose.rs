@@ -91,3 +91,85 @@ pub fn compose_digital(sc: &DeepFrame, fc: &DeepFrame) -> Result<DeepFrame, Deep
         out.extend(sc.run(p).iter());
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use strata_core::{Fragment, Rgba8};
+
+    fn fragment() -> impl Strategy<Value = Fragment> {
+        (0u32..64, 0u32..6, any::<[u8; 4]>()).prop_map(|(d, o, c)| Fragment {
+            depth: d as f32 / 64.0,
+            color: Rgba8(c),
+            object: ObjectId(o),
+        })
+    }
+
+    fn lists(pixels: usize) -> impl Strategy<Value = Vec<Vec<Fragment>>> {
+        prop::collection::vec(prop::collection::vec(fragment(), 0..6), pixels)
+    }
+
+    proptest! {
+        /// The merge equals sorting the union of the SC's kept fragments and the FC's, for any
+        /// runs (ties included) and any set of dropped objects, across chunk boundaries.
+        #[test]
+        fn merging_equals_sorting_the_union(
+            sc in lists(37),
+            fc in lists(37),
+            dropped in prop::collection::btree_set(0u32..6, 0..4),
+        ) {
+            let (w, h) = (37, 1);
+            let ids: Vec<ObjectId> = dropped.iter().map(|&o| ObjectId(o)).collect();
+            let a = DeepFrame::from_pixel_lists(w, h, &sc).expect("sc");
+            let b = DeepFrame::from_pixel_lists(w, h, &fc).expect("fc");
+            let union: Vec<Vec<Fragment>> = sc
+                .iter()
+                .zip(&fc)
+                .map(|(s, f)| {
+                    s.iter()
+                        .filter(|x| !dropped.contains(&x.object.0))
+                        .chain(f)
+                        .copied()
+                        .collect()
+                })
+                .collect();
+            let expected = DeepFrame::from_pixel_lists(w, h, &union).expect("union");
+            prop_assert_eq!(compose_deep(&a, &b, &ids).expect("composed"), expected);
+        }
+    }
+
+    #[test]
+    fn merging_across_chunks_of_pixels() {
+        // More pixels than one parallel task holds, so chunk boundaries are crossed.
+        let (w, h) = (4099u32, 3u32);
+        let pixels = (w * h) as usize;
+        let frag = |p: usize, k: u32, o: u32| Fragment {
+            depth: ((p as u32 * 7 + k * 13) % 97) as f32 / 97.0,
+            color: Rgba8([k as u8, o as u8, p as u8, 200]),
+            object: ObjectId(o),
+        };
+        let sc: Vec<Vec<Fragment>> = (0..pixels)
+            .map(|p| (0..(p % 4) as u32).map(|k| frag(p, k, k % 3)).collect())
+            .collect();
+        let fc: Vec<Vec<Fragment>> = (0..pixels)
+            .map(|p| (0..(p % 3) as u32).map(|k| frag(p, k + 5, 4)).collect())
+            .collect();
+        let ids = [ObjectId(1)];
+        let a = DeepFrame::from_pixel_lists(w, h, &sc).expect("sc");
+        let b = DeepFrame::from_pixel_lists(w, h, &fc).expect("fc");
+        let union: Vec<Vec<Fragment>> = sc
+            .iter()
+            .zip(&fc)
+            .map(|(s, f)| {
+                s.iter()
+                    .filter(|x| x.object != ObjectId(1))
+                    .chain(f)
+                    .copied()
+                    .collect()
+            })
+            .collect();
+        let expected = DeepFrame::from_pixel_lists(w, h, &union).expect("union");
+        assert_eq!(compose_deep(&a, &b, &ids).expect("composed"), expected);
+    }
+}
