@@ -23,13 +23,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use strata_core::ObjectId;
 use strata_scene::Scene;
 
 use crate::authority::{Authority, Snapshot};
 use crate::client::Client;
-use crate::compose::{Composition, compose_deep, compose_digital};
-use crate::simulate::{FcFrame, Migration, SimulateError, fc_draws, sc_render};
+use crate::compose::Composition;
+use crate::simulate::{FcFrame, Migration, SimulateError, fc_frame, sc_render};
 use crate::trace::Trace;
 use crate::transfer::{TransferBuffer, exchange};
 
@@ -147,20 +146,15 @@ pub fn run_real(
             stats.read_us.push(r.elapsed().as_secs_f64() * 1e6);
             // Reading moves pointers only: an SC buffer the FC stops using is freed when its last
             // `Arc` goes (the frame record below, or the SC's next publish), outside these timings.
-            let fc_objects = fc_draws(&scene, &snapshot, sc.as_deref(), migration);
-            let mut ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
-            ids.sort_unstable();
-            let frame = fc_pool.install(|| -> Result<_, SimulateError> {
-                Ok(match &sc {
-                    Some(sc) => {
-                        let fc = fc_client.render(&scene, &snapshot, &sc.view_pose, &fc_objects)?;
-                        match composition {
-                            Composition::Deep => compose_deep(&sc.frame, &fc, &ids)?,
-                            Composition::Digital => compose_digital(&sc.frame, &fc)?,
-                        }
-                    }
-                    None => fc_client.render(&scene, &snapshot, &snapshot.view, &fc_objects)?,
-                })
+            let work = fc_pool.install(|| {
+                fc_frame(
+                    &scene,
+                    &mut fc_client,
+                    &snapshot,
+                    sc.as_deref(),
+                    migration,
+                    composition,
+                )
             })?;
             let took = start.elapsed();
             stats.fc_frame_ms.push(took.as_secs_f64() * 1e3);
@@ -170,8 +164,11 @@ pub fn run_real(
                 t_ms,
                 snapshot,
                 sc,
-                fc_objects,
-                frame,
+                fc_objects: work.fc_objects,
+                fc_ids: work.fc_ids,
+                fc: work.fc,
+                composition,
+                image: work.image,
             });
         }
         Ok(())

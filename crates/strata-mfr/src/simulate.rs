@@ -30,7 +30,7 @@ use strata_scene::Scene;
 
 use crate::authority::{Authority, Snapshot};
 use crate::client::{Client, ClientError};
-use crate::compose::{Composition, compose_deep, compose_digital};
+use crate::compose::{Composition, compose_deep, compose_digital, compose_image};
 use crate::state::ObjectState;
 use crate::trace::Trace;
 use crate::transfer::TransferBuffer;
@@ -69,8 +69,69 @@ pub struct FcFrame {
     pub sc: Option<Arc<TransferBuffer>>,
     /// Indices of the objects the FC drew.
     pub fc_objects: Vec<usize>,
-    /// The composed frame.
-    pub frame: DeepFrame,
+    /// Their ids, sorted.
+    pub fc_ids: Vec<ObjectId>,
+    /// The FC's own fragments.
+    pub fc: DeepFrame,
+    /// How it composed.
+    pub composition: Composition,
+    /// The frame shown.
+    pub image: strata_core::Rgb8Image,
+}
+
+impl FcFrame {
+    /// The composed fragments of this frame (what its image resolves): rebuilt from the SC
+    /// buffer and the FC's fragments, for the audit and for saving — the FC itself only makes the
+    /// image.
+    pub fn composed(&self) -> Result<DeepFrame, strata_core::DeepFrameError> {
+        match (&self.sc, self.composition) {
+            (None, _) => Ok(self.fc.clone()),
+            (Some(sc), Composition::Deep) => compose_deep(&sc.frame, &self.fc, &self.fc_ids),
+            (Some(sc), Composition::Digital) => compose_digital(&sc.frame, &self.fc),
+        }
+    }
+}
+
+/// The FC's work for one frame: which objects it draws, its fragments, and the image shown.
+pub(crate) struct FcWork {
+    pub(crate) fc_objects: Vec<usize>,
+    pub(crate) fc_ids: Vec<ObjectId>,
+    pub(crate) fc: DeepFrame,
+    pub(crate) image: strata_core::Rgb8Image,
+}
+
+/// Renders the FC's objects at `snapshot` through the SC buffer's view and makes the image.
+pub(crate) fn fc_frame(
+    scene: &Scene,
+    client: &mut Client,
+    snapshot: &Snapshot,
+    sc: Option<&TransferBuffer>,
+    migration: Migration,
+    composition: Composition,
+) -> Result<FcWork, SimulateError> {
+    let fc_objects = fc_draws(scene, snapshot, sc, migration);
+    let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
+    fc_ids.sort_unstable();
+    let view = sc.map_or(snapshot.view, |sc| sc.view_pose);
+    let fc = client.render(scene, snapshot, &view, &fc_objects)?;
+    let image = match (sc, composition) {
+        (None, _) => fc.resolve(scene.background),
+        (Some(sc), Composition::Deep) => {
+            let holds = fc_ids
+                .iter()
+                .any(|id| sc.rendered.binary_search_by_key(id, |&(i, _)| i).is_ok());
+            compose_image(&sc.frame, &sc.image, &fc, &fc_ids, holds, scene.background)
+        }
+        (Some(sc), Composition::Digital) => {
+            compose_digital(&sc.frame, &fc)?.resolve(scene.background)
+        }
+    };
+    Ok(FcWork {
+        fc_objects,
+        fc_ids,
+        fc,
+        image,
+    })
 }
 
 /// Why a run stopped.
@@ -150,38 +211,27 @@ pub fn run_virtual(
             delivered = Some(in_flight.remove(0).1);
         }
         let snapshot = authority.advance_to(t);
-        let fc_objects = fc_draws(scene, &snapshot, delivered.as_deref(), migration);
-        let ids: Vec<ObjectId> = {
-            let mut ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
-            ids.sort_unstable();
-            ids
-        };
-        let frame = match &delivered {
-            Some(sc) => {
-                let view = view_of(sc);
-                let fc = fc_client.render(scene, &snapshot, &view, &fc_objects)?;
-                match composition {
-                    Composition::Deep => compose_deep(&sc.frame, &fc, &ids)?,
-                    Composition::Digital => compose_digital(&sc.frame, &fc)?,
-                }
-            }
-            None => fc_client.render(scene, &snapshot, &snapshot.view, &fc_objects)?,
-        };
+        let work = fc_frame(
+            scene,
+            &mut fc_client,
+            &snapshot,
+            delivered.as_deref(),
+            migration,
+            composition,
+        )?;
         on_frame(&FcFrame {
             index,
             t_ms: t,
             snapshot,
             sc: delivered.clone(),
-            fc_objects,
-            frame,
+            fc_objects: work.fc_objects,
+            fc_ids: work.fc_ids,
+            fc: work.fc,
+            composition,
+            image: work.image,
         });
     }
     Ok(())
-}
-
-/// The view an SC buffer was rendered with.
-fn view_of(sc: &TransferBuffer) -> crate::authority::ViewPose {
-    sc.view_pose
 }
 
 /// The SC's frame: the objects its policy leaves it, at `snapshot`.
@@ -209,6 +259,7 @@ pub(crate) fn sc_render(
     rendered.sort_unstable();
     excluded.sort_unstable();
     let frame = client.render(scene, snapshot, &snapshot.view, &indices)?;
+    let image = frame.resolve(scene.background);
     Ok(TransferBuffer {
         sc_frame,
         snapshot_id: snapshot.id,
@@ -221,6 +272,7 @@ pub(crate) fn sc_render(
         rendered,
         excluded,
         frame,
+        image,
     })
 }
 

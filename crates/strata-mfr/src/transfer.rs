@@ -9,7 +9,8 @@
 //!                ── view, projection, width, height
 //!                ── rendered      (object id, version) of every object the SC rendered, sorted
 //!                ── excluded      ids of the objects it left out, sorted (the seed's list)
-//!                └─ frame         the DeepFrame of what it rendered
+//!                ── frame         the DeepFrame of what it rendered
+//!                └─ image         that frame resolved (the FC's starting image)
 //! ```
 //!
 //! The seed's buffer carried a frame counter, the view, the sizes, a buffer id and the ids of the
@@ -27,7 +28,7 @@
 use std::sync::Arc;
 
 use glam::Mat4;
-use strata_core::{DeepFrame, ObjectId};
+use strata_core::{DeepFrame, ObjectId, Rgb8Image};
 
 /// What the slow client hands over with each frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -54,6 +55,8 @@ pub struct TransferBuffer {
     pub excluded: Vec<ObjectId>,
     /// Every fragment of the objects rendered.
     pub frame: DeepFrame,
+    /// `frame` resolved onto the scene's background: the FC starts every frame from it.
+    pub image: Rgb8Image,
 }
 
 impl TransferBuffer {

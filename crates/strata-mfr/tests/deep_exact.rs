@@ -61,7 +61,10 @@ proptest! {
         let mut refs = Client::new(SIZE.0, SIZE.1);
         let mut bad = Vec::new();
         run_virtual(&scene, trace, clock, Migration::Predictive, Composition::Deep, SIZE, frames, |f| {
-            if f.frame != reference(&scene, &mut refs, f) {
+            let composed = f.composed().expect("composes");
+            // The FC's footprint-only image is the composed frame's resolve, pixel for pixel.
+            assert_eq!(f.image, composed.resolve(scene.background), "frame {}", f.index);
+            if composed != reference(&scene, &mut refs, f) {
                 bad.push(f.index);
             }
         })
@@ -111,7 +114,7 @@ fn naive_migration_leaves_holes_after_a_release() {
             if f.t_ms >= released_at {
                 after_release += 1;
             }
-            if count(&f.frame) < count(&r) {
+            if count(&f.composed().expect("composes")) < count(&r) {
                 holes.push(f.t_ms);
             }
         },
@@ -184,8 +187,11 @@ fn digital_composition_loses_fc_objects_behind_transparent_sc_objects_and_deep_d
                 // No stale copy: the SC buffer in use left the cube out.
                 let sc = f.sc.as_ref().expect("an SC buffer by then");
                 assert!(sc.excluded.contains(&cube), "frame {}", f.index);
-                let a =
-                    strata_mfr::audit(&f.frame, &reference(&scene, &mut refs, f), scene.background);
+                let a = strata_mfr::audit(
+                    &f.composed().expect("composes"),
+                    &reference(&scene, &mut refs, f),
+                    scene.background,
+                );
                 artefacts += a.bad_pixels + a.ghost_pixels + a.hole_pixels + a.blend_pixels;
             },
         )

@@ -84,6 +84,7 @@ fn contained_means_rendered_at_the_same_version() {
         rendered: vec![(ObjectId(0), 0), (ObjectId(2), 5)],
         excluded: vec![ObjectId(1)],
         frame: DeepFrame::empty(1, 1),
+        image: strata_core::Rgb8Image::filled(1, 1, [0; 3]),
     };
     assert!(buffer.contains(ObjectId(0), 0));
     assert!(buffer.contains(ObjectId(2), 5));

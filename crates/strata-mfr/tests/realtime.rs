@@ -57,8 +57,15 @@ fn real_threads_compose_exactly_in_every_frame() {
         let r = reference
             .render(&scene, &f.snapshot, &view, &all)
             .expect("reference");
+        let composed = f.composed().expect("composes");
+        assert_eq!(
+            f.image,
+            composed.resolve(scene.background),
+            "frame {}",
+            f.index
+        );
         assert!(
-            f.frame == r,
+            composed == r,
             "FC frame {} differs from the single renderer",
             f.index
         );

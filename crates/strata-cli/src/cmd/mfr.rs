@@ -285,7 +285,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 && let Some(dir) = &args.out_dir
             {
                 let path = dir.join(format!("frame-{:04}.png", f.index));
-                f.frame.resolve(scene.background).write_png(&path)?;
+                f.image.write_png(&path)?;
             }
             if args.save_deep
                 && let Some(dir) = &args.out_dir
@@ -293,7 +293,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 let path = dir.join(format!("frame-{:04}.exr", f.index));
                 let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
                 let bytes = crate::images::deep_exr_bytes(
-                    &f.frame,
+                    &f.composed()?,
                     (scene.camera.near, scene.camera.far),
                     view.matrix(),
                     scene.camera.projection(size.0, size.1),
@@ -338,7 +338,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 size,
                 frames,
                 |f| {
-                    let bytes = f.frame.memory_bytes();
+                    let bytes = f.fc.memory_bytes() + f.image.as_bytes().len() as u64;
                     if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
                         kept += bytes;
                         shown.push(f.clone());
@@ -382,7 +382,7 @@ fn audit_frame(
     let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     let r = reference.render(scene, &f.snapshot, &view, &all)?;
-    Ok(audit(&f.frame, &r, scene.background))
+    Ok(audit(&f.composed()?, &r, scene.background))
 }
 
 fn record(t: &mut Totals, f: &FcFrame, a: &FrameAudit) {
@@ -421,7 +421,7 @@ fn frame_json(scene: &strata_scene::Scene, f: &FcFrame, a: &FrameAudit) -> serde
         "sc_frame": f.sc.as_ref().map(|s| s.sc_frame),
         "sc_age_ms": f.sc.as_ref().map(|s| f.t_ms - s.snapshot_t_ms),
         "fc_objects": objects,
-        "fragments": f.frame.fragment_count(),
+        "fc_fragments": f.fc.fragment_count(),
         "audit": a,
     })
 }
