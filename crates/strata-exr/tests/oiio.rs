@@ -12,9 +12,9 @@ use std::process::Command;
 
 use common::{assert_same_pixels, render, synthetic};
 use strata_exr::{
-    Box2i, Compression, DeepImage, FlatImage, FrameOptions, Limits, LineOrder, SampleType,
-    WriteOptions, deep_from_frame, flatten, merge, read_deep_file, read_flat_file, stats,
-    write_deep_file, write_flat_file,
+    Box2i, Channel, Column, Compression, DeepImage, FlatImage, FrameOptions, Limits, LineOrder,
+    SampleType, WriteOptions, deep_from_frame, flatten, merge, read_deep_file, read_flat_file,
+    stats, write_deep_file, write_flat_file,
 };
 
 /// Deep compressions OpenEXR's library accepts (it refuses deep ZIP).
@@ -357,40 +357,43 @@ fn we_read_deep_files_oiiotool_writes() {
     let pixels: Vec<[f32; 4]> = (0..flattened.width() * flattened.height())
         .map(|p| ["R", "G", "B", "A"].map(|c| flattened.value(c, p).unwrap_or(0.0) as f32))
         .collect();
+    // oiiotool's --deepen needs a Z channel; a pixel whose channels are all 0 gets no sample, so
+    // empty pixels keep Z = 0 and covered ones get a depth.
     let w = offset_window();
-    let flat = FlatImage::from_rgba(
-        w.width() as u32,
-        w.height() as u32,
-        &pixels,
-        SampleType::Half,
+    let column = |i: usize| Column::F32(pixels.iter().map(|p| p[i]).collect());
+    let z = Column::F32(
+        pixels
+            .iter()
+            .enumerate()
+            .map(|(p, px)| {
+                if px.iter().all(|&v| v == 0.0) {
+                    0.0
+                } else {
+                    1.0 + p as f32 / 64.0
+                }
+            })
+            .collect(),
+    );
+    let flat = FlatImage::new(
+        w,
+        ["A", "B", "G", "R", "Z"]
+            .iter()
+            .map(|n| Channel::new(*n, SampleType::Float))
+            .collect(),
+        vec![column(3), column(2), column(1), column(0), z],
     )
     .expect("a flat image");
     let flat_path = dir.path().join("flat.exr");
     write_flat_file(&flat_path, &flat, &WriteOptions::default()).expect("writes");
     let deepened = dir.path().join("deepened.exr");
-    let out = Command::new("oiiotool")
-        .args([path_str(&flat_path), "--deepen", "-o", path_str(&deepened)])
-        .output()
-        .expect("oiiotool runs");
-    if !out.status.success()
-        && String::from_utf8_lossy(&out.stderr).contains("deep images not supported")
-    {
-        // OpenImageIO 2.4's --deepen refuses every input; deep files written by OpenEXR's own
-        // library are checked in `we_read_deep_files_python_openexr_writes` instead.
-        eprintln!(
-            "note: this oiiotool's --deepen is broken (OpenImageIO 2.4); --deepen not checked"
-        );
-    } else {
-        assert!(
-            out.status.success(),
-            "--deepen failed: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        check_deepened(
-            &flat,
-            &read_deep_file(&deepened, &Limits::default()).expect("we read --deepen output"),
-        );
-    }
+    run(
+        "oiiotool",
+        &[path_str(&flat_path), "--deepen", "-o", path_str(&deepened)],
+    );
+    check_deepened(
+        &flat,
+        &read_deep_file(&deepened, &Limits::default()).expect("we read --deepen output"),
+    );
 
     // --deepmerge output: the same samples as our merge (counts exact, values within half).
     let other = synthetic(offset_window(), SampleType::Half, 5, 9);
