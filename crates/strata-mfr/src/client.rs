@@ -57,7 +57,7 @@ impl Client {
     }
 
     /// The projection every client uses for this scene and size.
-    pub fn projection(&self, scene: &Scene) -> Mat4 {
+    fn projection(&self, scene: &Scene) -> Mat4 {
         scene.camera.projection(self.width, self.height)
     }
 

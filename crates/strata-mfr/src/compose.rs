@@ -28,6 +28,21 @@ pub enum Composition {
     Digital,
 }
 
+/// `fc`'s width, height and pixel count, if `sc` has the same size.
+fn same_size(sc: &DeepFrame, fc: &DeepFrame) -> Result<(u32, u32, usize), DeepFrameError> {
+    let (w, h) = (fc.width(), fc.height());
+    let pixels = w as usize * h as usize;
+    if sc.width() != w || sc.height() != h {
+        return Err(DeepFrameError::PixelCount {
+            width: w,
+            height: h,
+            expected: pixels as u64,
+            found: u64::from(sc.width()) * u64::from(sc.height()),
+        });
+    }
+    Ok((w, h, pixels))
+}
+
 /// The deep composition of `sc` minus the objects in `fc_objects` (sorted ids) with `fc`.
 ///
 /// # Errors
@@ -37,16 +52,7 @@ pub fn compose_deep(
     fc: &DeepFrame,
     fc_objects: &[ObjectId],
 ) -> Result<DeepFrame, DeepFrameError> {
-    let (w, h) = (fc.width(), fc.height());
-    let pixels = w as usize * h as usize;
-    if sc.width() != w || sc.height() != h {
-        return Err(DeepFrameError::PixelCount {
-            width: w,
-            height: h,
-            expected: pixels as u64,
-            found: sc.width() as u64 * sc.height() as u64,
-        });
-    }
+    let (w, h, pixels) = same_size(sc, fc)?;
     let dropped = |o: &ObjectId| fc_objects.binary_search(o).is_ok();
     let counts: Vec<u32> = (0..pixels)
         .map(|p| {
@@ -108,16 +114,7 @@ pub fn compose_image(
 /// # Errors
 /// When the frames differ in size.
 pub fn compose_digital(sc: &DeepFrame, fc: &DeepFrame) -> Result<DeepFrame, DeepFrameError> {
-    let (w, h) = (fc.width(), fc.height());
-    let pixels = w as usize * h as usize;
-    if sc.width() != w || sc.height() != h {
-        return Err(DeepFrameError::PixelCount {
-            width: w,
-            height: h,
-            expected: pixels as u64,
-            found: sc.width() as u64 * sc.height() as u64,
-        });
-    }
+    let (w, h, pixels) = same_size(sc, fc)?;
     let front = |p: usize| sc.run(p).depth.first().copied().unwrap_or(f32::INFINITY);
     let counts: Vec<u32> = (0..pixels)
         .map(|p| {

@@ -100,14 +100,7 @@ pub fn run_real(
                     };
                     let start = Instant::now();
                     let buffer = sc_pool.install(|| {
-                        sc_render(
-                            &scene,
-                            &mut client,
-                            &snapshot,
-                            migration,
-                            sc_frame,
-                            (width, height),
-                        )
+                        sc_render(&scene, &mut client, &snapshot, migration, sc_frame)
                     })?;
                     frame_ms.push(start.elapsed().as_secs_f64() * 1e3);
                     let buffer = Arc::new(buffer);
@@ -159,17 +152,7 @@ pub fn run_real(
             let took = start.elapsed();
             stats.fc_frame_ms.push(took.as_secs_f64() * 1e3);
             stats.fc_deadlines_missed += u64::from(took > period);
-            on_frame(&FcFrame {
-                index,
-                t_ms,
-                snapshot,
-                sc,
-                fc_objects: work.fc_objects,
-                fc_ids: work.fc_ids,
-                fc: work.fc,
-                composition,
-                image: work.image,
-            });
+            on_frame(&work.into_frame(index, t_ms, snapshot, sc, composition));
         }
         Ok(())
     })();

@@ -100,6 +100,30 @@ pub(crate) struct FcWork {
     pub(crate) image: strata_core::Rgb8Image,
 }
 
+impl FcWork {
+    /// The frame record of this work.
+    pub(crate) fn into_frame(
+        self,
+        index: u64,
+        t_ms: f64,
+        snapshot: Arc<Snapshot>,
+        sc: Option<Arc<TransferBuffer>>,
+        composition: Composition,
+    ) -> FcFrame {
+        FcFrame {
+            index,
+            t_ms,
+            snapshot,
+            sc,
+            fc_objects: self.fc_objects,
+            fc_ids: self.fc_ids,
+            fc: self.fc,
+            composition,
+            image: self.image,
+        }
+    }
+}
+
 /// Renders the FC's objects at `snapshot` through the SC buffer's view and makes the image.
 pub(crate) fn fc_frame(
     scene: &Scene,
@@ -112,7 +136,7 @@ pub(crate) fn fc_frame(
     let fc_objects = fc_draws(scene, snapshot, sc, migration);
     let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
     fc_ids.sort_unstable();
-    let view = sc.map_or(snapshot.view, |sc| sc.view_pose);
+    let view = sc.map_or(snapshot.view, |sc| sc.view);
     let fc = client.render(scene, snapshot, &view, &fc_objects)?;
     let image = match (sc, composition) {
         (None, _) => fc.resolve(scene.background),
@@ -191,14 +215,7 @@ pub fn run_virtual(
         // Every SC frame that starts at or before this FC tick, in time order.
         while next_sc_start <= t {
             let snapshot = authority.advance_to(next_sc_start);
-            let buffer = sc_render(
-                scene,
-                &mut sc_client,
-                &snapshot,
-                migration,
-                sc_frame,
-                (width, height),
-            )?;
+            let buffer = sc_render(scene, &mut sc_client, &snapshot, migration, sc_frame)?;
             in_flight.push((
                 next_sc_start + clock.sc_ms + clock.transfer_ms,
                 Arc::new(buffer),
@@ -219,17 +236,7 @@ pub fn run_virtual(
             migration,
             composition,
         )?;
-        on_frame(&FcFrame {
-            index,
-            t_ms: t,
-            snapshot,
-            sc: delivered.clone(),
-            fc_objects: work.fc_objects,
-            fc_ids: work.fc_ids,
-            fc: work.fc,
-            composition,
-            image: work.image,
-        });
+        on_frame(&work.into_frame(index, t, snapshot, delivered.clone(), composition));
     }
     Ok(())
 }
@@ -241,7 +248,6 @@ pub(crate) fn sc_render(
     snapshot: &Snapshot,
     migration: Migration,
     sc_frame: u64,
-    (width, height): (u32, u32),
 ) -> Result<TransferBuffer, SimulateError> {
     let keeps = |state: ObjectState| match migration {
         Migration::Naive => state != ObjectState::Selected,
@@ -264,11 +270,7 @@ pub(crate) fn sc_render(
         sc_frame,
         snapshot_id: snapshot.id,
         snapshot_t_ms: snapshot.t_ms,
-        view: snapshot.view.matrix(),
-        view_pose: snapshot.view,
-        projection: client.projection(scene),
-        width,
-        height,
+        view: snapshot.view,
         rendered,
         excluded,
         frame,

@@ -6,7 +6,7 @@
 //! ```text
 //! TransferBuffer ── sc_frame      the SC's frame counter
 //!                ── snapshot_id   the state snapshot it rendered (view, transforms, versions)
-//!                ── view, projection, width, height
+//!                ── view          the camera the SC rendered with (size: the frame's)
 //!                ── rendered      (object id, version) of every object the SC rendered, sorted
 //!                ── excluded      ids of the objects it left out, sorted (the seed's list)
 //!                ── frame         the DeepFrame of what it rendered
@@ -27,7 +27,6 @@
 
 use std::sync::Arc;
 
-use glam::Mat4;
 use strata_core::{DeepFrame, ObjectId, Rgb8Image};
 
 /// What the slow client hands over with each frame.
@@ -39,16 +38,9 @@ pub struct TransferBuffer {
     pub snapshot_id: u64,
     /// That snapshot's time (ms): the buffer's age at an FC frame is that frame's time minus this.
     pub snapshot_t_ms: f64,
-    /// World → eye of that snapshot.
-    pub view: Mat4,
-    /// The camera of that snapshot (the FC renders through it to compose exactly).
-    pub view_pose: crate::authority::ViewPose,
-    /// Eye → clip.
-    pub projection: Mat4,
-    /// Frame width in pixels.
-    pub width: u32,
-    /// Frame height in pixels.
-    pub height: u32,
+    /// The camera of that snapshot (the FC renders through it to compose exactly). The size is
+    /// the frame's; the projection is the scene camera's at that size.
+    pub view: crate::authority::ViewPose,
     /// `(id, version)` of every object rendered, sorted by id.
     pub rendered: Vec<(ObjectId, u64)>,
     /// Ids of the objects left out, sorted.

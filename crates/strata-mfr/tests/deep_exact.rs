@@ -16,7 +16,7 @@ fn mixed() -> Scene {
 
 /// The whole scene rendered at once, at the frame's snapshot, through the view it composed with.
 fn reference(scene: &Scene, client: &mut Client, f: &FcFrame) -> DeepFrame {
-    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view);
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     client
         .render(scene, &f.snapshot, &view, &all)

@@ -72,15 +72,11 @@ fn contained_means_rendered_at_the_same_version() {
         sc_frame: 7,
         snapshot_id: 3,
         snapshot_t_ms: 30.0,
-        view: glam::Mat4::IDENTITY,
-        view_pose: strata_mfr::ViewPose {
+        view: strata_mfr::ViewPose {
             eye: glam::Vec3::Z,
             target: glam::Vec3::ZERO,
             up: glam::Vec3::Y,
         },
-        projection: glam::Mat4::IDENTITY,
-        width: 1,
-        height: 1,
         rendered: vec![(ObjectId(0), 0), (ObjectId(2), 5)],
         excluded: vec![ObjectId(1)],
         frame: DeepFrame::empty(1, 1),

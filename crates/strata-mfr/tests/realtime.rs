@@ -53,7 +53,7 @@ fn real_threads_compose_exactly_in_every_frame() {
     let mut reference = Client::new(size.0, size.1);
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     for f in &frames {
-        let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+        let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view);
         let r = reference
             .render(&scene, &f.snapshot, &view, &all)
             .expect("reference");

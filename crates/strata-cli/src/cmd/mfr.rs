@@ -291,7 +291,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 && let Some(dir) = &args.out_dir
             {
                 let path = dir.join(format!("frame-{:04}.exr", f.index));
-                let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+                let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view);
                 let bytes = crate::images::deep_exr_bytes(
                     &f.composed()?,
                     (scene.camera.near, scene.camera.far),
@@ -379,7 +379,7 @@ fn audit_frame(
     reference: &mut Client,
     f: &FcFrame,
 ) -> Result<FrameAudit> {
-    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view_pose);
+    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view);
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     let r = reference.render(scene, &f.snapshot, &view, &all)?;
     Ok(audit(&f.composed()?, &r, scene.background))
