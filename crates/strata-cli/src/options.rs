@@ -216,6 +216,19 @@ pub(crate) fn check_output(path: &std::path::Path) -> Result<()> {
     }
 }
 
+/// `WIDTHxHEIGHT` (`--size`), each side 1 to the largest frame a scene may have.
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let max = strata_scene::scene::file::MAX_IMAGE_SIDE;
+    let bad = || format!("'{s}': expected WIDTHxHEIGHT such as 1280x720, each side 1 to {max}");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let w: u32 = w.trim().parse().map_err(|_| bad())?;
+    let h: u32 = h.trim().parse().map_err(|_| bad())?;
+    if !(1..=max).contains(&w) || !(1..=max).contains(&h) {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
 /// Every available core.
 pub(crate) fn default_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())

@@ -109,7 +109,11 @@ fn bad_mfr_input_is_refused_clearly() {
             vec!["--trace".into(), bad_trace.display().to_string()],
             vec!["t.toml", "line 3", "sideways"],
         ),
-        (vec!["--size".into(), "0x5".into()], vec!["0x5"]),
+        (vec!["--size".into(), "0x5".into()], vec!["0x5", "16384"]),
+        (
+            vec!["--trace".into(), dir.path().display().to_string()],
+            vec!["not a regular file"],
+        ),
     ];
     for (args, words) in cases {
         let mut cmd = strata();

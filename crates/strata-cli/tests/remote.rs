@@ -157,7 +157,7 @@ fn display_errors_are_clear() {
             &["--tolerance", "2"],
             "--tolerance applies to --transfer difference and reprojection",
         ),
-        (&["--size", "0x10"], "width and height"),
+        (&["--size", "0x10"], "each side 1 to 16384"),
         (&["--frames", "0"], "--frames must be at least 1"),
         (&["--codec", "gzip"], "unknown codec"),
         (&["--timeout", "0"], "--timeout"),

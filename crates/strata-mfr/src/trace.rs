@@ -271,7 +271,20 @@ impl Trace {
 
     /// Reads a trace file: `.toml`, or JSON lines (`.jsonl`, `.json`).
     pub fn read(path: &Path) -> Result<Self, TraceError> {
+        /// Larger trace files are refused rather than read into memory.
+        const MAX_BYTES: u64 = 64 << 20;
         let origin = path.display().to_string();
+        let meta = std::fs::metadata(path)
+            .map_err(|e| TraceError::new(&origin, format!("cannot read: {e}")))?;
+        if !meta.is_file() {
+            return Err(TraceError::new(&origin, "not a regular file"));
+        }
+        if meta.len() > MAX_BYTES {
+            return Err(TraceError::new(
+                &origin,
+                format!("{} bytes; trace files are at most {MAX_BYTES}", meta.len()),
+            ));
+        }
         let text = std::fs::read_to_string(path)
             .map_err(|e| TraceError::new(&origin, format!("cannot read: {e}")))?;
         match path.extension().and_then(|e| e.to_str()) {
@@ -574,7 +587,7 @@ pub fn orbit(
     if steps > 1_000_000 {
         return Err(TraceError::new(
             origin,
-            "more than a million steps; raise step_ms",
+            format!("{steps} steps of {step_ms} ms: at most a million; shorten duration_ms"),
         ));
     }
     let events = (0..=steps)

@@ -68,7 +68,7 @@ pub(crate) struct Args {
     pub(crate) first_frame: u64,
 
     /// Frame size WIDTHxHEIGHT (default: the scene's).
-    #[arg(long, value_parser = parse_size)]
+    #[arg(long, value_parser = crate::options::parse_size)]
     pub(crate) size: Option<(u32, u32)>,
 
     /// Frames requested ahead of the one being composed, so nodes render while frames travel.
@@ -114,19 +114,6 @@ pub(crate) struct Args {
 fn parse_node_address(s: &str) -> Result<String, String> {
     display::check_address(s).map_err(|e| e.to_string())?;
     Ok(s.to_string())
-}
-
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let bad = || format!("'{s}': expected WIDTHxHEIGHT such as 1280x720");
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-    let (w, h) = (
-        w.trim().parse::<u32>().map_err(|_| bad())?,
-        h.trim().parse::<u32>().map_err(|_| bad())?,
-    );
-    if w == 0 || h == 0 || w > 16384 || h > 16384 {
-        return Err(format!("'{s}': width and height must be within 1..=16384"));
-    }
-    Ok((w, h))
 }
 
 /// Shows progress, keeps frames for the check, saves them when asked.

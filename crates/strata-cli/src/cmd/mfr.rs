@@ -56,7 +56,7 @@ pub(crate) struct Args {
     pub(crate) frames: Option<u64>,
 
     /// Frame size WxH (default: the scene's).
-    #[arg(long, value_parser = parse_size)]
+    #[arg(long, value_parser = crate::options::parse_size)]
     pub(crate) size: Option<(u32, u32)>,
 
     /// Folder for summary.json, frames.jsonl and (with --save-frames, --save-deep) the frames as
@@ -102,17 +102,6 @@ pub(crate) enum MigrationArg {
     Predictive,
     /// The seed's naive hand-over.
     Naive,
-}
-
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let bad = || format!("'{s}': expected WIDTHxHEIGHT such as 640x360, each 1 to 16384");
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-    let w: u32 = w.trim().parse().map_err(|_| bad())?;
-    let h: u32 = h.trim().parse().map_err(|_| bad())?;
-    if !(1..=16384).contains(&w) || !(1..=16384).contains(&h) {
-        return Err(bad());
-    }
-    Ok((w, h))
 }
 
 /// `--clock`.
@@ -243,7 +232,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
         Clock::Real { fc_hz } => ((trace.duration_ms() + 1000.0) * fc_hz / 1000.0).ceil() as u64,
     });
     if frames == 0 || frames > 1_000_000 {
-        bail!("--frames must be 1 to 1000000");
+        match args.frames {
+            Some(_) => bail!("--frames must be 1 to 1000000"),
+            None => bail!(
+                "the trace lasts {} ms: {frames} FC frames, more than 1000000; give --frames",
+                trace.duration_ms()
+            ),
+        }
     }
     let mut log = match &args.out_dir {
         Some(dir) => {
