@@ -57,17 +57,13 @@ pub fn write_deep(image: &DeepImage, options: &WriteOptions) -> Result<Vec<u8>> 
 
 /// [`write_deep`] without the compression check (the reader's tests use it for deep ZIP).
 pub(crate) fn write_deep_unchecked(image: &DeepImage, options: &WriteOptions) -> Result<Vec<u8>> {
-    let header = Header {
-        deep: true,
-        channels: image.channels.clone(),
-        compression: options.compression,
-        data_window: image.data_window,
-        display_window: image.display_window,
-        line_order: options.line_order,
-        chunk_count: None,
-        attributes: image.attributes.clone(),
-        all_attributes: Vec::new(),
-    };
+    let header = header_of(
+        true,
+        &image.channels,
+        (image.data_window, image.display_window),
+        &image.attributes,
+        options,
+    );
     let chunks = chunk_rows(image.height(), options.compression);
     let mut out = Vec::new();
     header::write(
@@ -87,17 +83,13 @@ pub(crate) fn write_deep_unchecked(image: &DeepImage, options: &WriteOptions) ->
 /// # Errors
 /// [`ExrError::InvalidImage`] if an attribute cannot be stored.
 pub fn write_flat(image: &FlatImage, options: &WriteOptions) -> Result<Vec<u8>> {
-    let header = Header {
-        deep: false,
-        channels: image.channels.clone(),
-        compression: options.compression,
-        data_window: image.data_window,
-        display_window: image.display_window,
-        line_order: options.line_order,
-        chunk_count: None,
-        attributes: image.attributes.clone(),
-        all_attributes: Vec::new(),
-    };
+    let header = header_of(
+        false,
+        &image.channels,
+        (image.data_window, image.display_window),
+        &image.attributes,
+        options,
+    );
     let chunks = chunk_rows(image.height(), options.compression);
     let mut out = Vec::new();
     header::write(&mut out, &header, None, chunks.len())?;
@@ -105,6 +97,27 @@ pub fn write_flat(image: &FlatImage, options: &WriteOptions) -> Result<Vec<u8>> 
         flat_chunk(image, rows, options.compression, out)
     })?;
     Ok(out)
+}
+
+/// The header of a deep or flat image written with `options`.
+fn header_of(
+    deep: bool,
+    channels: &[crate::image::Channel],
+    (data_window, display_window): (crate::image::Box2i, crate::image::Box2i),
+    attributes: &[crate::image::Attribute],
+    options: &WriteOptions,
+) -> Header {
+    Header {
+        deep,
+        channels: channels.to_vec(),
+        compression: options.compression,
+        data_window,
+        display_window,
+        line_order: options.line_order,
+        chunk_count: None,
+        attributes: attributes.to_vec(),
+        all_attributes: Vec::new(),
+    }
 }
 
 /// Writes a deep image to a file (see [`write_deep`]).
