@@ -1,18 +1,25 @@
-//! `strata mfr`: slow and fast clients on a virtual clock, every frame audited.
+//! `strata mfr`: slow and fast clients on a virtual or real clock, every frame audited.
+//!
+//! - `mod.rs`: the arguments and the run (clients, audit, frames written);
+//! - `clock.rs`: `--clock` and `--trace` parsed;
+//! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary.
 
 use std::io::Write as _;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use serde_json::json;
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
-use strata_mfr::trace::{GrabParams, Trace, grab, orbit};
-use strata_mfr::{Composition, FrameAudit, audit, table_6_1_row};
-use strata_mfr::{RealStats, run_real};
+use strata_mfr::{Composition, FrameAudit, audit, run_real};
 
 use crate::options::{open_scene, search_path};
+
+mod clock;
+mod summary;
+
+use clock::{make_trace, parse_clock};
+use summary::{Totals, frame_json, record, summary_json, summary_text};
 
 /// Multi-frame-rate rendering: a slow and a fast client composited, every frame audited.
 ///
@@ -106,109 +113,11 @@ pub(crate) enum MigrationArg {
 
 /// `--clock`.
 #[derive(Clone, Copy, Debug)]
-enum Clock {
+pub(crate) enum Clock {
     /// Simulated time.
     Virtual(VirtualClock),
     /// Real time: the FC at `fc_hz`, the SC on its own thread as fast as it can.
     Real { fc_hz: f64 },
-}
-
-/// `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]` or `real[:fc_hz=N]`.
-fn parse_clock(s: &str) -> Result<Clock> {
-    if s == "real" || s.starts_with("real:") {
-        let mut fc_hz = 30.0;
-        for item in s
-            .trim_start_matches("real")
-            .trim_start_matches(':')
-            .split(',')
-        {
-            if item.trim().is_empty() {
-                continue;
-            }
-            match item.split_once('=') {
-                Some(("fc_hz", v)) => {
-                    fc_hz = v
-                        .trim()
-                        .parse()
-                        .ok()
-                        .filter(|v: &f64| v.is_finite() && *v > 0.0 && *v <= 1000.0)
-                        .with_context(|| {
-                            format!("--clock: {item}: expected a rate in (0, 1000] Hz")
-                        })?;
-                }
-                _ => bail!("--clock real: '{item}': expected fc_hz=N"),
-            }
-        }
-        return Ok(Clock::Real { fc_hz });
-    }
-    let Some(params) = s.strip_prefix("virtual:") else {
-        bail!("--clock {s}: expected virtual:sc_ms=N,fc_ms=N[,transfer_ms=N] or real[:fc_hz=N]");
-    };
-    let mut clock = VirtualClock {
-        sc_ms: 300.0,
-        fc_ms: 33.0,
-        transfer_ms: 0.0,
-    };
-    for item in params.split(',').filter(|i| !i.trim().is_empty()) {
-        let (key, value) = item
-            .split_once('=')
-            .with_context(|| format!("--clock: '{item}': expected key=value"))?;
-        let v: f64 = value
-            .trim()
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite() && *v >= 0.0 && *v <= 3.6e6)
-            .with_context(|| format!("--clock: {item}: expected milliseconds, 0 to 3600000"))?;
-        match key.trim() {
-            "sc_ms" => clock.sc_ms = v,
-            "fc_ms" => clock.fc_ms = v,
-            "transfer_ms" => clock.transfer_ms = v,
-            other => bail!("--clock: unknown '{other}' (sc_ms, fc_ms, transfer_ms)"),
-        }
-    }
-    if clock.sc_ms <= 0.0 || clock.fc_ms <= 0.0 {
-        bail!("--clock: sc_ms and fc_ms must be more than 0");
-    }
-    Ok(Clock::Virtual(clock))
-}
-
-/// The trace `spec` names for `scene`.
-fn make_trace(spec: &str, scene: &strata_scene::Scene) -> Result<Trace> {
-    if let Some(params) = spec.strip_prefix("grab:") {
-        return Ok(grab(scene, &GrabParams::parse(params)?)?);
-    }
-    if let Some(params) = spec.strip_prefix("orbit:") {
-        let (mut period, mut duration) = (4000.0, 4000.0);
-        for item in params.split(',').filter(|i| !i.trim().is_empty()) {
-            let (key, value) = item
-                .split_once('=')
-                .with_context(|| format!("--trace orbit: '{item}': expected key=value"))?;
-            let v: f64 = value
-                .trim()
-                .parse()
-                .with_context(|| format!("--trace orbit: {item}: expected milliseconds"))?;
-            match key.trim() {
-                "period_ms" => period = v,
-                "duration_ms" => duration = v,
-                other => bail!("--trace orbit: unknown '{other}' (period_ms, duration_ms)"),
-            }
-        }
-        return Ok(orbit(scene, period, duration, 33.0)?);
-    }
-    Ok(Trace::read(std::path::Path::new(spec))?)
-}
-
-/// Totals over a run.
-#[derive(Default)]
-struct Totals {
-    frames: u64,
-    sc_frames_used: std::collections::BTreeSet<u64>,
-    frames_with_bad_pixels: u64,
-    max_bad_pixels: u64,
-    ghost_pixel_frames: u64,
-    hole_pixel_frames: u64,
-    blend_pixel_frames: u64,
-    sc_age_ms: Vec<f64>,
 }
 
 /// Runs `strata mfr`.
@@ -378,160 +287,4 @@ fn audit_frame(
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     let r = reference.render(scene, &f.snapshot, &view, &all)?;
     Ok(audit(&f.composed()?, &r, scene.background))
-}
-
-fn record(t: &mut Totals, f: &FcFrame, a: &FrameAudit) {
-    t.frames += 1;
-    if let Some(sc) = &f.sc {
-        t.sc_frames_used.insert(sc.sc_frame);
-        t.sc_age_ms.push(f.t_ms - sc.snapshot_t_ms);
-    }
-    t.frames_with_bad_pixels += u64::from(a.bad_pixels > 0);
-    t.max_bad_pixels = t.max_bad_pixels.max(a.bad_pixels);
-    t.ghost_pixel_frames += u64::from(a.ghost_pixels > 0);
-    t.hole_pixel_frames += u64::from(a.hole_pixels > 0);
-    t.blend_pixel_frames += u64::from(a.blend_pixels > 0);
-}
-
-fn frame_json(scene: &strata_scene::Scene, f: &FcFrame, a: &FrameAudit) -> serde_json::Value {
-    let objects: Vec<serde_json::Value> = f
-        .fc_objects
-        .iter()
-        .map(|&i| {
-            let pose = &f.snapshot.objects[i];
-            let contained =
-                f.sc.as_ref()
-                    .is_some_and(|sc| sc.contains(pose.id, pose.version));
-            json!({
-                "object": scene.objects[i].name,
-                "state": pose.state,
-                "table_6_1_row": table_6_1_row(pose.state, contained),
-            })
-        })
-        .collect();
-    json!({
-        "fc_frame": f.index,
-        "t_ms": f.t_ms,
-        "snapshot": f.snapshot.id,
-        "sc_frame": f.sc.as_ref().map(|s| s.sc_frame),
-        "sc_age_ms": f.sc.as_ref().map(|s| f.t_ms - s.snapshot_t_ms),
-        "fc_objects": objects,
-        "fc_fragments": f.fc.fragment_count(),
-        "audit": a,
-    })
-}
-
-fn median_p95(v: &mut [f64]) -> serde_json::Value {
-    if v.is_empty() {
-        return serde_json::Value::Null;
-    }
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-    json!({"median": at(0.5), "p95": at(0.95)})
-}
-
-fn summary_json(
-    args: &Args,
-    scene: &strata_scene::Scene,
-    clock: Clock,
-    size: (u32, u32),
-    t: &mut Totals,
-    real: Option<RealStats>,
-) -> serde_json::Value {
-    let clock_json = match clock {
-        Clock::Virtual(c) => {
-            json!({"kind": "virtual", "sc_ms": c.sc_ms, "fc_ms": c.fc_ms, "transfer_ms": c.transfer_ms})
-        }
-        Clock::Real { fc_hz } => json!({"kind": "real", "fc_hz": fc_hz}),
-    };
-    let mut v = json!({
-        "scene": scene.name,
-        "trace": args.trace,
-        "migration": format!("{:?}", args.migration).to_lowercase(),
-        "mode": format!("{:?}", args.mode).to_lowercase(),
-        "clock": clock_json,
-        "width": size.0,
-        "height": size.1,
-        "fc_frames": real.as_ref().map_or(t.frames, |r| r.fc_frame_ms.len() as u64),
-        "audited_frames": t.frames,
-        "sc_frames_used": t.sc_frames_used.len(),
-        "sc_age_ms": median_p95(&mut t.sc_age_ms),
-        "frames_with_bad_pixels": t.frames_with_bad_pixels,
-        "max_bad_pixels": t.max_bad_pixels,
-        "ghost_pixel_frames": t.ghost_pixel_frames,
-        "hole_pixel_frames": t.hole_pixel_frames,
-        "blend_pixel_frames": t.blend_pixel_frames,
-    });
-    if let Some(mut r) = real {
-        let mut swap: Vec<f64> = r.publish_us.iter().chain(&r.read_us).copied().collect();
-        let max = swap.iter().copied().fold(0.0, f64::max);
-        v["cpu"] = json!(crate::report::cpu_model());
-        v["fc_frame_ms"] = median_p95(&mut r.fc_frame_ms);
-        v["sc_frame_ms"] = median_p95(&mut r.sc_frame_ms);
-        v["sc_frames"] = json!(r.sc_frame_ms.len());
-        v["swap_us"] = json!({"median": median_p95(&mut swap)["median"], "max": max});
-        v["fc_deadlines_missed"] = json!(r.fc_deadlines_missed);
-    }
-    v
-}
-
-fn clock_text(s: &serde_json::Value) -> String {
-    let c = &s["clock"];
-    if c["kind"] == "real" {
-        format!(
-            "real, FC at {} Hz: FC frame {} ms median / {} p95, SC frame {} ms median ({} SC frames), \
-             hand-over {} µs median / {} max, {} FC deadlines missed ({})",
-            c["fc_hz"],
-            fmt(&s["fc_frame_ms"]["median"]),
-            fmt(&s["fc_frame_ms"]["p95"]),
-            fmt(&s["sc_frame_ms"]["median"]),
-            s["sc_frames"],
-            fmt(&s["swap_us"]["median"]),
-            fmt(&s["swap_us"]["max"]),
-            s["fc_deadlines_missed"],
-            s["cpu"].as_str().unwrap_or("?"),
-        )
-    } else {
-        format!(
-            "virtual, SC {} ms / FC {} ms / transfer {} ms",
-            c["sc_ms"], c["fc_ms"], c["transfer_ms"]
-        )
-    }
-}
-
-fn fmt(v: &serde_json::Value) -> String {
-    v.as_f64()
-        .map_or_else(|| "-".to_owned(), |x| format!("{x:.2}"))
-}
-
-fn summary_text(s: &serde_json::Value) -> String {
-    let head = format!(
-        "strata mfr: {} ({}x{}), {} migration, {} composition, clock {}",
-        s["scene"].as_str().unwrap_or("?"),
-        s["width"],
-        s["height"],
-        s["migration"].as_str().unwrap_or("?"),
-        s["mode"].as_str().unwrap_or("?"),
-        clock_text(s),
-    );
-    if s["audited_frames"] == 0 {
-        return format!(
-            "{head}\n  {} FC frames, not audited (--no-audit)",
-            s["fc_frames"]
-        );
-    }
-    format!(
-        "{head}\n  {} FC frames with {} SC buffers; age of the state in the SC buffer, median {} ms\n  \
-         audited {} of them against the single renderer: {} frame(s) with bad pixels (> 2/255, at \
-         most {} in a frame); frames with ghost / hole / blend pixels: {} / {} / {}",
-        s["fc_frames"],
-        s["sc_frames_used"],
-        fmt(&s["sc_age_ms"]["median"]),
-        s["audited_frames"],
-        s["frames_with_bad_pixels"],
-        s["max_bad_pixels"],
-        s["ghost_pixel_frames"],
-        s["hole_pixel_frames"],
-        s["blend_pixel_frames"],
-    )
 }
