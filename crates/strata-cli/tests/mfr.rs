@@ -11,7 +11,7 @@ fn mfr(dir: &std::path::Path, migration: &str) -> serde_json::Value {
     let mut cmd = strata();
     cmd.args(["mfr", "mixed", "--size", "96x54", "--trace", GRAB])
         .args(["--clock", "virtual:sc_ms=300,fc_ms=30,transfer_ms=20"])
-        .args(["--migration", migration, "--out-dir"])
+        .args(["--migration", migration, "--contact-sheets", "--out-dir"])
         .arg(dir);
     let ran = run_ok(&mut cmd);
     assert_mentions(
@@ -60,6 +60,45 @@ fn predictive_deep_composition_equals_the_single_renderer_and_naive_leaves_holes
         "the selected object: {rows:?}"
     );
     assert!(rows.iter().all(|r| (1..=6).contains(r)));
+
+    // One select and one release of the sphere; only naive's release leaves artefacts, and every
+    // hole frame belongs to it.
+    for (s, release_artefacts) in [
+        (&predictive, serde_json::json!(0)),
+        (&naive, naive["hole_pixel_frames"].clone()),
+    ] {
+        let events = s["events"].as_array().expect("events");
+        let kinds: Vec<&str> = events.iter().filter_map(|e| e["kind"].as_str()).collect();
+        assert_eq!(kinds, ["select", "release"]);
+        assert!(events.iter().all(|e| e["object"] == "glass sphere"), "{s}");
+        assert_eq!(events[0]["artefact_frames"], 0);
+        assert_eq!(events[1]["artefact_frames"], release_artefacts);
+    }
+    assert!(naive["events"][1]["artefact_ms"].as_f64().expect("ms") >= 30.0);
+    // On the virtual clock an input waits for the next FC frame (under 30 ms) and is on screen one
+    // period later; the SC path adds an SC frame and the transfer (at least 320 ms) and at most
+    // two SC frames, the transfer and two FC periods.
+    for q in ["median", "p95"] {
+        let fc = predictive["latency_ms"]["fc_path"][q]
+            .as_f64()
+            .expect("FC latency");
+        assert!(fc > 30.0 && fc <= 60.0, "FC path {q}: {fc}");
+        let sc = predictive["latency_ms"]["sc_path"][q]
+            .as_f64()
+            .expect("SC latency");
+        assert!((320.0..=680.0).contains(&sc), "SC path {q}: {sc}");
+    }
+
+    // Contact sheets: one per event; a red strip marks a frame with artefacts.
+    let red = |path: std::path::PathBuf| {
+        let sheet = strata_core::Rgb8Image::read_png(&path).expect("contact sheet");
+        assert_eq!(sheet.height(), 6 + 2 * 54 + 4, "{}", path.display());
+        (0..sheet.width()).any(|x| sheet.pixel(x, 0) == [220, 30, 30])
+    };
+    assert!(!red(dir.path().join("p/event-01-select.png")));
+    assert!(!red(dir.path().join("p/event-02-release.png")));
+    assert!(!red(dir.path().join("n/event-01-select.png")));
+    assert!(red(dir.path().join("n/event-02-release.png")));
 }
 
 #[test]
@@ -170,5 +209,10 @@ fn real_time_clients_compose_exactly_and_report_their_times() {
         );
     }
     assert!(s["swap_us"]["max"].as_f64().is_some(), "{s}");
+    // Inputs reach the screen on the FC path in real time too: after at least one FC frame.
+    let fc = s["latency_ms"]["fc_path"]["median"]
+        .as_f64()
+        .expect("latency");
+    assert!(fc > 0.0, "{s}");
     assert!(s["cpu"].as_str().is_some_and(|c| !c.is_empty()));
 }

@@ -3,7 +3,8 @@
 //! Per frame, with the reference being the whole scene rendered at once at the frame's snapshot
 //! and through the view it composed with:
 //!
-//! - **bad pixels**: pixels whose resolved colour differs by more than 2/255 in some channel;
+//! - **bad pixels**: pixels whose resolved colour differs by more than 2/255 in some channel,
+//!   and the RMSE over all channels;
 //! - per pixel, the objects *visible* in a run — those with a fragment whose weight
 //!   `α_i · Π_{j<i} (1 − α_j)` reaches 1/255 — in the composed frame and in the reference:
 //!   - **ghost**: an object visible in the frame but not in the reference (it is drawn where it no
@@ -13,11 +14,11 @@
 //!   - **blend**: the same objects visible but a bad pixel (their order or colours are wrong: the
 //!     transparency artefact of colour-and-depth composition).
 
-use strata_core::metrics::{DEFAULT_BAD_PIXEL_THRESHOLD, bad_pixels};
+use strata_core::metrics::{DEFAULT_BAD_PIXEL_THRESHOLD, bad_pixels, rmse};
 use strata_core::{DeepFrame, ObjectId, Run};
 
 /// One frame's audit.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct FrameAudit {
     /// Pixels off by more than 2/255 in some channel.
     pub bad_pixels: u64,
@@ -27,6 +28,15 @@ pub struct FrameAudit {
     pub hole_pixels: u64,
     /// Bad pixels showing the same objects as the reference.
     pub blend_pixels: u64,
+    /// Root-mean-square error over the RGB channels, in [0, 1].
+    pub rmse: f64,
+}
+
+impl FrameAudit {
+    /// Whether the frame has any bad, ghost, hole or blend pixel.
+    pub fn has_artefact(&self) -> bool {
+        self.bad_pixels + self.ghost_pixels + self.hole_pixels + self.blend_pixels > 0
+    }
 }
 
 /// The smallest weight that counts an object as visible (1/255).
@@ -59,6 +69,7 @@ pub fn audit(frame: &DeepFrame, reference: &DeepFrame, background: [f32; 3]) -> 
     let threshold = DEFAULT_BAD_PIXEL_THRESHOLD;
     let mut out = FrameAudit {
         bad_pixels: bad_pixels(&a, &b, threshold).map_or(0, |b| b.count),
+        rmse: rmse(&a, &b).unwrap_or(1.0),
         ..FrameAudit::default()
     };
     if frame.width() != reference.width() || frame.height() != reference.height() {

@@ -34,6 +34,9 @@
 //! - [`audit`](mod@audit): a composed frame against the single renderer — bad pixels, and ghost, hole and
 //!   blend pixels from the objects visible in each pixel.
 //!
+//! - [`timeline`]: per-frame records of a run, the latency of each input on the FC and SC paths,
+//!   and each select and release with the artefacts that followed it.
+//!
 //! - [`realtime`]: the same clients on their own threads in real time, handing over through
 //!   triple buffers; the FC never waits for the SC.
 //!
@@ -47,6 +50,7 @@ pub mod compose;
 pub mod realtime;
 pub mod simulate;
 pub mod state;
+pub mod timeline;
 pub mod trace;
 pub mod transfer;
 
@@ -56,5 +60,6 @@ pub use compose::Composition;
 pub use realtime::{RealStats, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
+pub use timeline::{EventKind, EventReport, FrameRecord, Latency, events, latency};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};
 pub use transfer::{Latest, Publisher, TransferBuffer, exchange};

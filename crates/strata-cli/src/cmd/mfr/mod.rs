@@ -16,10 +16,11 @@ use strata_mfr::{Composition, FrameAudit, audit, run_real};
 use crate::options::{open_scene, search_path};
 
 mod clock;
+mod contact_sheet;
 mod summary;
 
 use clock::{make_trace, parse_clock};
-use summary::{Totals, frame_json, record, summary_json, summary_text};
+use summary::{Totals, frame_json, frame_record, summary_json, summary_text};
 
 /// Multi-frame-rate rendering: a slow and a fast client composited, every frame audited.
 ///
@@ -79,6 +80,11 @@ pub(crate) struct Args {
     /// --out-dir (see `strata render --deep`).
     #[arg(long, requires = "out_dir")]
     pub(crate) save_deep: bool,
+
+    /// Write a contact sheet per select and release into --out-dir (event-NN-select.png …): the
+    /// frames around the event with the SC's part greyed, and under each its error map.
+    #[arg(long, requires = "out_dir")]
+    pub(crate) contact_sheets: bool,
 
     /// Real clock only: do not keep the frames to audit them after the run (for long or large
     /// benchmark runs; the summary then has no artefact figures).
@@ -175,14 +181,25 @@ pub(crate) fn run(args: Args) -> Result<()> {
         ModeArg::Deep => Composition::Deep,
         ModeArg::Digital => Composition::Digital,
     };
-    let mut handle = |f: &FcFrame| {
+    // Contact sheets show each event until two SC buffers have followed it.
+    let (period_ms, settle_ms) = match clock {
+        Clock::Virtual(c) => (c.fc_ms, 2.0 * (c.sc_ms + c.transfer_ms) + c.fc_ms),
+        Clock::Real { fc_hz } => (1000.0 / fc_hz, 500.0),
+    };
+    let mut sheets = args
+        .contact_sheets
+        .then(|| contact_sheet::ContactSheets::new(&trace, period_ms, settle_ms));
+    let mut handle = |f: &FcFrame, shown_ms: f64| {
         if failure.is_some() {
             return;
         }
-        let result = audit_frame(&scene, &mut reference, f).and_then(|a| {
-            record(&mut totals, f, &a);
+        let result = audit_frame(&scene, &mut reference, f).and_then(|(a, reference)| {
+            let r = frame_record(f, shown_ms, Some(a));
+            if let Some(sheets) = &mut sheets {
+                sheets.offer(f, &reference, &a);
+            }
             if let Some((w, path)) = &mut log {
-                writeln!(w, "{}", frame_json(&scene, f, &a))
+                writeln!(w, "{}", frame_json(&scene, f, &r))
                     .with_context(|| format!("cannot write {}", path.display()))?;
             }
             if args.save_frames
@@ -205,6 +222,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 std::fs::write(&path, bytes)
                     .with_context(|| format!("cannot write {}", path.display()))?;
             }
+            totals.add(r, f.sc.as_ref().map(|sc| sc.sc_frame));
             bar.set_message(format!("bad pixels {}", a.bad_pixels));
             bar.inc(1);
             Ok(())
@@ -217,13 +235,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
         Clock::Virtual(c) => {
             run_virtual(
                 &scene,
-                trace,
+                trace.clone(),
                 c,
                 migration,
                 composition,
                 size,
                 frames,
-                |f| handle(f),
+                |f| handle(f, f.t_ms + c.fc_ms),
             )?;
             None
         }
@@ -231,11 +249,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
             // Audited after the run, so auditing does not take the FC thread's time; frames past
             // the memory budget are not kept.
             let mut shown = Vec::new();
+            let mut unaudited = Vec::new();
             let mut kept = 0u64;
             let scene = std::sync::Arc::new(scene.clone());
             let stats = run_real(
                 scene,
-                trace,
+                trace.clone(),
                 fc_hz,
                 migration,
                 composition,
@@ -246,11 +265,28 @@ pub(crate) fn run(args: Args) -> Result<()> {
                     if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
                         kept += bytes;
                         shown.push(f.clone());
+                    } else {
+                        unaudited.push((
+                            frame_record(f, f.t_ms, None),
+                            f.sc.as_ref().map(|sc| sc.sc_frame),
+                        ));
                     }
                 },
             )?;
+            // A frame is on screen when its work is done.
+            let shown_at = |index: u64, t_ms: f64| {
+                t_ms + stats
+                    .fc_frame_ms
+                    .get(index as usize)
+                    .copied()
+                    .unwrap_or(0.0)
+            };
             for f in &shown {
-                handle(f);
+                handle(f, shown_at(f.index, f.t_ms));
+            }
+            for (mut r, sc_frame) in unaudited {
+                r.shown_ms = shown_at(r.index, r.t_ms);
+                totals.add(r, sc_frame);
             }
             Some(stats)
         }
@@ -266,7 +302,15 @@ pub(crate) fn run(args: Args) -> Result<()> {
     if args.no_audit && matches!(clock, Clock::Virtual(_)) {
         eprintln!("note: --no-audit applies to real-clock runs; this run was audited");
     }
-    let summary = summary_json(&args, &scene, clock, size, &mut totals, real);
+    if let (Some(sheets), Some(dir)) = (&sheets, &args.out_dir) {
+        let written = sheets.write(dir)?;
+        eprintln!(
+            "wrote {} contact sheet(s) into {}",
+            written.len(),
+            dir.display()
+        );
+    }
+    let summary = summary_json(&args, &scene, &trace, clock, size, &mut totals, real);
     outln!("{}", summary_text(&summary))?;
     if let Some(dir) = &args.out_dir {
         let path = dir.join("summary.json");
@@ -277,14 +321,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-/// The frame against the whole scene rendered at once.
+/// The frame against the whole scene rendered at once: the audit and the reference image.
 fn audit_frame(
     scene: &strata_scene::Scene,
     reference: &mut Client,
     f: &FcFrame,
-) -> Result<FrameAudit> {
+) -> Result<(FrameAudit, strata_core::Rgb8Image)> {
     let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view);
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     let r = reference.render(scene, &f.snapshot, &view, &all)?;
-    Ok(audit(&f.composed()?, &r, scene.background))
+    Ok((
+        audit(&f.composed()?, &r, scene.background),
+        r.resolve(scene.background),
+    ))
 }

@@ -1,41 +1,58 @@
 //! The run's record: totals over the frames, the per-frame JSON line, the summary (JSON and text).
 
+use std::collections::BTreeSet;
+
 use serde_json::json;
+use strata_core::ObjectId;
 use strata_mfr::simulate::FcFrame;
-use strata_mfr::{FrameAudit, RealStats, table_6_1_row};
+use strata_mfr::trace::Trace;
+use strata_mfr::{FrameAudit, FrameRecord, ObjectState, RealStats, events, latency, table_6_1_row};
 
 use super::{Args, Clock};
 
-/// Totals over a run.
+/// What a run recorded, frame by frame.
 #[derive(Default)]
 pub(super) struct Totals {
-    pub(super) frames: u64,
-    pub(super) sc_frames_used: std::collections::BTreeSet<u64>,
-    pub(super) frames_with_bad_pixels: u64,
-    pub(super) max_bad_pixels: u64,
-    pub(super) ghost_pixel_frames: u64,
-    pub(super) hole_pixel_frames: u64,
-    pub(super) blend_pixel_frames: u64,
-    pub(super) sc_age_ms: Vec<f64>,
+    /// Every FC frame, audited or not, in frame order once the run is over.
+    records: Vec<FrameRecord>,
+    /// The SC buffers the frames composed with.
+    sc_frames_used: BTreeSet<u64>,
 }
 
-pub(super) fn record(t: &mut Totals, f: &FcFrame, a: &FrameAudit) {
-    t.frames += 1;
-    if let Some(sc) = &f.sc {
-        t.sc_frames_used.insert(sc.sc_frame);
-        t.sc_age_ms.push(f.t_ms - sc.snapshot_t_ms);
+impl Totals {
+    /// Records a frame that composed with SC buffer `sc_frame`.
+    pub(super) fn add(&mut self, record: FrameRecord, sc_frame: Option<u64>) {
+        self.sc_frames_used.extend(sc_frame);
+        self.records.push(record);
     }
-    t.frames_with_bad_pixels += u64::from(a.bad_pixels > 0);
-    t.max_bad_pixels = t.max_bad_pixels.max(a.bad_pixels);
-    t.ghost_pixel_frames += u64::from(a.ghost_pixels > 0);
-    t.hole_pixel_frames += u64::from(a.hole_pixels > 0);
-    t.blend_pixel_frames += u64::from(a.blend_pixels > 0);
 }
 
+/// The record of frame `f`, on screen at `shown_ms`.
+pub(super) fn frame_record(f: &FcFrame, shown_ms: f64, audit: Option<FrameAudit>) -> FrameRecord {
+    let mut selected: Vec<ObjectId> = f
+        .snapshot
+        .objects
+        .iter()
+        .filter(|o| o.state == ObjectState::Selected)
+        .map(|o| o.id)
+        .collect();
+    selected.sort_unstable();
+    FrameRecord {
+        index: f.index,
+        t_ms: f.t_ms,
+        shown_ms,
+        events_applied: f.snapshot.events_applied,
+        sc_state_ms: f.sc.as_ref().map(|sc| sc.snapshot_t_ms),
+        selected,
+        audit,
+    }
+}
+
+/// Frame `f`'s line in frames.jsonl.
 pub(super) fn frame_json(
     scene: &strata_scene::Scene,
     f: &FcFrame,
-    a: &FrameAudit,
+    r: &FrameRecord,
 ) -> serde_json::Value {
     let objects: Vec<serde_json::Value> = f
         .fc_objects
@@ -55,12 +72,14 @@ pub(super) fn frame_json(
     json!({
         "fc_frame": f.index,
         "t_ms": f.t_ms,
+        "shown_ms": r.shown_ms,
         "snapshot": f.snapshot.id,
+        "events_applied": f.snapshot.events_applied,
         "sc_frame": f.sc.as_ref().map(|s| s.sc_frame),
         "sc_age_ms": f.sc.as_ref().map(|s| f.t_ms - s.snapshot_t_ms),
         "fc_objects": objects,
         "fc_fragments": f.fc.fragment_count(),
-        "audit": a,
+        "audit": r.audit,
     })
 }
 
@@ -76,17 +95,51 @@ fn median_p95(v: &mut [f64]) -> serde_json::Value {
 pub(super) fn summary_json(
     args: &Args,
     scene: &strata_scene::Scene,
+    trace: &Trace,
     clock: Clock,
     size: (u32, u32),
     t: &mut Totals,
     real: Option<RealStats>,
 ) -> serde_json::Value {
+    t.records.sort_by_key(|r| r.index);
     let clock_json = match clock {
         Clock::Virtual(c) => {
             json!({"kind": "virtual", "sc_ms": c.sc_ms, "fc_ms": c.fc_ms, "transfer_ms": c.transfer_ms})
         }
         Clock::Real { fc_hz } => json!({"kind": "real", "fc_hz": fc_hz}),
     };
+    let audits: Vec<&FrameAudit> = t.records.iter().filter_map(|r| r.audit.as_ref()).collect();
+    let frames_with = |has: fn(&FrameAudit) -> bool| audits.iter().filter(|a| has(a)).count();
+    let mut sc_age: Vec<f64> = t
+        .records
+        .iter()
+        .filter_map(|r| r.sc_state_ms.map(|s| r.t_ms - s))
+        .collect();
+    let mut rmse: Vec<f64> = audits.iter().map(|a| a.rmse).collect();
+    let l = latency(trace, &t.records);
+    let (mut fc_path, mut sc_path) = (l.fc_path_ms.clone(), l.sc_path_ms.clone());
+    let name = |id: Option<strata_core::ObjectId>| {
+        id.and_then(|id| scene.objects.iter().find(|o| o.id == id))
+            .map(|o| o.name.clone())
+    };
+    let event_list: Vec<serde_json::Value> = events(trace, &t.records)
+        .iter()
+        .map(|e| {
+            json!({
+                "kind": e.kind,
+                "t_ms": e.t_ms,
+                "fc_frame": e.fc_frame,
+                "object": name(e.object),
+                "frames": e.frames,
+                "artefact_frames": e.artefact_frames,
+                "artefact_ms": e.artefact_ms,
+                "peak_bad_pixels": e.peak.map(|p| p.bad_pixels),
+                "peak_ghost_pixels": e.peak.map(|p| p.ghost_pixels),
+                "peak_hole_pixels": e.peak.map(|p| p.hole_pixels),
+                "peak_blend_pixels": e.peak.map(|p| p.blend_pixels),
+            })
+        })
+        .collect();
     let mut v = json!({
         "scene": scene.name,
         "trace": args.trace,
@@ -95,15 +148,27 @@ pub(super) fn summary_json(
         "clock": clock_json,
         "width": size.0,
         "height": size.1,
-        "fc_frames": real.as_ref().map_or(t.frames, |r| r.fc_frame_ms.len() as u64),
-        "audited_frames": t.frames,
+        "fc_frames": t.records.len(),
+        "audited_frames": audits.len(),
+        "sc_frames": t.sc_frames_used.len(),
         "sc_frames_used": t.sc_frames_used.len(),
-        "sc_age_ms": median_p95(&mut t.sc_age_ms),
-        "frames_with_bad_pixels": t.frames_with_bad_pixels,
-        "max_bad_pixels": t.max_bad_pixels,
-        "ghost_pixel_frames": t.ghost_pixel_frames,
-        "hole_pixel_frames": t.hole_pixel_frames,
-        "blend_pixel_frames": t.blend_pixel_frames,
+        "sc_age_ms": median_p95(&mut sc_age),
+        "latency_ms": {
+            "fc_path": median_p95(&mut fc_path),
+            "sc_path": median_p95(&mut sc_path),
+            "fc_path_not_shown": l.fc_not_shown,
+            "sc_path_not_shown": l.sc_not_shown,
+        },
+        "frames_with_bad_pixels": frames_with(|a| a.bad_pixels > 0),
+        "max_bad_pixels": audits.iter().map(|a| a.bad_pixels).max().unwrap_or(0),
+        "ghost_pixel_frames": frames_with(|a| a.ghost_pixels > 0),
+        "hole_pixel_frames": frames_with(|a| a.hole_pixels > 0),
+        "blend_pixel_frames": frames_with(|a| a.blend_pixels > 0),
+        "rmse": {
+            "median": median_p95(&mut rmse)["median"],
+            "max": rmse.iter().copied().fold(0.0, f64::max),
+        },
+        "events": event_list,
     });
     if let Some(mut r) = real {
         let mut swap: Vec<f64> = r.publish_us.iter().chain(&r.read_us).copied().collect();
@@ -157,14 +222,24 @@ pub(super) fn summary_text(s: &serde_json::Value) -> String {
         s["mode"].as_str().unwrap_or("?"),
         clock_text(s),
     );
+    let l = &s["latency_ms"];
+    let latency = format!(
+        "latency from input to the frame showing it: FC path {} ms median / {} p95, SC path {} ms \
+         median / {} p95",
+        fmt(&l["fc_path"]["median"]),
+        fmt(&l["fc_path"]["p95"]),
+        fmt(&l["sc_path"]["median"]),
+        fmt(&l["sc_path"]["p95"]),
+    );
     if s["audited_frames"] == 0 {
         return format!(
-            "{head}\n  {} FC frames, not audited (--no-audit)",
+            "{head}\n  {} FC frames, not audited (--no-audit)\n  {latency}",
             s["fc_frames"]
         );
     }
-    format!(
+    let mut text = format!(
         "{head}\n  {} FC frames with {} SC buffers; age of the state in the SC buffer, median {} ms\n  \
+         {latency}\n  \
          audited {} of them against the single renderer: {} frame(s) with bad pixels (> 2/255, at \
          most {} in a frame); frames with ghost / hole / blend pixels: {} / {} / {}",
         s["fc_frames"],
@@ -176,5 +251,19 @@ pub(super) fn summary_text(s: &serde_json::Value) -> String {
         s["ghost_pixel_frames"],
         s["hole_pixel_frames"],
         s["blend_pixel_frames"],
-    )
+    );
+    for e in s["events"].as_array().into_iter().flatten() {
+        text += &format!(
+            "\n  {} of {} at {} ms (FC frame {}): {} artefact frame(s), {} ms on screen, peak {} \
+             bad pixels",
+            e["kind"].as_str().unwrap_or("?"),
+            e["object"].as_str().unwrap_or("nothing"),
+            fmt(&e["t_ms"]),
+            e["fc_frame"],
+            e["artefact_frames"],
+            fmt(&e["artefact_ms"]),
+            e["peak_bad_pixels"],
+        );
+    }
+    text
 }
