@@ -176,7 +176,8 @@ impl DeepFrame {
     /// Builds a frame in parallel from per-pixel counts and a fill callback.
     ///
     /// `counts[p]` is the number of fragments pixel `p` (row-major) holds; `fill(p, out)` must push
-    /// exactly that many fragments into the empty `out` (in any order: runs are sorted here). This
+    /// exactly that many fragments into the empty `out` (in any order: runs are sorted here). It is
+    /// not called for pixels whose count is 0. This
     /// is how a fragment store exports: count, prefix-sum, then gather — the S-buffer's passes.
     pub fn build<F>(
         width: u32,
@@ -231,9 +232,14 @@ impl DeepFrame {
             |scratch, (pixels, d, c, o)| {
                 let base = offsets_ref[pixels.start] as usize;
                 for p in pixels {
+                    let expected = counts[p];
+                    // Most pixels of a sparse frame (a fast client's few objects) are empty:
+                    // they cost one compare.
+                    if expected == 0 {
+                        continue;
+                    }
                     scratch.clear();
                     fill(p, scratch);
-                    let expected = counts[p];
                     if scratch.len() != expected as usize {
                         return Err(DeepFrameError::CountMismatch {
                             pixel: p,

@@ -6,13 +6,18 @@
 //! with, so that the two DeepFrames' depths and shading agree to the bit (the headlight depends on
 //! the eye) and merging their runs is exact.
 
-use glam::Mat4;
-use strata_core::DeepFrame;
+use glam::{Mat4, Vec3, Vec4};
+use strata_core::{DeepFrame, PixelRect};
 use strata_raster::{DrawObject, FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
-use strata_stores::{Method, MethodOptions, StoreError};
+use strata_stores::abuffer::linked_list::LinkedListABuffer;
+use strata_stores::{Method, PoolCapacity, StoreError};
 
 use crate::authority::{Snapshot, ViewPose};
+use crate::window::DeepWindow;
+
+/// Pixels added around a footprint's projected box (rounding, and the rasterizer's fill rule).
+const FOOTPRINT_MARGIN: f32 = 2.0;
 
 /// Why a client could not render.
 #[derive(Debug, thiserror::Error)]
@@ -37,7 +42,7 @@ pub enum ClientError {
 /// One client's rasterizer and store, reused frame to frame.
 pub struct Client {
     raster: Rasterizer,
-    store: Box<dyn Method>,
+    store: LinkedListABuffer,
     width: u32,
     height: u32,
 }
@@ -46,11 +51,9 @@ impl Client {
     /// A client rendering `width × height` frames into a linked-list A-buffer with a growing
     /// pool: every fragment is kept, which exact composition needs.
     pub fn new(width: u32, height: u32) -> Self {
-        let store = strata_stores::create("abuffer", &MethodOptions::default())
-            .expect("the A-buffer is always registered");
         Client {
             raster: Rasterizer::default(),
-            store,
+            store: LinkedListABuffer::new(PoolCapacity::Auto),
             width,
             height,
         }
@@ -70,6 +73,109 @@ impl Client {
         view: &ViewPose,
         indices: &[usize],
     ) -> Result<DeepFrame, ClientError> {
+        self.capture(scene, snapshot, view, indices)?;
+        match self.store.deep_frame() {
+            Some(Ok(frame)) => Ok(frame),
+            Some(Err(e)) => Err(ClientError::DeepFrame(e.to_string())),
+            None => Err(ClientError::DeepFrame(
+                "the store keeps no fragments".into(),
+            )),
+        }
+    }
+
+    /// Like [`Client::render`], keeping only the rectangle the objects' projected bounding boxes
+    /// cover — what the fast client hands to composition, at a cost that follows its footprint.
+    /// Exact: when a fragment falls outside the guessed rectangle (an object behind the eye, or
+    /// crossing the near plane), the whole frame is kept.
+    pub fn render_footprint(
+        &mut self,
+        scene: &Scene,
+        snapshot: &Snapshot,
+        view: &ViewPose,
+        indices: &[usize],
+    ) -> Result<DeepWindow, ClientError> {
+        self.capture(scene, snapshot, view, indices)?;
+        let to_client = |e: strata_core::DeepFrameError| ClientError::DeepFrame(e.to_string());
+        let size = (self.width, self.height);
+        if let Some(rect) = self.footprint(scene, snapshot, view, indices)
+            && let Some(window) = self.store.deep_frame_in(rect)
+        {
+            return DeepWindow::new(rect, size, window.map_err(to_client)?).map_err(to_client);
+        }
+        let whole = PixelRect::full(self.width, self.height);
+        match self.store.deep_frame_in(whole) {
+            Some(frame) => {
+                Ok(DeepWindow::new(whole, size, frame.map_err(to_client)?).map_err(to_client)?)
+            }
+            None => Err(ClientError::DeepFrame(
+                "the store holds fragments outside the frame".into(),
+            )),
+        }
+    }
+
+    /// The pixel rectangle the objects' world bounding boxes project to, with a margin; `None`
+    /// when a box reaches behind the eye (its projection is unbounded).
+    fn footprint(
+        &self,
+        scene: &Scene,
+        snapshot: &Snapshot,
+        view: &ViewPose,
+        indices: &[usize],
+    ) -> Option<PixelRect> {
+        let clip = self.projection(scene) * view.matrix();
+        let (w, h) = (self.width as f32, self.height as f32);
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for &i in indices {
+            let b = scene.objects.get(i)?.mesh.bounds();
+            if b.is_empty() {
+                continue;
+            }
+            let to_clip = clip * snapshot.model(scene, i);
+            for k in 0..8 {
+                let corner = Vec3::new(
+                    if k & 1 == 0 { b.min.x } else { b.max.x },
+                    if k & 2 == 0 { b.min.y } else { b.max.y },
+                    if k & 4 == 0 { b.min.z } else { b.max.z },
+                );
+                let c: Vec4 = to_clip * corner.extend(1.0);
+                if c.w.is_nan() || c.w <= 1e-6 {
+                    return None;
+                }
+                // Row 0 on top.
+                let (x, y) = ((c.x / c.w + 1.0) * 0.5 * w, (1.0 - c.y / c.w) * 0.5 * h);
+                lo = [lo[0].min(x), lo[1].min(y)];
+                hi = [hi[0].max(x), hi[1].max(y)];
+            }
+        }
+        if lo[0] > hi[0] {
+            // Nothing to draw: an empty rectangle holds every (no) fragment.
+            return Some(PixelRect::default());
+        }
+        let clamp = |v: f32, max: f32| (v.clamp(0.0, max)) as u32;
+        let (x0, y0) = (
+            clamp((lo[0] - FOOTPRINT_MARGIN).floor(), w),
+            clamp((lo[1] - FOOTPRINT_MARGIN).floor(), h),
+        );
+        let (x1, y1) = (
+            clamp((hi[0] + FOOTPRINT_MARGIN).ceil(), w),
+            clamp((hi[1] + FOOTPRINT_MARGIN).ceil(), h),
+        );
+        Some(PixelRect {
+            x: x0,
+            y: y0,
+            width: x1 - x0,
+            height: y1 - y0,
+        })
+    }
+
+    /// Rasterises the objects at `indices` into the store.
+    fn capture(
+        &mut self,
+        scene: &Scene,
+        snapshot: &Snapshot,
+        view: &ViewPose,
+        indices: &[usize],
+    ) -> Result<(), ClientError> {
         let count = scene.objects.len();
         let mut objects = Vec::with_capacity(indices.len());
         for &index in indices {
@@ -95,18 +201,11 @@ impl Client {
             objects,
             output: FragmentOutput::Shaded,
         };
-        strata_stores::render_frame(
-            self.store.as_mut(),
-            &mut self.raster,
-            &input,
-            scene.background,
-        )?;
-        match self.store.deep_frame() {
-            Some(Ok(frame)) => Ok(frame),
-            Some(Err(e)) => Err(ClientError::DeepFrame(e.to_string())),
-            None => Err(ClientError::DeepFrame(
-                "the store keeps no fragments".into(),
-            )),
-        }
+        // Clear and capture only: the store's own resolve would composite every pixel, and a
+        // client hands over fragments (the FC re-resolves only its footprint).
+        let mut timings = strata_core::PassTimings::new();
+        self.store.clear(self.width, self.height)?;
+        self.store.capture(&mut self.raster, &input, &mut timings)?;
+        Ok(())
     }
 }

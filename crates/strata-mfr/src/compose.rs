@@ -15,7 +15,9 @@
 //! between the clients.
 
 use strata_core::composite::resolve_pixel;
-use strata_core::{DeepFrame, DeepFrameError, Fragment, ObjectId, Rgb8Image};
+use strata_core::{DeepFrame, DeepFrameError, Fragment, ObjectId, Rgb8Image, Run};
+
+use crate::window::DeepWindow;
 
 /// How the FC combines its fragments with the SC buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -67,28 +69,25 @@ pub fn compose_deep(
 }
 
 /// The deep composition's image, at a cost that follows the FC's footprint: the SC's resolved
-/// image, with only the pixels that change re-resolved — those the FC covers and, when the FC
-/// draws objects the SC buffer holds, those holding fragments of them. Equal, pixel for pixel, to
-/// `compose_deep(sc, fc, fc_objects)?.resolve(background)` (tested).
+/// image, with only the pixels that change re-resolved — those the FC covers (inside its
+/// window) and, when the FC draws objects the SC buffer holds, those holding fragments of them.
+/// Equal, pixel for pixel, to `compose_deep(sc, &fc.to_full()?, fc_objects)?.resolve(background)`
+/// (tested).
 pub fn compose_image(
     sc: &DeepFrame,
     sc_image: &Rgb8Image,
-    fc: &DeepFrame,
+    fc: &DeepWindow,
     fc_objects: &[ObjectId],
     sc_holds_fc_objects: bool,
     background: [f32; 3],
 ) -> Rgb8Image {
     let mut image = sc_image.clone();
     let dropped = |o: &ObjectId| fc_objects.binary_search(o).is_ok();
+    let width = sc.width();
     let bytes = image.as_bytes_mut();
-    for p in 0..fc.offsets().len().saturating_sub(1) {
-        let (s, f) = (sc.run(p), fc.run(p));
-        let stale = sc_holds_fc_objects && s.object.iter().any(dropped);
-        if f.is_empty() && !stale {
-            continue;
-        }
-        let mut kept = s.iter().filter(|x| !dropped(&x.object)).peekable();
-        let mut own = f.iter().peekable();
+    let mut resolve_at = |p: usize, own: Run<'_>| {
+        let mut kept = sc.run(p).iter().filter(|x| !dropped(&x.object)).peekable();
+        let mut own = own.iter().peekable();
         let merged = std::iter::from_fn(|| {
             let take_sc = match (kept.peek(), own.peek()) {
                 (Some(a), Some(b)) => Fragment::order_key(a) <= Fragment::order_key(b),
@@ -102,6 +101,28 @@ pub fn compose_image(
         let rgb = resolve_pixel(merged, background);
         let at = 3 * p;
         bytes[at..at + 3].copy_from_slice(&rgb);
+    };
+    let rect = fc.rect();
+    for q in 0..rect.pixel_count() {
+        let own = fc.frame().run(q);
+        if !own.is_empty() {
+            resolve_at(rect.frame_index(q, width), own);
+        }
+    }
+    if sc_holds_fc_objects {
+        // Stale SC copies of the FC's objects, wherever they are (re-resolving a pixel twice
+        // gives the same colour).
+        for p in 0..sc.offsets().len().saturating_sub(1) {
+            if sc.run(p).object.iter().any(dropped) {
+                let (x, y) = ((p as u32) % width, (p as u32) / width);
+                let none = Run {
+                    depth: &[],
+                    color: &[],
+                    object: &[],
+                };
+                resolve_at(p, fc.run_at(x, y).unwrap_or(none));
+            }
+        }
     }
     image
 }
@@ -174,6 +195,30 @@ mod tests {
                 .collect();
             let expected = DeepFrame::from_pixel_lists(w, h, &union).expect("union");
             prop_assert_eq!(compose_deep(&a, &b, &ids).expect("composed"), expected);
+        }
+
+        /// The footprint-only image equals resolving the full composition, for an FC window
+        /// anywhere in the frame, whether or not the SC buffer holds the FC's objects.
+        #[test]
+        fn the_image_re_resolves_exactly_what_changes(
+            sc in lists(6 * 5),
+            window in lists(3 * 2),
+            (x, y) in (0u32..4, 0u32..4),
+            dropped in prop::collection::btree_set(0u32..6, 0..3),
+        ) {
+            let (w, h) = (6u32, 5u32);
+            let rect = strata_core::PixelRect { x, y, width: 3, height: 2 };
+            let ids: Vec<ObjectId> = dropped.iter().map(|&o| ObjectId(o)).collect();
+            let sc = DeepFrame::from_pixel_lists(w, h, &sc).expect("sc");
+            let part = DeepFrame::from_pixel_lists(3, 2, &window).expect("window");
+            let fc = DeepWindow::new(rect, (w, h), part).expect("fits");
+            let bg = [0.25, 0.5, 1.0];
+            let expected = compose_deep(&sc, &fc.to_full().expect("full"), &ids)
+                .expect("composed")
+                .resolve(bg);
+            let holds = sc.objects().iter().any(|o| ids.contains(o));
+            let image = compose_image(&sc, &sc.resolve(bg), &fc, &ids, holds, bg);
+            prop_assert_eq!(image, expected);
         }
     }
 

@@ -53,6 +53,7 @@ pub mod state;
 pub mod timeline;
 pub mod trace;
 pub mod transfer;
+pub mod window;
 
 pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
@@ -63,3 +64,4 @@ pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use timeline::{EventKind, EventReport, FrameRecord, Latency, events, latency};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};
 pub use transfer::{Latest, Publisher, TransferBuffer, exchange};
+pub use window::DeepWindow;

@@ -34,6 +34,7 @@ use crate::compose::{Composition, compose_deep, compose_digital, compose_image};
 use crate::state::ObjectState;
 use crate::trace::Trace;
 use crate::transfer::TransferBuffer;
+use crate::window::DeepWindow;
 
 /// How objects move between the clients.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -71,8 +72,8 @@ pub struct FcFrame {
     pub fc_objects: Vec<usize>,
     /// Their ids, sorted.
     pub fc_ids: Vec<ObjectId>,
-    /// The FC's own fragments.
-    pub fc: DeepFrame,
+    /// The FC's own fragments, in the rectangle its objects cover.
+    pub fc: DeepWindow,
     /// How it composed.
     pub composition: Composition,
     /// The frame shown.
@@ -85,9 +86,11 @@ impl FcFrame {
     /// image.
     pub fn composed(&self) -> Result<DeepFrame, strata_core::DeepFrameError> {
         match (&self.sc, self.composition) {
-            (None, _) => Ok(self.fc.clone()),
-            (Some(sc), Composition::Deep) => compose_deep(&sc.frame, &self.fc, &self.fc_ids),
-            (Some(sc), Composition::Digital) => compose_digital(&sc.frame, &self.fc),
+            (None, _) => self.fc.to_full(),
+            (Some(sc), Composition::Deep) => {
+                compose_deep(&sc.frame, &self.fc.to_full()?, &self.fc_ids)
+            }
+            (Some(sc), Composition::Digital) => compose_digital(&sc.frame, &self.fc.to_full()?),
         }
     }
 }
@@ -96,7 +99,7 @@ impl FcFrame {
 pub(crate) struct FcWork {
     pub(crate) fc_objects: Vec<usize>,
     pub(crate) fc_ids: Vec<ObjectId>,
-    pub(crate) fc: DeepFrame,
+    pub(crate) fc: DeepWindow,
     pub(crate) image: strata_core::Rgb8Image,
 }
 
@@ -137,9 +140,9 @@ pub(crate) fn fc_frame(
     let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
     fc_ids.sort_unstable();
     let view = sc.map_or(snapshot.view, |sc| sc.view);
-    let fc = client.render(scene, snapshot, &view, &fc_objects)?;
+    let fc = client.render_footprint(scene, snapshot, &view, &fc_objects)?;
     let image = match (sc, composition) {
-        (None, _) => fc.resolve(scene.background),
+        (None, _) => fc.to_full()?.resolve(scene.background),
         (Some(sc), Composition::Deep) => {
             let holds = fc_ids
                 .iter()
@@ -147,7 +150,7 @@ pub(crate) fn fc_frame(
             compose_image(&sc.frame, &sc.image, &fc, &fc_ids, holds, scene.background)
         }
         (Some(sc), Composition::Digital) => {
-            compose_digital(&sc.frame, &fc)?.resolve(scene.background)
+            compose_digital(&sc.frame, &fc.to_full()?)?.resolve(scene.background)
         }
     };
     Ok(FcWork {

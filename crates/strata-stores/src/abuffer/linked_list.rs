@@ -54,8 +54,8 @@ use std::time::Instant;
 use rayon::prelude::*;
 use strata_core::fragment::sort_front_to_back;
 use strata_core::{
-    DeepFrame, DeepFrameError, DepthStats, Fragment, ObjectId, PassTimings, Rgb8Image, Rgba8,
-    composite,
+    DeepFrame, DeepFrameError, DepthStats, Fragment, ObjectId, PassTimings, PixelRect, Rgb8Image,
+    Rgba8, composite,
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
@@ -143,6 +143,39 @@ impl LinkedListABuffer {
             dropped: AtomicU64::new(0),
             depth: None,
         }
+    }
+
+    /// The fragments of the pixels in `rect`, as a frame of the rectangle's size — or `None` when
+    /// the rectangle does not fit the frame or some stored fragment lies outside it, so that a
+    /// caller guessing a footprint can never lose a fragment (it exports the whole frame then).
+    /// Costs what the rectangle holds, not what the frame does.
+    pub fn deep_frame_in(&self, rect: PixelRect) -> Option<Result<DeepFrame, DeepFrameError>> {
+        if !rect.fits(self.width, self.height) {
+            return None;
+        }
+        let counts = self.counts_in(rect);
+        let inside: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+        if inside != self.stored.load(Relaxed) {
+            return None;
+        }
+        Some(self.export(rect, &counts))
+    }
+
+    /// Fragments per pixel of `rect` (row-major within it).
+    fn counts_in(&self, rect: PixelRect) -> Vec<u32> {
+        let width = self.width;
+        (0..rect.pixel_count())
+            .into_par_iter()
+            .map(|q| self.list(rect.frame_index(q, width)).count() as u32)
+            .collect()
+    }
+
+    /// The pixels of `rect`, holding `counts`, as a frame of the rectangle's size.
+    fn export(&self, rect: PixelRect, counts: &[u32]) -> Result<DeepFrame, DeepFrameError> {
+        let width = self.width;
+        DeepFrame::build(rect.width, rect.height, counts, |q, out| {
+            out.extend(self.list(rect.frame_index(q, width)));
+        })
     }
 
     /// Nodes in the pool.
@@ -406,18 +439,8 @@ impl Method for LinkedListABuffer {
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
-        let counts: Vec<u32> = (0..self.heads.len())
-            .into_par_iter()
-            .map(|p| self.list(p).count() as u32)
-            .collect();
-        Some(DeepFrame::build(
-            self.width,
-            self.height,
-            &counts,
-            |p, out| {
-                out.extend(self.list(p));
-            },
-        ))
+        let all = PixelRect::full(self.width, self.height);
+        Some(self.export(all, &self.counts_in(all)))
     }
 }
 
@@ -473,6 +496,41 @@ mod tests {
         assert_eq!(
             (s.fragments(), s.max_depth_complexity(), s.covered_pixels()),
             (3, 2, 2)
+        );
+    }
+
+    #[test]
+    fn a_window_exports_its_pixels_only_if_it_holds_every_fragment() {
+        let layout = StripLayout {
+            width: 4,
+            height: 4,
+            strip_height: 2,
+        };
+        let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(100));
+        ab.clear(4, 4).unwrap();
+        // Pixels (1, 1) and (2, 2).
+        capture(
+            &mut ab,
+            &layout,
+            &[(5, frag(0.5, 1)), (5, frag(0.2, 2)), (10, frag(0.9, 3))],
+        );
+        let rect = |x, y, width, height| PixelRect {
+            x,
+            y,
+            width,
+            height,
+        };
+        let w = ab.deep_frame_in(rect(1, 1, 2, 2)).unwrap().unwrap();
+        assert_eq!((w.width(), w.height()), (2, 2));
+        assert_eq!(w.pixel(0, 0).depth, &[0.2, 0.5]);
+        assert_eq!(w.pixel(1, 1).depth, &[0.9]);
+        assert_eq!(w.fragment_count(), 3);
+        // A window that misses a fragment, or does not fit the frame, exports nothing.
+        assert!(ab.deep_frame_in(rect(1, 1, 1, 1)).is_none());
+        assert!(ab.deep_frame_in(rect(2, 2, 3, 1)).is_none());
+        assert_eq!(
+            ab.deep_frame_in(PixelRect::full(4, 4)).unwrap().unwrap(),
+            ab.deep_frame().unwrap().unwrap()
         );
     }
 

@@ -134,11 +134,7 @@ fn cell(f: &FcFrame, reference: &Rgb8Image, artefact: bool, first: bool) -> Rgb8
             put(&mut out, x, y, strip);
         }
     }
-    let offsets = f.fc.offsets();
-    let fc_drew = |x: u32, y: u32| {
-        let p = (y * w + x) as usize;
-        offsets[p + 1] > offsets[p]
-    };
+    let fc_drew = |x: u32, y: u32| f.fc.run_at(x, y).is_some_and(|r| !r.is_empty());
     for cy in 0..ch {
         for cx in 0..cw {
             let (mut shown, mut error, mut n) = ([0u32; 3], [0u32; 3], 0u32);
