@@ -30,7 +30,10 @@ use strata_scene::Scene;
 
 use crate::authority::{Authority, Snapshot};
 use crate::client::{Client, ClientError};
-use crate::compose::{Composition, compose_deep, compose_digital, compose_image};
+use crate::compose::{
+    Composition, compose_deep, compose_digital, compose_image, compose_optical,
+    compose_optical_image,
+};
 use crate::state::ObjectState;
 use crate::trace::Trace;
 use crate::transfer::TransferBuffer;
@@ -88,6 +91,7 @@ impl FcFrame {
             (None, _) => Ok(self.fc.clone()),
             (Some(sc), Composition::Deep) => compose_deep(&sc.frame, &self.fc, &self.fc_ids),
             (Some(sc), Composition::Digital) => compose_digital(&sc.frame, &self.fc),
+            (Some(sc), Composition::Optical) => compose_optical(&sc.frame, &self.fc),
         }
     }
 }
@@ -148,6 +152,9 @@ pub(crate) fn fc_frame(
         }
         (Some(sc), Composition::Digital) => {
             compose_digital(&sc.frame, &fc)?.resolve(scene.background)
+        }
+        (Some(sc), Composition::Optical) => {
+            compose_optical_image(&sc.frame, &sc.image, &fc, scene.background)
         }
     };
     Ok(FcWork {
