@@ -31,16 +31,18 @@
 //! ```
 //!
 //! Why over and not the sum: the sum equals this wherever the SC image is black behind the FC's
-//! objects (the dark projection rooms of the seed's photographs), but on any other background it
-//! washes the FC's objects out towards white even where nothing hides them, so no frame could
-//! ever be right; with over, an FC object in front of everything the SC draws is exact, and what
-//! remains is the artefact the seed describes: no occlusion between the clients, the FC's objects
-//! always drawn over the SC's (an FC object behind an SC object shows through it; one behind a
-//! transparent SC object is not tinted by it). Stale SC copies cannot be removed either.
+//! objects (a projection screen in a dark room), but on any other background it washes the FC's
+//! objects out towards white even where nothing hides them, so no frame could ever be right; with
+//! over, an FC object in front of everything the SC draws is exact, and what remains is the
+//! artefact the seed describes: no occlusion between the clients, the FC's objects always drawn
+//! over the SC's (an FC object behind an SC object shows through it; one behind a transparent SC
+//! object is not tinted by it). Stale SC copies cannot be removed either.
+//!
 //! [`compose_optical`] gives the run the user sees, for the audit: per pixel, the FC's fragments
 //! in their depth order and then the whole SC run; where an FC fragment lies behind the SC's front
-//! fragment, the FC's depths are scaled by a power of two (exact, so their order is kept) to lie
-//! in front of it. ([`compose_optical_image`] makes the image at the cost of the FC's footprint.)
+//! fragment, the FC's depths are scaled by the largest power of two that puts them in front of it
+//! (exact, so their order is kept). [`compose_optical_image`] makes the image at the cost of the
+//! FC's footprint.
 
 use strata_core::composite::resolve_pixel;
 use strata_core::{DeepFrame, DeepFrameError, Fragment, ObjectId, Rgb8Image};

@@ -105,7 +105,7 @@ pub(crate) enum ModeArg {
     Deep,
     /// Colour + front depth (the seed's digital composition).
     Digital,
-    /// The FC's image over the SC's, no depth test (the seed's optical superposition).
+    /// The FC's image over the SC's, no depth test (optical superposition, as two projectors).
     Optical,
 }
 
