@@ -783,11 +783,13 @@ fn scenes_lists_every_builtin_scene() {
         "spheres",
         "mixed",
         "overlap",
+        "mfr-cars",
         "bunny",
         "dragon",
         "dragon-res2",
         "armadillo",
         "engine",
+        "mfr-engine",
     ] {
         assert!(names.contains(&name), "{name} not listed:\n{}", ran.stdout);
     }
@@ -796,7 +798,7 @@ fn scenes_lists_every_builtin_scene() {
         let name = line.split_whitespace().next().unwrap_or("");
         let flagged = line.contains("mesh not found");
         match name {
-            "slabs" | "spheres" | "mixed" | "overlap" => assert!(!flagged, "{line}"),
+            "slabs" | "spheres" | "mixed" | "overlap" | "mfr-cars" => assert!(!flagged, "{line}"),
             _ => assert!(flagged, "{line}"),
         }
     }
@@ -840,6 +842,8 @@ fn printed_scene_renders_like_the_builtin() {
         "dragon-res2",
         "armadillo",
         "engine",
+        "mfr-cars",
+        "mfr-engine",
     ] {
         let ran = run_ok(strata().args(["scenes", "--print", name]));
         assert_mentions(&ran.stdout, &["width", "[[objects]]"]);
@@ -863,10 +867,17 @@ fn demo_renders_every_available_scene_with_a_report() {
     );
     let elapsed = start.elapsed();
     eprintln!("demo took {:.2} s", elapsed.as_secs_f64());
-    assert_mentions(&ran.stderr, &["rendered 4 scenes", "skipped", "bunny"]);
+    assert_mentions(&ran.stderr, &["rendered 5 scenes", "skipped", "bunny"]);
 
-    let rendered = ["slabs", "spheres", "mixed", "overlap"];
-    let skipped = ["bunny", "dragon", "dragon-res2", "armadillo", "engine"];
+    let rendered = ["slabs", "spheres", "mixed", "overlap", "mfr-cars"];
+    let skipped = [
+        "bunny",
+        "dragon",
+        "dragon-res2",
+        "armadillo",
+        "engine",
+        "mfr-engine",
+    ];
     for name in rendered {
         let json = read_json(&out.join(format!("{name}.json")));
         let img = read_png(&out.join(format!("{name}.png")));

@@ -1,4 +1,5 @@
-//! Composition of the two clients' frames: deep (strata) and digital (the seed's colour + depth).
+//! Composition of the two clients' frames: deep (strata), and digital (colour + depth) and optical
+//! (the FC's image over the SC's) as the seed has them.
 //!
 //! Per pixel `p`, with `F` the ids the FC draws this frame:
 //!
@@ -13,6 +14,35 @@
 //! object in `F` are stale (the object moved, or is being handed over) and are dropped; that is
 //! what removes the seed's selection and release artefacts and lets transparent objects cross
 //! between the clients.
+//!
+//! # Digital and optical composition (the seed's, kept to show their artefacts)
+//!
+//! *Digital* (seed 004 §3.2) keeps the SC's colour and the depth of its front fragment; FC
+//! fragments behind that depth are lost ([`compose_digital`]).
+//!
+//! *Optical* (seed 004 §3.1) is two overlapped projectors, one per client: the user sees the two
+//! images on top of each other, with no depth test between them. The seed's projectors *add*
+//! light, `SC(p) + FC(p)` with the FC image on black; strata composites the FC's image **over**
+//! the SC's instead, in screen space:
+//!
+//! ```text
+//! optical(p) = resolve( run_fc(p) ++ run_sc(p) )       the FC's fragments first, whatever their depth
+//!            = C_fc(p) + T_fc(p) · resolve(run_sc(p))   (C_fc premultiplied, T_fc its transmittance)
+//! ```
+//!
+//! Why over and not the sum: the sum equals this wherever the SC image is black behind the FC's
+//! objects (a projection screen in a dark room), but on any other background it washes the FC's
+//! objects out towards white even where nothing hides them, so no frame could ever be right; with
+//! over, an FC object in front of everything the SC draws is exact, and what remains is the
+//! artefact the seed describes: no occlusion between the clients, the FC's objects always drawn
+//! over the SC's (an FC object behind an SC object shows through it; one behind a transparent SC
+//! object is not tinted by it). Stale SC copies cannot be removed either.
+//!
+//! [`compose_optical`] gives the run the user sees, for the audit: per pixel, the FC's fragments
+//! in their depth order and then the whole SC run; where an FC fragment lies behind the SC's front
+//! fragment, the FC's depths are scaled by the largest power of two that puts them in front of it
+//! (exact, so their order is kept). [`compose_optical_image`] makes the image at the cost of the
+//! FC's footprint.
 
 use strata_core::composite::resolve_pixel;
 use strata_core::{DeepFrame, DeepFrameError, Fragment, ObjectId, Rgb8Image, Run};
@@ -28,6 +58,11 @@ pub enum Composition {
     /// depth of its front fragment; FC fragments in front of that depth are blended over the
     /// colour, the others are lost. Stale SC copies cannot be removed.
     Digital,
+    /// The seed's optical superposition (Springer 2008 §3.1), as the FC's image over the SC's in
+    /// screen space: no depth test between the clients, FC objects always in front; exact only
+    /// where the FC's objects lie in front of everything the SC draws. Stale SC copies cannot be
+    /// removed.
+    Optical,
 }
 
 /// `fc`'s width, height and pixel count, if `sc` has the same size.
@@ -151,6 +186,68 @@ pub fn compose_digital(sc: &DeepFrame, fc: &DeepFrame) -> Result<DeepFrame, Deep
     })
 }
 
+/// The factor that puts FC fragments no deeper than `fc_back` in front of the SC's front fragment
+/// at `sc_front`: 1 when they already lie in front, else the largest power of two that does
+/// (multiplying by a power of two is exact, so the FC fragments keep their order). An SC front
+/// fragment exactly on the near plane (depth 0) cannot be passed; the FC's depths then shrink
+/// towards 0 and tie-break behind it.
+fn optical_scale(fc_back: f32, sc_front: f32) -> f32 {
+    let mut scale = 1.0f32;
+    while fc_back * scale >= sc_front && scale > f32::MIN_POSITIVE {
+        scale *= 0.5;
+    }
+    scale
+}
+
+/// The optical composition as the run the user sees: per pixel the FC's fragments, in their
+/// order, in front of the whole SC run (their depths scaled where needed; see the module docs).
+/// Resolving it gives the image [`compose_optical_image`] makes.
+///
+/// # Errors
+/// When the frames differ in size or the result holds more fragments than a DeepFrame can.
+pub fn compose_optical(sc: &DeepFrame, fc: &DeepFrame) -> Result<DeepFrame, DeepFrameError> {
+    let (w, h, pixels) = same_size(sc, fc)?;
+    let counts: Vec<u32> = (0..pixels)
+        .map(|p| (sc.run(p).len() + fc.run(p).len()) as u32)
+        .collect();
+    DeepFrame::build(w, h, &counts, |p, out| {
+        let (s, f) = (sc.run(p), fc.run(p));
+        let front = s.depth.first().copied().unwrap_or(f32::INFINITY);
+        let back = f.depth.last().copied().unwrap_or(0.0);
+        let scale = optical_scale(back, front);
+        out.extend(f.iter().map(|x| Fragment {
+            depth: x.depth * scale,
+            ..x
+        }));
+        out.extend(s.iter());
+    })
+}
+
+/// The optical composition's image, at a cost that follows the FC's footprint: the SC's resolved
+/// image, with the pixels the FC covers re-resolved from the FC's fragments followed by the SC's.
+/// Equal, pixel for pixel, to `compose_optical(sc, fc)?.resolve(background)` (tested).
+pub fn compose_optical_image(
+    sc: &DeepFrame,
+    sc_image: &Rgb8Image,
+    fc: &DeepWindow,
+    background: [f32; 3],
+) -> Rgb8Image {
+    let mut image = sc_image.clone();
+    let bytes = image.as_bytes_mut();
+    let rect = fc.rect();
+    for q in 0..rect.pixel_count() {
+        let f = fc.frame().run(q);
+        if f.is_empty() {
+            continue;
+        }
+        let p = rect.frame_index(q, sc.width());
+        let colors = f.color.iter().chain(sc.run(p).color).copied();
+        let at = 3 * p;
+        bytes[at..at + 3].copy_from_slice(&resolve_pixel(colors, background));
+    }
+    image
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -220,6 +317,83 @@ mod tests {
             let image = compose_image(&sc, &sc.resolve(bg), &fc, &ids, holds, bg);
             prop_assert_eq!(image, expected);
         }
+    }
+
+    proptest! {
+        /// The optical run puts every FC fragment in front of every SC fragment, keeps both
+        /// sides' fragments and their order, and resolves to the footprint-only image.
+        #[test]
+        fn optical_puts_the_fc_in_front_and_its_image_is_the_runs_resolve(
+            // No SC fragment on the near plane (depth 0), which nothing can lie in front of.
+            sc in lists(23).prop_map(|l| l.into_iter().map(|run| {
+                run.into_iter().map(|f| Fragment { depth: f.depth.max(1.0 / 128.0), ..f }).collect()
+            }).collect::<Vec<Vec<Fragment>>>()),
+            fc in lists(23),
+        ) {
+            let (w, h) = (23, 1);
+            let a = DeepFrame::from_pixel_lists(w, h, &sc).expect("sc");
+            let b = DeepFrame::from_pixel_lists(w, h, &fc).expect("fc");
+            let optical = compose_optical(&a, &b).expect("composed");
+            for p in 0..sc.len() {
+                let (run, s, f) = (optical.run(p), a.run(p), b.run(p));
+                prop_assert_eq!(run.len(), s.len() + f.len());
+                prop_assert_eq!(&run.object[..f.len()], f.object);
+                prop_assert_eq!(&run.color[..f.len()], f.color);
+                prop_assert_eq!(&run.object[f.len()..], s.object);
+                prop_assert_eq!(&run.depth[f.len()..], s.depth);
+            }
+            let background = [0.9, 0.8, 0.7];
+            let whole = DeepWindow::whole(b.clone());
+            let image = compose_optical_image(&a, &a.resolve(background), &whole, background);
+            prop_assert_eq!(image, optical.resolve(background));
+            // The same through a window holding the FC's fragments.
+            let lists: Vec<Vec<Fragment>> = (0..23).map(|p| b.run(p).iter().collect()).collect();
+            let first = lists.iter().position(|l| !l.is_empty()).unwrap_or(0);
+            let last = lists.iter().rposition(|l| !l.is_empty()).unwrap_or(0);
+            let rect = strata_core::PixelRect { x: first as u32, y: 0, width: (last.max(first) - first + 1) as u32, height: 1 };
+            let part = DeepFrame::from_pixel_lists(rect.width, 1, &lists[first..=last.max(first)]).expect("window");
+            let window = DeepWindow::new(rect, (w, h), part).expect("fits");
+            let image = compose_optical_image(&a, &a.resolve(background), &window, background);
+            prop_assert_eq!(image, optical.resolve(background));
+        }
+    }
+
+    #[test]
+    fn optical_equals_deep_where_the_fc_lies_in_front() {
+        let frag = |depth: f32, object: u32, a: u8| Fragment {
+            depth,
+            color: Rgba8([(object * 30) as u8, 90, 200, a]),
+            object: ObjectId(object),
+        };
+        let sc = DeepFrame::from_pixel_lists(
+            2,
+            1,
+            &[vec![frag(0.5, 1, 100), frag(0.7, 2, 255)], vec![]],
+        )
+        .expect("sc");
+        let fc =
+            DeepFrame::from_pixel_lists(2, 1, &[vec![frag(0.3, 7, 128)], vec![frag(0.9, 7, 128)]])
+                .expect("fc");
+        assert_eq!(
+            compose_optical(&sc, &fc).expect("optical"),
+            compose_deep(&sc, &fc, &[ObjectId(7)]).expect("deep")
+        );
+        // Behind the SC's front fragment, the FC's fragment is still shown in front of it.
+        let behind =
+            DeepFrame::from_pixel_lists(2, 1, &[vec![frag(0.6, 7, 128)], vec![]]).expect("fc");
+        let optical = compose_optical(&sc, &behind).expect("optical");
+        assert_eq!(
+            optical.run(0).object,
+            [ObjectId(7), ObjectId(1), ObjectId(2)]
+        );
+        // 0.6 halved once lies in front of 0.5.
+        assert_eq!(optical.run(0).depth[0], 0.3);
+        assert_ne!(
+            optical.resolve([1.0; 3]),
+            compose_deep(&sc, &behind, &[ObjectId(7)])
+                .expect("deep")
+                .resolve([1.0; 3])
+        );
     }
 
     #[test]

@@ -40,8 +40,9 @@
 //! - [`realtime`]: the same clients on their own threads in real time, handing over through
 //!   triple buffers; the FC never waits for the SC.
 //!
-//! Composition is deep (exact) or digital (the seed's colour + depth, kept to show its
-//! artefacts). The TCP transport and the optical mode build on these types.
+//! Composition is deep (exact), digital (the seed's colour + depth) or optical (the FC's image
+//! over the SC's, the seed's projectors), the last two kept to show their artefacts. The TCP
+//! transport builds on these types.
 
 pub mod audit;
 pub mod authority;

@@ -30,7 +30,10 @@ use strata_scene::Scene;
 
 use crate::authority::{Authority, Snapshot};
 use crate::client::{Client, ClientError};
-use crate::compose::{Composition, compose_deep, compose_digital, compose_image};
+use crate::compose::{
+    Composition, compose_deep, compose_digital, compose_image, compose_optical,
+    compose_optical_image,
+};
 use crate::state::ObjectState;
 use crate::trace::Trace;
 use crate::transfer::TransferBuffer;
@@ -91,6 +94,7 @@ impl FcFrame {
                 compose_deep(&sc.frame, &self.fc.to_full()?, &self.fc_ids)
             }
             (Some(sc), Composition::Digital) => compose_digital(&sc.frame, &self.fc.to_full()?),
+            (Some(sc), Composition::Optical) => compose_optical(&sc.frame, &self.fc.to_full()?),
         }
     }
 }
@@ -151,6 +155,9 @@ pub(crate) fn fc_frame(
         }
         (Some(sc), Composition::Digital) => {
             compose_digital(&sc.frame, &fc.to_full()?)?.resolve(scene.background)
+        }
+        (Some(sc), Composition::Optical) => {
+            compose_optical_image(&sc.frame, &sc.image, &fc, scene.background)
         }
     };
     Ok(FcWork {

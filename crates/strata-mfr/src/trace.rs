@@ -369,7 +369,9 @@ fn event_lines(text: &str) -> Vec<usize> {
 /// Parameters of the [`grab`] generator.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GrabParams {
-    /// The object to grab, by name (default: the first object).
+    /// The object to grab, by name (default: the first object, in scene order, that a ray from
+    /// the eye reaches before any other; a scene puts its interactive part first to make it the
+    /// default).
     pub object: Option<String>,
     /// When the pointer reaches the object (ms).
     pub start_ms: f64,
@@ -455,43 +457,46 @@ impl GrabParams {
 /// `linger_ms` later the pointer turns away (INACTIVE). The camera stays where the scene puts it.
 pub fn grab(scene: &Scene, p: &GrabParams) -> Result<Trace, TraceError> {
     let origin = "grab";
-    let object = match &p.object {
-        Some(name) => scene
-            .objects
-            .iter()
-            .find(|o| &o.name == name)
-            .ok_or_else(|| {
-                let names: Vec<&str> = scene.objects.iter().map(|o| o.name.as_str()).collect();
+    let cam = &scene.camera;
+    let toward = match &p.object {
+        Some(name) => {
+            let index = scene
+                .objects
+                .iter()
+                .position(|o| &o.name == name)
+                .ok_or_else(|| {
+                    let names: Vec<&str> = scene.objects.iter().map(|o| o.name.as_str()).collect();
+                    TraceError::new(
+                        origin,
+                        format!(
+                            "no object '{name}' in {} (objects: {})",
+                            scene.name,
+                            names.join(", ")
+                        ),
+                    )
+                })?;
+            aim_at(scene, index, cam.eye).ok_or_else(|| {
                 TraceError::new(
                     origin,
                     format!(
-                        "no object '{name}' in {} (objects: {})",
-                        scene.name,
-                        names.join(", ")
+                        "object '{name}' is hidden from the eye: no ray from the eye reaches it \
+                         before the other objects"
+                    ),
+                )
+            })?
+        }
+        None => (0..scene.objects.len())
+            .find_map(|i| aim_at(scene, i, cam.eye))
+            .ok_or_else(|| {
+                TraceError::new(
+                    origin,
+                    format!(
+                        "no object of {} can be reached by a ray from the eye",
+                        scene.name
                     ),
                 )
             })?,
-        None => scene
-            .objects
-            .first()
-            .ok_or_else(|| TraceError::new(origin, format!("{} has no object", scene.name)))?,
     };
-    let cam = &scene.camera;
-    let index = scene
-        .objects
-        .iter()
-        .position(|o| o.id == object.id)
-        .unwrap_or_default();
-    let toward = aim_at(scene, index, cam.eye).ok_or_else(|| {
-        TraceError::new(
-            origin,
-            format!(
-                "object '{}' is hidden from the eye: no ray from the eye reaches it before the \
-                 other objects",
-                object.name
-            ),
-        )
-    })?;
     let right = (cam.target - cam.eye).cross(cam.up).normalize_or(Vec3::X);
     let away = -toward;
     let mut t = p.start_ms;

@@ -73,6 +73,50 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 4, ..ProptestConfig::default() })]
+
+    /// The same on the heavy `mfr-cars` (a few cases: each frame's reference renders 400,000
+    /// triangles): any object of the car or the field in front of it, grabbed with any lead, at
+    /// any ratio and delay, passing behind or in front of the transparent windscreen.
+    #[test]
+    fn deep_predictive_equals_the_single_renderer_on_mfr_cars(
+        object in 0usize..40,
+        lead in 0.0f64..300.0,
+        hold in 20.0f64..400.0,
+        distance in -0.5f32..0.5,
+        ratio in 2u32..=60,
+        transfer in 0.0f64..40.0,
+    ) {
+        let scene = open_scene("mfr-cars", &SearchPath::new(Vec::<std::path::PathBuf>::new()))
+            .expect("built-in scene");
+        let params = GrabParams {
+            object: Some(scene.objects[object].name.clone()),
+            start_ms: 30.0,
+            over_lead_ms: lead,
+            hold_ms: hold,
+            distance,
+            linger_ms: 50.0,
+        };
+        let Ok(trace) = grab(&scene, &params) else {
+            // The object is hidden from the eye: nothing to grab.
+            return Ok(());
+        };
+        // A coarser FC tick than on `mixed`, so a case stays short.
+        let clock = VirtualClock { sc_ms: 20.0 * f64::from(ratio), fc_ms: 20.0, transfer_ms: transfer };
+        let frames = frames_for(trace.duration_ms(), &clock).min(120);
+        let mut refs = Client::new(SIZE.0, SIZE.1);
+        let mut bad = Vec::new();
+        run_virtual(&scene, trace, clock, Migration::Predictive, Composition::Deep, SIZE, frames, |f| {
+            if f.composed().expect("composes") != reference(&scene, &mut refs, f) {
+                bad.push(f.index);
+            }
+        })
+        .expect("the run completes");
+        prop_assert!(bad.is_empty(), "frames differing from the single renderer: {bad:?}");
+    }
+}
+
 #[test]
 fn naive_migration_leaves_holes_after_a_release() {
     let scene = mixed();

@@ -1460,7 +1460,10 @@ fn self_contained_built_in_scenes_parse() {
         check_builtin(b, &s);
         count += 1;
     }
-    assert!(count >= 4, "slabs, spheres, mixed, overlap: {count}");
+    assert!(
+        count >= 5,
+        "slabs, spheres, mixed, overlap, mfr-cars: {count}"
+    );
     // Spot checks against the scene texts.
     let s = builtin::load("overlap", &nothing).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!((s.width, s.height), (640, 480));
@@ -1513,7 +1516,7 @@ fn mesh_built_in_scenes_parse_with_the_shared_models() {
             b.name,
             bounds.extent()
         );
-        if b.name == "engine" {
+        if b.name == "engine" || b.name == "mfr-engine" {
             assert_eq!(s.objects.len(), 67, "one object per mesh node");
             assert!(
                 s.objects.iter().all(|o| o.name.starts_with("engine/")),

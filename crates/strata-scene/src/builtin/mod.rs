@@ -52,6 +52,12 @@ pub const SCENES: &[BuiltinScene] = &[
         meshes: &[],
     },
     BuiltinScene {
+        name: "mfr-cars",
+        description: "for `strata mfr`: a car with a transparent windscreen before 108 translucent and opaque objects",
+        source: include_str!("scenes/mfr-cars.toml"),
+        meshes: &[],
+    },
+    BuiltinScene {
         name: "bunny",
         description: "Stanford bunny, alpha 0.5, 1280x720 (needs bunny.obj)",
         source: include_str!("scenes/bunny.toml"),
@@ -79,6 +85,12 @@ pub const SCENES: &[BuiltinScene] = &[
         name: "engine",
         description: "Khronos 2 Cylinder Engine glTF, one object per mesh node (needs 2CylinderEngine.glb)",
         source: include_str!("scenes/engine.toml"),
+        meshes: &["2CylinderEngine.glb"],
+    },
+    BuiltinScene {
+        name: "mfr-engine",
+        description: "for `strata mfr`: the translucent 2 Cylinder Engine, one object per mesh node (needs 2CylinderEngine.glb)",
+        source: include_str!("scenes/mfr-engine.toml"),
         meshes: &["2CylinderEngine.glb"],
     },
 ];

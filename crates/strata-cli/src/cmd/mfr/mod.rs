@@ -27,7 +27,9 @@ use summary::{Totals, frame_json, frame_record, summary_json, summary_text};
 /// The slow client (SC) renders the scene's objects that nobody is manipulating, at the newest
 /// state whenever it is free; the fast client (FC) renders the objects the user points at, holds
 /// or just released, every frame, and composes them with the newest SC buffer by merging
-/// fragment lists (deep composition), so transparent objects composite correctly across the two.
+/// fragment lists (deep composition), so transparent objects composite correctly across the two;
+/// `--mode digital` and `--mode optical` compose as the original multi-frame-rate systems did, to
+/// show their artefacts.
 /// Time is simulated (`--clock virtual:sc_ms=…,fc_ms=…,transfer_ms=…`): rendering is real and
 /// results are reproducible at any SC:FC ratio. Each FC frame is compared with the whole scene
 /// rendered at once: bad pixels (> 2/255), and ghost, hole and blend pixels (an object shown where
@@ -49,9 +51,12 @@ pub(crate) struct Args {
     #[arg(long, value_enum, default_value_t = MigrationArg::Predictive)]
     pub(crate) migration: MigrationArg,
 
-    /// How the FC combines its objects with the SC buffer: `deep` (merge fragment lists; exact)
-    /// or `digital` (the seed's colour + front depth, which loses FC objects behind transparent
-    /// SC objects and cannot remove stale SC copies).
+    /// How the FC combines its objects with the SC buffer: `deep` (merge fragment lists; exact),
+    /// `digital` (colour + front depth: loses FC objects behind transparent SC objects and cannot
+    /// remove stale SC copies) or `optical` (the FC's image over the SC's, as two overlapped
+    /// projectors show them: no depth between the two, so FC objects are always drawn over SC
+    /// objects, even those in front of them, and stale SC copies stay; exact only where the FC's
+    /// objects lie in front of everything else).
     #[arg(long, value_enum, default_value_t = ModeArg::Deep)]
     pub(crate) mode: ModeArg,
 
@@ -106,6 +111,8 @@ pub(crate) enum ModeArg {
     Deep,
     /// Colour + front depth (the seed's digital composition).
     Digital,
+    /// The FC's image over the SC's, no depth test (optical superposition, as two projectors).
+    Optical,
 }
 
 /// `--migration`.
@@ -180,6 +187,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let composition = match args.mode {
         ModeArg::Deep => Composition::Deep,
         ModeArg::Digital => Composition::Digital,
+        ModeArg::Optical => Composition::Optical,
     };
     // Contact sheets show each event until two SC buffers have followed it.
     let (period_ms, settle_ms) = match clock {
