@@ -37,8 +37,11 @@
 //! - [`realtime`]: the same clients on their own threads in real time, handing over through
 //!   triple buffers; the FC never waits for the SC.
 //!
+//! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
+//!   strata-wire messages; network threads feed the same triple buffers.
+//!
 //! Composition is deep (exact) or digital (the seed's colour + depth, kept to show its
-//! artefacts). The TCP transport and the optical mode build on these types.
+//! artefacts). The optical mode builds on these types.
 
 pub mod audit;
 pub mod authority;
@@ -47,13 +50,14 @@ pub mod compose;
 pub mod realtime;
 pub mod simulate;
 pub mod state;
+pub mod tcp;
 pub mod trace;
 pub mod transfer;
 
 pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use compose::Composition;
-pub use realtime::{RealStats, run_real};
+pub use realtime::{Incident, RealConfig, RealStats, ScLoad, ScPriority, Transport, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use strata_mfr::client::Client;
 use strata_mfr::trace::{GrabParams, grab};
-use strata_mfr::{Composition, FcFrame, Migration, run_real};
+use strata_mfr::{FcFrame, RealConfig, run_real};
 use strata_scene::{SearchPath, open_scene};
 
 #[test]
@@ -25,16 +25,13 @@ fn real_threads_compose_exactly_in_every_frame() {
     let trace = grab(&scene, &params).expect("trace");
     let size = (64, 36);
     let mut frames: Vec<FcFrame> = Vec::new();
-    let stats = run_real(
-        Arc::clone(&scene),
-        trace,
-        60.0,
-        Migration::Predictive,
-        Composition::Deep,
-        size,
-        30,
-        |f| frames.push(f.clone()),
-    )
+    let config = RealConfig {
+        fc_hz: 60.0,
+        ..RealConfig::new(size, 30)
+    };
+    let stats = run_real(Arc::clone(&scene), trace, &config, |f| {
+        frames.push(f.clone())
+    })
     .expect("the run completes");
     assert_eq!(frames.len(), 30);
     assert_eq!(stats.fc_frame_ms.len(), 30);
@@ -81,16 +78,10 @@ fn a_bad_rate_is_refused() {
         )
         .expect("built-in scene"),
     );
-    let err = run_real(
-        scene,
-        strata_mfr::Trace::default(),
-        0.0,
-        Migration::Predictive,
-        Composition::Deep,
-        (8, 8),
-        1,
-        |_| {},
-    )
-    .expect_err("0 Hz");
+    let config = RealConfig {
+        fc_hz: 0.0,
+        ..RealConfig::new((8, 8), 1)
+    };
+    let err = run_real(scene, strata_mfr::Trace::default(), &config, |_| {}).expect_err("0 Hz");
     assert!(err.to_string().contains("fc_hz 0"), "{err}");
 }

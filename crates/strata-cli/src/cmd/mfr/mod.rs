@@ -11,15 +11,17 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
-use strata_mfr::{Composition, FrameAudit, audit, run_real};
+use strata_mfr::tcp::TcpOptions;
+use strata_mfr::{Composition, FrameAudit, RealConfig, ScLoad, Transport, audit, run_real};
 
+use crate::cmd::mfr_slow::PriorityArg;
 use crate::options::{open_scene, search_path};
 
 mod clock;
 mod summary;
 
 use clock::{make_trace, parse_clock};
-use summary::{Totals, frame_json, record, summary_json, summary_text};
+use summary::{Totals, frame_json, incidents_text, record, summary_json, summary_text};
 
 /// Multi-frame-rate rendering: a slow and a fast client composited, every frame audited.
 ///
@@ -54,9 +56,28 @@ pub(crate) struct Args {
     #[arg(long, value_enum, default_value_t = ModeArg::Deep)]
     pub(crate) mode: ModeArg,
 
-    /// The simulated clock: `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]`.
+    /// The clock: `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]` (simulated time) or
+    /// `real[:fc_hz=N]` (the clients on their own threads, the FC at N Hz, default 30).
     #[arg(long, default_value = "virtual:sc_ms=300,fc_ms=33")]
     pub(crate) clock: String,
+
+    /// Real clock only: where the slow client runs — `thread` (in this process) or
+    /// `tcp:HOST:PORT` (a `strata mfr-slow SCENE --listen HOST:PORT` with the same scene, here
+    /// or on another machine). A link that fails during the run is reported as an incident and
+    /// the FC goes on with the last SC buffer it received.
+    #[arg(long, default_value = "thread")]
+    pub(crate) transport: String,
+
+    /// Real clock only: what the slow client does — `busy` (renders every new state), `idle`
+    /// (renders the first state once, then nothing) or `off` (no slow client: the FC draws every
+    /// object every frame, as a conventional single renderer).
+    #[arg(long, value_enum, default_value_t = ScLoadArg::Busy)]
+    pub(crate) sc_load: ScLoadArg,
+
+    /// Real clock with `--transport thread`: priority of the slow client's threads (`low`:
+    /// nice 19 on Linux, so the FC is scheduled first).
+    #[arg(long, value_enum, default_value_t = PriorityArg::Normal)]
+    pub(crate) sc_priority: PriorityArg,
 
     /// FC frames to run (default: until the trace is over and the SC has caught up).
     #[arg(long)]
@@ -111,6 +132,28 @@ pub(crate) enum MigrationArg {
     Naive,
 }
 
+/// `--sc-load`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum ScLoadArg {
+    /// The SC renders every new state.
+    Busy,
+    /// The SC renders the first state only.
+    Idle,
+    /// No SC.
+    Off,
+}
+
+/// `--transport`.
+fn parse_transport(s: &str) -> Result<Transport> {
+    if s == "thread" {
+        return Ok(Transport::Thread);
+    }
+    match s.strip_prefix("tcp:") {
+        Some(addr) if !addr.trim().is_empty() => Ok(Transport::Tcp(TcpOptions::new(addr.trim()))),
+        _ => bail!("--transport {s}: expected thread or tcp:HOST:PORT"),
+    }
+}
+
 /// `--clock`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) enum Clock {
@@ -123,6 +166,14 @@ pub(crate) enum Clock {
 /// Runs `strata mfr`.
 pub(crate) fn run(args: Args) -> Result<()> {
     let clock = parse_clock(&args.clock)?;
+    let transport = parse_transport(&args.transport)?;
+    if matches!(clock, Clock::Virtual(_))
+        && (transport != Transport::Thread
+            || args.sc_load != ScLoadArg::Busy
+            || args.sc_priority != PriorityArg::Normal)
+    {
+        bail!("--transport, --sc-load and --sc-priority need the real clock (--clock real)");
+    }
     if let Some(dir) = &args.out_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -233,22 +284,26 @@ pub(crate) fn run(args: Args) -> Result<()> {
             let mut shown = Vec::new();
             let mut kept = 0u64;
             let scene = std::sync::Arc::new(scene.clone());
-            let stats = run_real(
-                scene,
-                trace,
+            let config = RealConfig {
                 fc_hz,
                 migration,
                 composition,
-                size,
-                frames,
-                |f| {
-                    let bytes = f.fc.memory_bytes() + f.image.as_bytes().len() as u64;
-                    if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
-                        kept += bytes;
-                        shown.push(f.clone());
-                    }
+                transport,
+                sc_load: match args.sc_load {
+                    ScLoadArg::Busy => ScLoad::Busy,
+                    ScLoadArg::Idle => ScLoad::Idle,
+                    ScLoadArg::Off => ScLoad::Off,
                 },
-            )?;
+                sc_priority: args.sc_priority.into(),
+                ..RealConfig::new(size, frames)
+            };
+            let stats = run_real(scene, trace, &config, |f| {
+                let bytes = f.fc.memory_bytes() + f.image.as_bytes().len() as u64;
+                if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
+                    kept += bytes;
+                    shown.push(f.clone());
+                }
+            })?;
             for f in &shown {
                 handle(f);
             }
@@ -267,7 +322,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         eprintln!("note: --no-audit applies to real-clock runs; this run was audited");
     }
     let summary = summary_json(&args, &scene, clock, size, &mut totals, real);
-    outln!("{}", summary_text(&summary))?;
+    outln!("{}{}", summary_text(&summary), incidents_text(&summary))?;
     if let Some(dir) = &args.out_dir {
         let path = dir.join("summary.json");
         std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
