@@ -418,7 +418,9 @@ pub fn decode_buffer(
     Ok((buffer, h.render_ms))
 }
 
-/// Writes `parts` back to back, at most `bytes_per_s` on average when given (64 KiB at a time).
+/// Writes `parts` back to back, at most `bytes_per_s` on average when given: each 16 KiB is
+/// released when a link of that rate would have finished carrying it, so the last byte arrives
+/// `total / bytes_per_s` after the first is sent.
 fn send_paced(
     w: &mut impl Write,
     parts: &[&[u8]],
@@ -432,13 +434,13 @@ fn send_paced(
     };
     let start = Instant::now();
     let mut sent = 0usize;
-    for chunk in parts.iter().flat_map(|p| p.chunks(1 << 16)) {
-        w.write_all(chunk)?;
+    for chunk in parts.iter().flat_map(|p| p.chunks(1 << 14)) {
         sent += chunk.len();
         let due = Duration::from_secs_f64(sent as f64 / rate);
         if let Some(wait) = due.checked_sub(start.elapsed()) {
             std::thread::sleep(wait);
         }
+        w.write_all(chunk)?;
     }
     w.flush()
 }
