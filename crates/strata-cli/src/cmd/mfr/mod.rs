@@ -174,6 +174,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
     {
         bail!("--transport, --sc-load and --sc-priority need the real clock (--clock real)");
     }
+    if matches!(transport, Transport::Tcp(_)) && args.sc_priority != PriorityArg::Normal {
+        eprintln!(
+            "note: --sc-priority sets the in-process slow client's threads; for strata mfr-slow \
+             give it --priority low"
+        );
+    }
     if let Some(dir) = &args.out_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
