@@ -582,9 +582,10 @@ impl LinkContext {
         !self.stopped()
     }
 
-    /// Connects and shakes hands (registered first, so the run's end can interrupt it).
-    fn connect(&self) -> Result<TcpStream, TcpError> {
-        let mut stream = open(&self.options.addr, self.options.connect_timeout)?;
+    /// Connects within `timeout` and shakes hands (registered first, so the run's end can
+    /// interrupt the handshake).
+    fn connect(&self, timeout: Duration) -> Result<TcpStream, TcpError> {
+        let mut stream = open(&self.options.addr, timeout)?;
         if !self.register(&stream) {
             return Err(TcpError::Protocol("the run ended".into()));
         }
@@ -624,7 +625,9 @@ impl FcLink {
             current: Arc::new(Mutex::new(None)),
             incidents,
         };
-        let stream = context.connect().map_err(SimulateError::from)?;
+        let stream = context
+            .connect(options.connect_timeout)
+            .map_err(SimulateError::from)?;
         let thread = {
             let context = context.clone();
             std::thread::Builder::new()
@@ -682,7 +685,8 @@ fn supervise(
         if !context.pause(Duration::from_millis(250)) {
             break;
         }
-        match context.connect() {
+        // At most a second per attempt: ending the run waits for an attempt in progress.
+        match context.connect(context.options.connect_timeout.min(Duration::from_secs(1))) {
             Ok(s) => {
                 context.incidents.record("reconnected to the slow client");
                 stream = Some(s);
