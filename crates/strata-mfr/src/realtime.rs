@@ -30,7 +30,8 @@
 //!   waits"), `Off` (no SC: the FC draws every object every frame, the conventional single
 //!   renderer);
 //! - **SC priority** ([`ScPriority`]): `Low` raises the SC threads' nice value to 19 (Linux), so
-//!   on a machine with fewer cores than busy threads the FC is scheduled first.
+//!   on a machine with fewer cores than busy threads the FC is scheduled first; over TCP it
+//!   applies to the FC process's link threads, which decode and resolve the SC's buffers.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -95,7 +96,8 @@ pub struct RealConfig {
     pub transport: Transport,
     /// How much the SC works.
     pub sc_load: ScLoad,
-    /// The SC threads' priority (in-process SC only; `strata mfr-slow` has its own option).
+    /// The SC threads' priority: the in-process SC's, or over TCP the FC's link threads
+    /// (receiving, decoding and resolving SC buffers); `strata mfr-slow` has its own option.
     pub sc_priority: ScPriority,
 }
 

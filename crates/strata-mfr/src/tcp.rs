@@ -547,6 +547,8 @@ struct LinkContext {
     size: (u32, u32),
     migration: Migration,
     options: TcpOptions,
+    /// Run the link threads at low priority.
+    low_priority: bool,
     hello: MfrHello,
     limits: DecodeOptions,
     stop: Arc<AtomicBool>,
@@ -568,6 +570,15 @@ impl LinkContext {
         }
         *current = stream.try_clone().ok();
         true
+    }
+
+    /// Lowers the calling link thread's priority if asked to (a failure is an incident).
+    fn lower_priority(&self) {
+        if self.low_priority
+            && let Err(e) = lower_thread_priority()
+        {
+            self.incidents.record(e);
+        }
     }
 
     /// Sleeps `d` in small steps; false if the run ended meanwhile.
@@ -616,6 +627,7 @@ impl FcLink {
             size: config.size,
             migration: config.migration,
             options: options.clone(),
+            low_priority: config.sc_priority == ScPriority::Low,
             hello: hello(scene, MfrRole::Fast, config.size),
             limits: DecodeOptions {
                 max_body_bytes: options.max_message_bytes,
@@ -632,7 +644,10 @@ impl FcLink {
             let context = context.clone();
             std::thread::Builder::new()
                 .name("strata-mfr-link".into())
-                .spawn(move || supervise(&context, Some(stream), snapshots, buffers))
+                .spawn(move || {
+                    context.lower_priority();
+                    supervise(&context, Some(stream), snapshots, buffers)
+                })
                 .map_err(|e| SimulateError::Thread(e.to_string()))?
         };
         Ok(FcLink { context, thread })
@@ -716,7 +731,10 @@ fn session(
         let (context, ended) = (context.clone(), Arc::clone(&ended));
         std::thread::Builder::new()
             .name("strata-mfr-send".into())
-            .spawn(move || send_snapshots(&context, writer, snapshots, &ended))
+            .spawn(move || {
+                context.lower_priority();
+                send_snapshots(&context, writer, snapshots, &ended)
+            })
     };
     let sender = match sender {
         Ok(s) => s,

@@ -74,8 +74,9 @@ pub(crate) struct Args {
     #[arg(long, value_enum, default_value_t = ScLoadArg::Busy)]
     pub(crate) sc_load: ScLoadArg,
 
-    /// Real clock with `--transport thread`: priority of the slow client's threads (`low`:
-    /// nice 19 on Linux, so the FC is scheduled first).
+    /// Real clock only: priority of the slow client's threads, or with `--transport tcp` of the
+    /// threads receiving and decoding its buffers (`low`: nice 19 on Linux, so the FC is
+    /// scheduled first; give `strata mfr-slow` its own `--priority`).
     #[arg(long, value_enum, default_value_t = PriorityArg::Normal)]
     pub(crate) sc_priority: PriorityArg,
 
@@ -173,12 +174,6 @@ pub(crate) fn run(args: Args) -> Result<()> {
             || args.sc_priority != PriorityArg::Normal)
     {
         bail!("--transport, --sc-load and --sc-priority need the real clock (--clock real)");
-    }
-    if matches!(transport, Transport::Tcp(_)) && args.sc_priority != PriorityArg::Normal {
-        eprintln!(
-            "note: --sc-priority sets the in-process slow client's threads; for strata mfr-slow \
-             give it --priority low"
-        );
     }
     if let Some(dir) = &args.out_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
