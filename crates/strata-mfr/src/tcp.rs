@@ -28,7 +28,10 @@
 //! wrong size, an object list out of order — is an [`Incident`](crate::realtime::Incident): the
 //! link is dropped, the FC goes on composing with the last good buffer, and the link thread
 //! reconnects every 250 ms until the run ends. Ending the run shuts the socket down, which wakes
-//! any blocked read or write: it never waits on a dead peer.
+//! any blocked read or write: it never waits on a dead peer. The FC repeats its newest snapshot
+//! at least every second; an SC that hears nothing for 10 s ([`ScServer::peer_silence`]) takes
+//! the FC for gone (a machine that
+//! vanished without closing its connection) and serves the next one.
 //!
 //! # Link emulation
 //!
@@ -60,6 +63,10 @@ use crate::transfer::{Latest, Publisher, TransferBuffer, exchange};
 
 /// What gigabit Ethernet delivers to an application, bytes per second (≈ 90 MB/s).
 pub const GIGABIT_BYTES_PER_S: f64 = 90e6;
+
+/// The FC sends its newest snapshot again after this long without a new one, so the SC can tell
+/// a quiet FC from a vanished one.
+const HEARTBEAT: Duration = Duration::from_secs(1);
 
 /// How the FC reaches a slow client over TCP.
 #[derive(Clone, Debug, PartialEq)]
@@ -758,13 +765,14 @@ fn send_snapshots(
     mut snapshots: Latest<Snapshot>,
     ended: &AtomicBool,
 ) -> (Latest<Snapshot>, Option<String>) {
-    let mut last_sent: Option<u64> = None;
+    let mut last_sent: Option<(u64, Instant)> = None;
     let mut out = Vec::new();
     while !ended.load(Ordering::Acquire) && !context.stopped() {
-        let newest = snapshots
-            .latest()
-            .filter(|s| Some(s.id) != last_sent)
-            .cloned();
+        // A new snapshot, or the same one again as a heartbeat after a quiet second.
+        let due = |s: &Arc<Snapshot>| {
+            last_sent.is_none_or(|(id, at)| id != s.id || at.elapsed() >= HEARTBEAT)
+        };
+        let newest = snapshots.latest().filter(|s| due(s)).cloned();
         let Some(s) = newest else {
             std::thread::sleep(Duration::from_millis(1));
             continue;
@@ -778,7 +786,7 @@ fn send_snapshots(
             let _ = writer.shutdown(Shutdown::Both);
             return (snapshots, Some(format!("sending a snapshot: {e}")));
         }
-        last_sent = Some(s.id);
+        last_sent = Some((s.id, Instant::now()));
     }
     (snapshots, None)
 }
@@ -877,6 +885,9 @@ pub struct ScServer {
     pub threads: usize,
     /// The rendering threads' priority.
     pub priority: ScPriority,
+    /// How long the FC may stay silent (it repeats its newest snapshot every second) before the
+    /// SC takes it for gone, drops the connection and serves the next.
+    pub peer_silence: Duration,
 }
 
 /// What happened on a slow client's connection (for its log).
@@ -905,7 +916,7 @@ pub enum ScEvent {
 
 impl ScServer {
     /// An SC for `scene`: the FC's size, `deep-lz4`, no pacing, one thread per core, normal
-    /// priority.
+    /// priority, an FC silent for 10 s taken for gone.
     pub fn new(scene: Arc<Scene>) -> Self {
         ScServer {
             scene,
@@ -914,6 +925,7 @@ impl ScServer {
             link_bytes_per_s: None,
             threads: 0,
             priority: ScPriority::Normal,
+            peer_silence: Duration::from_secs(10),
         }
     }
 
@@ -972,9 +984,10 @@ impl ScServer {
         let (jobs_out, mut jobs_in) = exchange::<(Snapshot, Migration)>();
         let reader = {
             let (reader_stream, scene) = (stream.try_clone()?, Arc::clone(&self.scene));
+            let silence = self.peer_silence;
             std::thread::Builder::new()
                 .name("strata-mfr-sc-read".into())
-                .spawn(move || read_snapshots(reader_stream, &scene, jobs_out))?
+                .spawn(move || read_snapshots(reader_stream, &scene, silence, jobs_out))?
         };
         let mut sent = 0;
         let rendered = self.render_loop(
@@ -1090,16 +1103,31 @@ impl ScServer {
 fn read_snapshots(
     mut stream: TcpStream,
     scene: &Scene,
+    silence: Duration,
     mut jobs: Publisher<(Snapshot, Migration)>,
 ) -> Result<(), TcpError> {
     let limits = DecodeOptions {
         max_body_bytes: 1 << 28,
         ..DecodeOptions::default()
     };
+    if let Err(e) = stream.set_read_timeout(Some(silence)) {
+        return Err(e.into());
+    }
     let result = loop {
         let (kind, bytes) = match read_message(&mut stream, &limits) {
             Ok(m) => m,
             Err(ReadError::Closed) => break Ok(()),
+            Err(ReadError::Io(e))
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                break Err(TcpError::Protocol(format!(
+                    "no message from the fast client for {:.1} s: taking it for gone",
+                    silence.as_secs_f64()
+                )));
+            }
             Err(e) => break Err(e.into()),
         };
         if kind != MessageType::MfrSnapshot {

@@ -17,7 +17,8 @@ use std::time::Duration;
 use strata_core::ObjectId;
 use strata_mfr::client::Client;
 use strata_mfr::tcp::{
-    ScServer, TcpOptions, decode_buffer, encode_buffer, snapshot_from_wire, snapshot_to_wire,
+    ScServer, TcpOptions, decode_buffer, encode_buffer, scene_fingerprint, snapshot_from_wire,
+    snapshot_to_wire,
 };
 use strata_mfr::trace::{GrabParams, grab};
 use strata_mfr::{
@@ -25,7 +26,7 @@ use strata_mfr::{
     run_real,
 };
 use strata_scene::{Scene, SearchPath, open_scene};
-use strata_wire::mfr::MfrSnapshot;
+use strata_wire::mfr::{MFR_PROTOCOL, MfrHello, MfrRole, MfrSnapshot};
 use strata_wire::stream::read_message;
 use strata_wire::{Codec, DecodeOptions, MAGIC, VERSION};
 
@@ -379,4 +380,45 @@ fn nothing_listening_is_a_clear_error() {
         e.to_string().contains("cannot reach the slow client at"),
         "{e}"
     );
+}
+
+#[test]
+fn a_fast_client_that_goes_silent_is_dropped_by_the_slow_client() {
+    let scene = scene("mixed");
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let server = ScServer {
+        threads: 1,
+        peer_silence: Duration::from_millis(200),
+        ..ScServer::new(Arc::clone(&scene))
+    };
+    let (done, served) = mpsc::channel();
+    std::thread::spawn(move || {
+        let (stream, _) = listener.accept().expect("a connection");
+        let _ = done.send(server.serve_connection(stream, |_| {}));
+    });
+    // A fast client that shakes hands, then neither sends nor closes: a vanished machine.
+    let mut fc = TcpStream::connect(addr).expect("connects");
+    let mut out = Vec::new();
+    MfrHello {
+        protocol: MFR_PROTOCOL,
+        role: MfrRole::Fast,
+        width: SIZE.0,
+        height: SIZE.1,
+        fingerprint: scene_fingerprint(&scene),
+        scene: scene.name.clone(),
+    }
+    .encode_into(&mut out);
+    fc.write_all(&out).expect("hello sent");
+    let (kind, _) = read_message(&mut fc, &DecodeOptions::default()).expect("the SC's hello");
+    assert_eq!(kind, strata_wire::MessageType::MfrHello);
+    let e = served
+        .recv_timeout(Duration::from_secs(60))
+        .expect("the SC gives up on a silent FC")
+        .expect_err("a silent FC ends the connection");
+    assert!(
+        e.to_string().contains("no message from the fast client"),
+        "{e}"
+    );
+    drop(fc);
 }
