@@ -101,6 +101,8 @@ enum Command {
     Inspect(cmd::inspect::Args),
     // About: `cmd::mfr::Args`'s doc comment.
     Mfr(cmd::mfr::Args),
+    // About: `cmd::mfr_slow::Args`'s doc comment.
+    MfrSlow(cmd::mfr_slow::Args),
 }
 
 impl Command {
@@ -172,6 +174,7 @@ fn main() -> ExitCode {
             Command::Composite(a) => cmd::composite::run(a),
             Command::Inspect(a) => cmd::inspect::run(a),
             Command::Mfr(a) => cmd::mfr::run(a),
+            Command::MfrSlow(a) => cmd::mfr_slow::run(a),
         });
     match result {
         Ok(()) => ExitCode::SUCCESS,

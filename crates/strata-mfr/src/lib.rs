@@ -40,9 +40,11 @@
 //! - [`realtime`]: the same clients on their own threads in real time, handing over through
 //!   triple buffers; the FC never waits for the SC.
 //!
+//! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
+//!   strata-wire messages; network threads feed the same triple buffers.
+//!
 //! Composition is deep (exact), digital (the seed's colour + depth) or optical (the FC's image
-//! over the SC's, the seed's projectors), the last two kept to show their artefacts. The TCP
-//! transport builds on these types.
+//! over the SC's, the seed's projectors), the last two kept to show their artefacts.
 
 pub mod audit;
 pub mod authority;
@@ -51,6 +53,7 @@ pub mod compose;
 pub mod realtime;
 pub mod simulate;
 pub mod state;
+pub mod tcp;
 pub mod timeline;
 pub mod trace;
 pub mod transfer;
@@ -59,7 +62,7 @@ pub mod window;
 pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use compose::Composition;
-pub use realtime::{RealStats, run_real};
+pub use realtime::{Incident, RealConfig, RealStats, ScLoad, ScPriority, Transport, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
 pub use timeline::{EventKind, EventReport, FrameRecord, Latency, events, latency};

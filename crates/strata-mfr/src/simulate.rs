@@ -187,6 +187,15 @@ pub enum SimulateError {
     /// A client thread could not start, or panicked.
     #[error("client thread: {0}")]
     Thread(String),
+    /// The TCP slow client could not be reached, or refused the handshake.
+    #[error(transparent)]
+    Tcp(Box<crate::tcp::TcpError>),
+}
+
+impl From<crate::tcp::TcpError> for SimulateError {
+    fn from(e: crate::tcp::TcpError) -> Self {
+        SimulateError::Tcp(Box::new(e))
+    }
 }
 
 /// Runs `fc_frames` FC frames of `trace` on `scene` at `width × height`, composing with

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use strata_mfr::client::Client;
 use strata_mfr::trace::{GrabParams, grab};
-use strata_mfr::{Composition, FcFrame, Migration, run_real};
+use strata_mfr::{FcFrame, RealConfig, ScLoad, ScPriority, run_real};
 use strata_scene::{SearchPath, open_scene};
 
 #[test]
@@ -25,16 +25,13 @@ fn real_threads_compose_exactly_in_every_frame() {
     let trace = grab(&scene, &params).expect("trace");
     let size = (64, 36);
     let mut frames: Vec<FcFrame> = Vec::new();
-    let stats = run_real(
-        Arc::clone(&scene),
-        trace,
-        60.0,
-        Migration::Predictive,
-        Composition::Deep,
-        size,
-        30,
-        |f| frames.push(f.clone()),
-    )
+    let config = RealConfig {
+        fc_hz: 60.0,
+        ..RealConfig::new(size, 30)
+    };
+    let stats = run_real(Arc::clone(&scene), trace, &config, |f| {
+        frames.push(f.clone())
+    })
     .expect("the run completes");
     assert_eq!(frames.len(), 30);
     assert_eq!(stats.fc_frame_ms.len(), 30);
@@ -81,16 +78,71 @@ fn a_bad_rate_is_refused() {
         )
         .expect("built-in scene"),
     );
-    let err = run_real(
-        scene,
-        strata_mfr::Trace::default(),
-        0.0,
-        Migration::Predictive,
-        Composition::Deep,
-        (8, 8),
-        1,
-        |_| {},
-    )
-    .expect_err("0 Hz");
+    let config = RealConfig {
+        fc_hz: 0.0,
+        ..RealConfig::new((8, 8), 1)
+    };
+    let err = run_real(scene, strata_mfr::Trace::default(), &config, |_| {}).expect_err("0 Hz");
     assert!(err.to_string().contains("fc_hz 0"), "{err}");
+}
+
+#[test]
+fn without_a_slow_client_the_fc_draws_every_object_every_frame() {
+    let scene = Arc::new(
+        open_scene("mixed", &SearchPath::new(Vec::<std::path::PathBuf>::new()))
+            .expect("built-in scene"),
+    );
+    let trace = grab(&scene, &GrabParams::default()).expect("trace");
+    let config = RealConfig {
+        fc_hz: 120.0,
+        sc_load: ScLoad::Off,
+        ..RealConfig::new((48, 27), 12)
+    };
+    let mut frames: Vec<FcFrame> = Vec::new();
+    let stats = run_real(Arc::clone(&scene), trace, &config, |f| {
+        frames.push(f.clone())
+    })
+    .expect("the run completes");
+    assert!(stats.sc_frame_ms.is_empty(), "no SC frame");
+    assert_eq!(frames.len(), 12);
+    let all: Vec<usize> = (0..scene.objects.len()).collect();
+    for f in &frames {
+        assert!(
+            f.sc.is_none(),
+            "frame {} composed with an SC buffer",
+            f.index
+        );
+        assert_eq!(f.fc_objects, all, "frame {}", f.index);
+    }
+}
+
+#[test]
+fn an_idle_slow_client_renders_the_first_state_only_at_low_priority() {
+    let scene = Arc::new(
+        open_scene("mixed", &SearchPath::new(Vec::<std::path::PathBuf>::new()))
+            .expect("built-in scene"),
+    );
+    let trace = grab(&scene, &GrabParams::default()).expect("trace");
+    let config = RealConfig {
+        fc_hz: 120.0,
+        sc_load: ScLoad::Idle,
+        sc_priority: ScPriority::Low,
+        ..RealConfig::new((48, 27), 24)
+    };
+    let mut frames: Vec<FcFrame> = Vec::new();
+    let stats = run_real(Arc::clone(&scene), trace, &config, |f| {
+        frames.push(f.clone())
+    })
+    .expect("the run completes");
+    assert!(
+        stats.sc_frame_ms.len() <= 1,
+        "{} SC frames",
+        stats.sc_frame_ms.len()
+    );
+    assert!(stats.incidents.is_empty(), "{:?}", stats.incidents);
+    // The one buffer is of the snapshot of the FC's first frame.
+    let first = frames[0].snapshot.id;
+    for f in frames.iter().filter_map(|f| f.sc.as_ref()) {
+        assert_eq!((f.sc_frame, f.snapshot_id), (0, first));
+    }
 }

@@ -77,6 +77,10 @@ impl<'a> Reader<'a> {
         Ok(f32::from_le_bytes(self.array(field)?))
     }
 
+    pub(crate) fn f64(&mut self, field: &'static str) -> Result<f64, WireError> {
+        Ok(f64::from_le_bytes(self.array(field)?))
+    }
+
     pub(crate) fn bytes4(&mut self, field: &'static str) -> Result<[u8; 4], WireError> {
         self.array(field)
     }

@@ -151,7 +151,7 @@ pub struct NodeStats {
 }
 
 /// Writes a complete message of type `kind` whose body `body` appends, replacing `out`.
-fn write_message(out: &mut Vec<u8>, kind: MessageType, body: impl FnOnce(&mut Vec<u8>)) {
+pub(crate) fn write_message(out: &mut Vec<u8>, kind: MessageType, body: impl FnOnce(&mut Vec<u8>)) {
     out.clear();
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&VERSION.to_le_bytes());
@@ -165,13 +165,13 @@ fn write_message(out: &mut Vec<u8>, kind: MessageType, body: impl FnOnce(&mut Ve
     out[16..20].copy_from_slice(&crc.to_le_bytes());
 }
 
-fn put_string(out: &mut Vec<u8>, s: &str) {
+pub(crate) fn put_string(out: &mut Vec<u8>, s: &str) {
     put_varint(out, s.len() as u32);
     out.extend_from_slice(s.as_bytes());
 }
 
 /// The body of a complete message of the expected type, prefix and checksum verified.
-fn body_of<'a>(
+pub(crate) fn body_of<'a>(
     bytes: &'a [u8],
     want: MessageType,
     options: &DecodeOptions,
@@ -207,7 +207,11 @@ fn body_of<'a>(
     Ok(Reader::new(body, PREFIX_LEN as u64))
 }
 
-fn string(r: &mut Reader<'_>, field: &'static str, max: usize) -> Result<String, WireError> {
+pub(crate) fn string(
+    r: &mut Reader<'_>,
+    field: &'static str,
+    max: usize,
+) -> Result<String, WireError> {
     let at = r.offset();
     let len = r.varint(field)? as usize;
     if len > max {
@@ -222,7 +226,7 @@ fn string(r: &mut Reader<'_>, field: &'static str, max: usize) -> Result<String,
     String::from_utf8(b.to_vec()).map_err(|_| WireError::invalid(field, at, "bytes", "not UTF-8"))
 }
 
-fn finish(r: &Reader<'_>, what: &'static str) -> Result<(), WireError> {
+pub(crate) fn finish(r: &Reader<'_>, what: &'static str) -> Result<(), WireError> {
     if r.remaining() != 0 {
         return Err(WireError::invalid(
             what,

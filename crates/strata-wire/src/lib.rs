@@ -15,6 +15,8 @@
 //!   ids) under LZ4 or zstd;
 //! - [`mask`]: sets of pixels as runs (what a `difference` frame replaces);
 //! - [`control`]: the services' small messages — request, hello, stats, error;
+//! - [`mfr`]: the multi-frame-rate messages between a fast and a slow client (hello, state
+//!   snapshot, buffer header), and [`stream`]: whole messages from a blocking socket;
 //! - [`WireError`]: every failure, naming the field and its byte offset; decoding never panics.
 //!
 //! ```
@@ -37,7 +39,9 @@ pub mod control;
 mod error;
 pub mod mask;
 pub mod message;
+pub mod mfr;
 pub mod removals;
+pub mod stream;
 
 pub use codec::{Codec, Compression, SectionInfo, SectionTag, UnknownCodec};
 pub use control::{

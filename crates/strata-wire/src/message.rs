@@ -8,7 +8,8 @@
 //! ```text
 //!  0  magic        [u8; 4]  "STRW"
 //!  4  version      u16      1
-//!  6  type         u8       1 frame, 2 request, 4 error, 5 hello, 6 stats (3: reserved)
+//!  6  type         u8       1 frame, 2 request, 4 error, 5 hello, 6 stats (3: reserved),
+//!                           7–9 multi-frame rendering (see `mfr.rs`)
 //!  7  flags        u8       0 (reserved)
 //!  8  body_len     u64      bytes after the prefix
 //! 16  body_crc32   u32      CRC-32 (ISO-HDLC, as zlib) of those bytes
@@ -88,6 +89,13 @@ pub enum MessageType {
     Hello = 5,
     /// A node's figures for the frame message it just sent ([`crate::NodeStats`]).
     Stats = 6,
+    /// Multi-frame rendering: a client introduces itself ([`crate::mfr::MfrHello`]).
+    MfrHello = 7,
+    /// Multi-frame rendering: a state snapshot, fast → slow client ([`crate::mfr::MfrSnapshot`]).
+    MfrSnapshot = 8,
+    /// Multi-frame rendering: a slow client's buffer header; a frame message follows
+    /// ([`crate::mfr::MfrBuffer`]).
+    MfrBuffer = 9,
 }
 
 impl MessageType {
@@ -99,6 +107,9 @@ impl MessageType {
             4 => return Ok(MessageType::Error),
             5 => return Ok(MessageType::Hello),
             6 => return Ok(MessageType::Stats),
+            7 => return Ok(MessageType::MfrHello),
+            8 => return Ok(MessageType::MfrSnapshot),
+            9 => return Ok(MessageType::MfrBuffer),
             3 => "reserved for reprojection deltas",
             _ => "unknown",
         };
@@ -295,6 +306,12 @@ pub enum Message {
     Hello(crate::Hello),
     /// A node's statistics.
     Stats(crate::NodeStats),
+    /// A multi-frame-rate client's introduction.
+    MfrHello(crate::mfr::MfrHello),
+    /// A multi-frame-rate state snapshot.
+    MfrSnapshot(crate::mfr::MfrSnapshot),
+    /// A slow client's buffer header.
+    MfrBuffer(crate::mfr::MfrBuffer),
 }
 
 // ----- encoding -----------------------------------------------------------------------------
@@ -542,6 +559,15 @@ pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Message, WireErro
         MessageType::Error => crate::control::decode_error(bytes, options).map(Message::Error),
         MessageType::Hello => crate::Hello::decode(bytes, options).map(Message::Hello),
         MessageType::Stats => crate::NodeStats::decode(bytes, options).map(Message::Stats),
+        MessageType::MfrHello => {
+            crate::mfr::MfrHello::decode(bytes, options).map(Message::MfrHello)
+        }
+        MessageType::MfrSnapshot => {
+            crate::mfr::MfrSnapshot::decode(bytes, options).map(Message::MfrSnapshot)
+        }
+        MessageType::MfrBuffer => {
+            crate::mfr::MfrBuffer::decode(bytes, options).map(Message::MfrBuffer)
+        }
     }
 }
 

@@ -9,6 +9,7 @@ pub(crate) mod display;
 pub(crate) mod inspect;
 pub(crate) mod methods;
 pub(crate) mod mfr;
+pub(crate) mod mfr_slow;
 pub(crate) mod node;
 pub(crate) mod render;
 pub(crate) mod scenes;

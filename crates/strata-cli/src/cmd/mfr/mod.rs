@@ -11,8 +11,10 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
-use strata_mfr::{Composition, FrameAudit, audit, run_real};
+use strata_mfr::tcp::TcpOptions;
+use strata_mfr::{Composition, FrameAudit, RealConfig, ScLoad, Transport, audit, run_real};
 
+use crate::cmd::mfr_slow::PriorityArg;
 use crate::options::{open_scene, search_path};
 
 mod clock;
@@ -20,7 +22,7 @@ mod contact_sheet;
 mod summary;
 
 use clock::{make_trace, parse_clock};
-use summary::{Totals, frame_json, frame_record, summary_json, summary_text};
+use summary::{Totals, frame_json, frame_record, incidents_text, summary_json, summary_text};
 
 /// Multi-frame-rate rendering: a slow and a fast client composited, every frame audited.
 ///
@@ -60,9 +62,29 @@ pub(crate) struct Args {
     #[arg(long, value_enum, default_value_t = ModeArg::Deep)]
     pub(crate) mode: ModeArg,
 
-    /// The simulated clock: `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]`.
+    /// The clock: `virtual:sc_ms=N,fc_ms=N[,transfer_ms=N]` (simulated time) or
+    /// `real[:fc_hz=N]` (the clients on their own threads, the FC at N Hz, default 30).
     #[arg(long, default_value = "virtual:sc_ms=300,fc_ms=33")]
     pub(crate) clock: String,
+
+    /// Real clock only: where the slow client runs — `thread` (in this process) or
+    /// `tcp:HOST:PORT` (a `strata mfr-slow SCENE --listen HOST:PORT` with the same scene, here
+    /// or on another machine). A link that fails during the run is reported as an incident and
+    /// the FC goes on with the last SC buffer it received.
+    #[arg(long, default_value = "thread")]
+    pub(crate) transport: String,
+
+    /// Real clock only: what the slow client does — `busy` (renders every new state), `idle`
+    /// (renders the first state once, then nothing) or `off` (no slow client: the FC draws every
+    /// object every frame, as a conventional single renderer).
+    #[arg(long, value_enum, default_value_t = ScLoadArg::Busy)]
+    pub(crate) sc_load: ScLoadArg,
+
+    /// Real clock only: priority of the slow client's threads, or with `--transport tcp` of the
+    /// threads receiving and decoding its buffers (`low`: nice 19 on Linux, so the FC is
+    /// scheduled first; give `strata mfr-slow` its own `--priority`).
+    #[arg(long, value_enum, default_value_t = PriorityArg::Normal)]
+    pub(crate) sc_priority: PriorityArg,
 
     /// FC frames to run (default: until the trace is over and the SC has caught up).
     #[arg(long)]
@@ -124,6 +146,28 @@ pub(crate) enum MigrationArg {
     Naive,
 }
 
+/// `--sc-load`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum ScLoadArg {
+    /// The SC renders every new state.
+    Busy,
+    /// The SC renders the first state only.
+    Idle,
+    /// No SC.
+    Off,
+}
+
+/// `--transport`.
+fn parse_transport(s: &str) -> Result<Transport> {
+    if s == "thread" {
+        return Ok(Transport::Thread);
+    }
+    match s.strip_prefix("tcp:") {
+        Some(addr) if !addr.trim().is_empty() => Ok(Transport::Tcp(TcpOptions::new(addr.trim()))),
+        _ => bail!("--transport {s}: expected thread or tcp:HOST:PORT"),
+    }
+}
+
 /// `--clock`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) enum Clock {
@@ -136,6 +180,14 @@ pub(crate) enum Clock {
 /// Runs `strata mfr`.
 pub(crate) fn run(args: Args) -> Result<()> {
     let clock = parse_clock(&args.clock)?;
+    let transport = parse_transport(&args.transport)?;
+    if matches!(clock, Clock::Virtual(_))
+        && (transport != Transport::Thread
+            || args.sc_load != ScLoadArg::Busy
+            || args.sc_priority != PriorityArg::Normal)
+    {
+        bail!("--transport, --sc-load and --sc-priority need the real clock (--clock real)");
+    }
     if let Some(dir) = &args.out_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -260,27 +312,31 @@ pub(crate) fn run(args: Args) -> Result<()> {
             let mut unaudited = Vec::new();
             let mut kept = 0u64;
             let scene = std::sync::Arc::new(scene.clone());
-            let stats = run_real(
-                scene,
-                trace.clone(),
+            let config = RealConfig {
                 fc_hz,
                 migration,
                 composition,
-                size,
-                frames,
-                |f| {
-                    let bytes = f.fc.memory_bytes() + f.image.as_bytes().len() as u64;
-                    if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
-                        kept += bytes;
-                        shown.push(f.clone());
-                    } else {
-                        unaudited.push((
-                            frame_record(f, f.t_ms, None),
-                            f.sc.as_ref().map(|sc| sc.sc_frame),
-                        ));
-                    }
+                transport,
+                sc_load: match args.sc_load {
+                    ScLoadArg::Busy => ScLoad::Busy,
+                    ScLoadArg::Idle => ScLoad::Idle,
+                    ScLoadArg::Off => ScLoad::Off,
                 },
-            )?;
+                sc_priority: args.sc_priority.into(),
+                ..RealConfig::new(size, frames)
+            };
+            let stats = run_real(scene, trace.clone(), &config, |f| {
+                let bytes = f.fc.memory_bytes() + f.image.as_bytes().len() as u64;
+                if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
+                    kept += bytes;
+                    shown.push(f.clone());
+                } else {
+                    unaudited.push((
+                        frame_record(f, f.t_ms, None),
+                        f.sc.as_ref().map(|sc| sc.sc_frame),
+                    ));
+                }
+            })?;
             // A frame is on screen when its work is done.
             let shown_at = |index: u64, t_ms: f64| {
                 t_ms + stats
@@ -319,7 +375,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         );
     }
     let summary = summary_json(&args, &scene, &trace, clock, size, &mut totals, real);
-    outln!("{}", summary_text(&summary))?;
+    outln!("{}{}", summary_text(&summary), incidents_text(&summary))?;
     if let Some(dir) = &args.out_dir {
         let path = dir.join("summary.json");
         std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")

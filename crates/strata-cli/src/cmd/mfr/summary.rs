@@ -179,8 +179,45 @@ pub(super) fn summary_json(
         v["sc_frames"] = json!(r.sc_frame_ms.len());
         v["swap_us"] = json!({"median": median_p95(&mut swap)["median"], "max": max});
         v["fc_deadlines_missed"] = json!(r.fc_deadlines_missed);
+        transport_json(&mut v, args, &mut r);
     }
     v
+}
+
+/// The real clock's transport, SC load and incidents; over TCP, the bytes and times of the SC
+/// buffers received.
+fn transport_json(v: &mut serde_json::Value, args: &Args, r: &mut RealStats) {
+    v["transport"] = json!(args.transport);
+    v["sc_load"] = json!(format!("{:?}", args.sc_load).to_lowercase());
+    v["sc_priority"] = json!(format!("{:?}", args.sc_priority).to_lowercase());
+    let incidents: Vec<serde_json::Value> = r
+        .incidents
+        .iter()
+        .map(|i| json!({"t_ms": i.t_ms, "what": i.what}))
+        .collect();
+    v["incidents"] = json!(incidents);
+    if !r.sc_bytes.is_empty() {
+        let mut bytes: Vec<f64> = r.sc_bytes.iter().map(|&b| b as f64).collect();
+        v["sc_bytes"] = median_p95(&mut bytes);
+        v["transfer_ms"] = median_p95(&mut r.transfer_ms);
+        v["decode_ms"] = median_p95(&mut r.decode_ms);
+    }
+}
+
+/// A line per incident of a real-time run (empty without any).
+pub(super) fn incidents_text(s: &serde_json::Value) -> String {
+    let Some(list) = s["incidents"].as_array().filter(|l| !l.is_empty()) else {
+        return String::new();
+    };
+    let mut text = format!("\n  {} incident(s) beside the FC loop:", list.len());
+    for i in list {
+        text.push_str(&format!(
+            "\n    at {} ms: {}",
+            fmt(&i["t_ms"]),
+            i["what"].as_str().unwrap_or("?")
+        ));
+    }
+    text
 }
 
 fn clock_text(s: &serde_json::Value) -> String {
