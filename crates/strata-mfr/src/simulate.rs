@@ -146,7 +146,7 @@ pub(crate) fn fc_frame(
     let view = sc.map_or(snapshot.view, |sc| sc.view);
     let fc = client.render_footprint(scene, snapshot, &view, &fc_objects)?;
     let image = match (sc, composition) {
-        (None, _) => fc.to_full()?.resolve(scene.background),
+        (None, _) => fc.resolve(scene.background),
         (Some(sc), Composition::Deep) => {
             let holds = fc_ids
                 .iter()

@@ -11,7 +11,7 @@
 //! Exporting, handing over and compositing a window cost what the FC's objects cover; a
 //! full-frame DeepFrame would cost a pass over every pixel of the screen each FC frame.
 
-use strata_core::{DeepFrame, DeepFrameError, PixelRect, Run};
+use strata_core::{DeepFrame, DeepFrameError, PixelRect, Rgb8Image, Run};
 
 /// Fragments of a rectangle of a `frame_width × frame_height` frame; none outside it.
 #[derive(Clone, Debug, PartialEq)]
@@ -93,6 +93,22 @@ impl DeepWindow {
         self.frame.memory_bytes()
     }
 
+    /// The full frame resolved onto `background`: the window's pixels resolved, the others the
+    /// background. Equal to `self.to_full()?.resolve(background)` without building the frame.
+    pub fn resolve(&self, background: [f32; 3]) -> Rgb8Image {
+        let bg = strata_core::composite::background_pixel(background);
+        let mut image = Rgb8Image::filled(self.frame_width, self.frame_height, bg);
+        let part = self.frame.resolve(background);
+        let (r, w) = (self.rect, self.frame_width as usize);
+        let row = 3 * r.width as usize;
+        for j in 0..r.height as usize {
+            let at = 3 * ((r.y as usize + j) * w + r.x as usize);
+            image.as_bytes_mut()[at..at + row]
+                .copy_from_slice(&part.as_bytes()[j * row..(j + 1) * row]);
+        }
+        image
+    }
+
     /// The full frame: the window padded with empty pixels.
     ///
     /// # Errors
@@ -147,6 +163,8 @@ mod tests {
         lists[10] = vec![frag(0.2), frag(0.7)];
         let full = DeepFrame::from_pixel_lists(4, 3, &lists).expect("full");
         assert_eq!(w.to_full().expect("full"), full);
+        let bg = [0.2, 0.4, 0.9];
+        assert_eq!(w.resolve(bg), full.resolve(bg));
         assert_eq!(w.run_at(2, 2).map(|r| r.len()), Some(2));
         assert!(w.run_at(0, 2).is_none() && w.run_at(1, 1).is_none() && w.run_at(3, 2).is_none());
         assert_eq!(
