@@ -65,7 +65,7 @@ pub use compose::Composition;
 pub use realtime::{Incident, RealConfig, RealStats, ScLoad, ScPriority, Transport, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};
-pub use timeline::{EventKind, EventReport, FrameRecord, Latency, events, latency};
+pub use timeline::{EventKind, EventLatency, EventReport, FrameRecord, Latency, events, latency};
 pub use trace::{Button, Event, TimedEvent, Trace, TraceError};
 pub use transfer::{Latest, Publisher, TransferBuffer, exchange};
 pub use window::DeepWindow;

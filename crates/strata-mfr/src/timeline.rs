@@ -66,23 +66,46 @@ pub struct Latency {
     pub fc_not_shown: usize,
     /// Events no SC buffer showed before the run ended.
     pub sc_not_shown: usize,
+    /// Per event, in trace order: its time and both latencies (`None`: not shown).
+    pub per_event: Vec<EventLatency>,
+}
+
+/// One event's latencies (ms).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct EventLatency {
+    /// Trace time of the event.
+    pub t_ms: f64,
+    /// To the first frame showing it (`None`: none did).
+    pub fc_path_ms: Option<f64>,
+    /// To the first frame whose SC buffer shows it (`None`: none did).
+    pub sc_path_ms: Option<f64>,
 }
 
 /// The latency of every event of `trace` in `frames` (frame order).
 pub fn latency(trace: &Trace, frames: &[FrameRecord]) -> Latency {
     let mut out = Latency::default();
     for (i, e) in trace.events().iter().enumerate() {
-        match frames.iter().find(|f| f.events_applied > i) {
-            Some(f) => out.fc_path_ms.push(f.shown_ms - e.t_ms),
-            None => out.fc_not_shown += 1,
-        }
-        match frames
+        let fc = frames
+            .iter()
+            .find(|f| f.events_applied > i)
+            .map(|f| f.shown_ms - e.t_ms);
+        let sc = frames
             .iter()
             .find(|f| f.sc_state_ms.is_some_and(|s| s >= e.t_ms))
-        {
-            Some(f) => out.sc_path_ms.push(f.shown_ms - e.t_ms),
+            .map(|f| f.shown_ms - e.t_ms);
+        match fc {
+            Some(ms) => out.fc_path_ms.push(ms),
+            None => out.fc_not_shown += 1,
+        }
+        match sc {
+            Some(ms) => out.sc_path_ms.push(ms),
             None => out.sc_not_shown += 1,
         }
+        out.per_event.push(EventLatency {
+            t_ms: e.t_ms,
+            fc_path_ms: fc,
+            sc_path_ms: sc,
+        });
     }
     out
 }
@@ -249,6 +272,19 @@ mod tests {
         assert_eq!((l.fc_not_shown, l.sc_not_shown), (0, 0));
         let l = latency(&trace(), &frames(&[])[..4]);
         assert_eq!((l.fc_not_shown, l.sc_not_shown), (1, 2));
+        let shown: Vec<(f64, Option<f64>, Option<f64>)> = l
+            .per_event
+            .iter()
+            .map(|e| (e.t_ms, e.fc_path_ms, e.sc_path_ms))
+            .collect();
+        assert_eq!(
+            shown,
+            [
+                (0.0, Some(10.0), Some(160.0)),
+                (100.0, Some(10.0), None),
+                (300.0, None, None)
+            ]
+        );
     }
 
     #[test]

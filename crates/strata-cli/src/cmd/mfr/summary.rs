@@ -158,6 +158,7 @@ pub(super) fn summary_json(
             "sc_path": median_p95(&mut sc_path),
             "fc_path_not_shown": l.fc_not_shown,
             "sc_path_not_shown": l.sc_not_shown,
+            "per_event": l.per_event,
         },
         "frames_with_bad_pixels": frames_with(|a| a.bad_pixels > 0),
         "max_bad_pixels": audits.iter().map(|a| a.bad_pixels).max().unwrap_or(0),
