@@ -29,7 +29,7 @@ use crate::client::{Client, ClientError};
 use crate::compose::compose_deep;
 use crate::lighting::{LightRig, LightingError, LightingModel, PointLight, Shader};
 use crate::simulate::{Migration, SimulateError, VirtualClock, fc_draws, sc_render};
-use crate::trace::Trace;
+use crate::trace::{Event, Trace};
 use crate::transfer::TransferBuffer;
 
 /// Bytes one pixel's run offset takes in a DeepFrame.
@@ -125,20 +125,25 @@ pub struct ScCost {
     pub max_fragments: u64,
 }
 
-/// The lights of frame time `t_ms`: the snapshot's (the trace's `light` events) if it has any,
-/// else `rig`'s.
-pub fn frame_lights(snapshot: &Snapshot, rig: &LightRig, t_ms: f64) -> Vec<PointLight> {
-    if snapshot.lights.is_empty() {
-        rig.at(t_ms)
-    } else {
+/// The lights of frame time `t_ms`: the snapshot's when the trace keys lights (none before the
+/// first key), else `rig`'s.
+fn frame_lights(
+    snapshot: &Snapshot,
+    trace_keys_lights: bool,
+    rig: &LightRig,
+    t_ms: f64,
+) -> Vec<PointLight> {
+    if trace_keys_lights {
         snapshot.lights.iter().map(|l| l.light).collect()
+    } else {
+        rig.at(t_ms)
     }
 }
 
 /// Deferred shading on the virtual clock: as [`crate::simulate::run_virtual`] with deep
 /// composition, but the SC renders a deep G-buffer (normal fragments) and the FC composes normal
-/// fragments and lights every one with the lights of its own frame time
-/// ([`frame_lights`]). Calls `on_frame` with each FC frame; returns the SC's cost.
+/// fragments and lights every one with the lights of its own frame time: the trace's `light`
+/// events if it has any, else `rig`'s. Calls `on_frame` with each FC frame; returns the SC's cost.
 ///
 /// # Errors
 /// When a client fails, the clock is not valid, or a fragment's object is unknown.
@@ -165,6 +170,10 @@ pub fn run_deferred_virtual(
     {
         return Err(SimulateError::Clock(clock).into());
     }
+    let trace_keys_lights = trace
+        .events()
+        .iter()
+        .any(|e| matches!(e.event, Event::Light { .. }));
     let mut authority = Authority::new(scene, trace);
     let client = || Client::new(width, height).with_output(FragmentOutput::PackedNormal);
     let (mut sc_client, mut fc_client) = (client(), client());
@@ -196,7 +205,7 @@ pub fn run_deferred_virtual(
         let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
         fc_ids.sort_unstable();
         let view = delivered.as_ref().map_or(snapshot.view, |sc| sc.view);
-        let lights = frame_lights(&snapshot, rig, t);
+        let lights = frame_lights(&snapshot, trace_keys_lights, rig, t);
         let shader = Shader::new(
             scene,
             (width, height),

@@ -29,7 +29,7 @@
 use glam::{Mat4, Vec3, Vec4};
 use strata_core::fragment::unorm8;
 use strata_core::material::Shading;
-use strata_core::{DeepFrame, DeepFrameError, Fragment, Material, ObjectId, PackedNormal, Rgba8};
+use strata_core::{DeepFrame, DeepFrameError, Fragment, Material, PackedNormal, Rgba8};
 use strata_scene::Scene;
 
 use crate::trace::{Event, LightMotion, Trace};
@@ -250,11 +250,6 @@ impl Shader {
                 }));
             },
         )?)
-    }
-
-    /// The ids of the palette, for callers checking a frame.
-    pub fn knows(&self, id: ObjectId) -> bool {
-        matches!(self.palette.get(id.0 as usize), Some(Some(_)))
     }
 }
 
