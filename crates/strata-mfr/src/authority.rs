@@ -6,7 +6,9 @@
 //! Authority ── scene objects: world bounds at rest (object-space AABB through the scene's model)
 //!           ── cursor into the trace, the current view, the pointer ray, the active drag
 //!           ── per object: offset (translation the user added), version, state (Fig. 6.5)
-//!           └─► Snapshot { id, t_ms, view, objects: [ObjectPose; n], samples } behind an Arc
+//!           ── the trace's `light` keys (TraceLights)
+//!           └─► Snapshot { id, t_ms, view, objects: [ObjectPose; n], events_applied, lights }
+//!               behind an Arc
 //! ```
 //!
 //! A [`Snapshot`] is immutable and numbered: clients hold an `Arc` to the one they render, compare
@@ -37,6 +39,7 @@ use glam::{Mat4, Vec3};
 use strata_core::ObjectId;
 use strata_scene::{Aabb, Mesh, Scene};
 
+use crate::lighting::{LightPose, TraceLights};
 use crate::state::{Input, ObjectState};
 use crate::trace::{Button, Event, Trace};
 
@@ -84,6 +87,9 @@ pub struct Snapshot {
     pub objects: Vec<ObjectPose>,
     /// How many trace events it includes (for latency: the newest input it shows).
     pub events_applied: usize,
+    /// The point lights the trace has keyed so far, by id, where they are at `t_ms` (deferred
+    /// shading; empty without `light` events).
+    pub lights: Vec<LightPose>,
 }
 
 impl Snapshot {
@@ -118,6 +124,7 @@ pub struct Authority {
     rest_bounds: Vec<Aabb>,
     pointer: Option<(Vec3, Vec3)>,
     drag: Option<Drag>,
+    lights: TraceLights,
     current: Arc<Snapshot>,
 }
 
@@ -154,7 +161,9 @@ impl Authority {
                 })
                 .collect(),
             events_applied: 0,
+            lights: Vec::new(),
         };
+        let lights = TraceLights::new(&trace);
         Authority {
             trace,
             next_event: 0,
@@ -162,6 +171,7 @@ impl Authority {
             rest_bounds,
             pointer: None,
             drag: None,
+            lights,
             current: Arc::new(first),
         }
     }
@@ -198,7 +208,11 @@ impl Authority {
             next.events_applied = self.next_event;
         }
         self.step_drag(&mut next, t_ms);
-        let changed = next.view != self.current.view
+        if !self.lights.is_empty() {
+            next.lights = self.lights.at(t_ms);
+        }
+        let changed = next.lights != self.current.lights
+            || next.view != self.current.view
             || next.objects != self.current.objects
             || next.events_applied != self.current.events_applied;
         if changed {
@@ -228,6 +242,8 @@ impl Authority {
                 }
                 self.pick(s);
             }
+            // Lights follow their keys continuously: posed in `advance_to`.
+            Event::Light { .. } => {}
             Event::Drag { by, duration_ms } => {
                 if let Some(i) = s
                     .objects

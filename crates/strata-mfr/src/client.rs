@@ -45,6 +45,7 @@ pub struct Client {
     store: LinkedListABuffer,
     width: u32,
     height: u32,
+    output: FragmentOutput,
 }
 
 impl Client {
@@ -56,7 +57,15 @@ impl Client {
             store: LinkedListABuffer::new(PoolCapacity::Auto),
             width,
             height,
+            output: FragmentOutput::Shaded,
         }
+    }
+
+    /// The same client, making fragments of `output`: [`FragmentOutput::PackedNormal`] gives the
+    /// normal fragments of a deep G-buffer ([`crate::deferred`]).
+    pub fn with_output(mut self, output: FragmentOutput) -> Self {
+        self.output = output;
+        self
     }
 
     /// The projection every client uses for this scene and size.
@@ -199,7 +208,7 @@ impl Client {
             projection: self.projection(scene),
             background: scene.background,
             objects,
-            output: FragmentOutput::Shaded,
+            output: self.output,
         };
         // Clear and capture only: the store's own resolve would composite every pixel, and a
         // client hands over fragments (the FC re-resolves only its footprint).

@@ -43,6 +43,10 @@
 //! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
 //!   strata-wire messages; network threads feed the same triple buffers.
 //!
+//! - [`lighting`], [`deferred`]: point lights moving along paths, one Blinn-Phong shader for
+//!   normal fragments, and deferred shading: the SC renders a deep G-buffer, the FC lights it with
+//!   the current lights (the seed's §7.1).
+//!
 //! Composition is deep (exact), digital (the seed's colour + depth) or optical (the FC's image
 //! over the SC's, the seed's projectors), the last two kept to show their artefacts.
 
@@ -50,6 +54,8 @@ pub mod audit;
 pub mod authority;
 pub mod client;
 pub mod compose;
+pub mod deferred;
+pub mod lighting;
 pub mod realtime;
 pub mod simulate;
 pub mod state;

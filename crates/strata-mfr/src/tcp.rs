@@ -326,6 +326,8 @@ pub fn snapshot_from_wire(
         view: view_from_wire(&m.view),
         objects,
         events_applied: usize::try_from(m.events_applied).unwrap_or(usize::MAX),
+        // The SC renders no lights (it makes shaded fragments or a G-buffer): none travel.
+        lights: Vec::new(),
     };
     Ok((snapshot, migration))
 }

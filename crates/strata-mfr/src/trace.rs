@@ -8,6 +8,7 @@
 //! | `pointer` | `origin`, `dir` (any non-zero length) | the pointer ray (a 6-DOF wand or a mouse ray) |
 //! | `button` | `"down"` or `"up"` | select the object under the pointer / release it |
 //! | `drag` | `by` (world units), `duration_ms` | the selected object, and the pointer holding it, move by `by`, linearly over `duration_ms` |
+//! | `light` | `id`, then `position` or `circle = { center, radius, period_ms }`; optional `color` (default `[1, 1, 1]`), `range` (default 2) | point light `id` appears or moves: from a `position` it moves linearly to the position of its next `light` event, or stays; on a `circle` it turns in the xz plane from the circle's +x point until its next event |
 //!
 //! Two file forms carry the same events (`docs/mfr.md`):
 //!
@@ -77,7 +78,37 @@ pub enum Event {
         /// How long the move takes (> 0).
         duration_ms: f64,
     },
+    /// Point light `id` is keyed here (deferred shading).
+    Light {
+        /// Which light.
+        id: u32,
+        /// Where it is, or how it moves from now on.
+        motion: LightMotion,
+        /// RGB intensity.
+        color: [f32; 3],
+        /// Distance at which it falls to half.
+        range: f32,
+    },
 }
+
+/// How a `light` event places its light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightMotion {
+    /// At this position; linear from here to the position of the light's next event.
+    At(Vec3),
+    /// Turning around a horizontal circle in the xz plane, starting at `center + (radius, 0, 0)`.
+    Circle {
+        /// Centre.
+        center: Vec3,
+        /// Radius (> 0).
+        radius: f32,
+        /// Milliseconds per turn (> 0).
+        period_ms: f64,
+    },
+}
+
+/// The default `range` of a trace's light.
+pub const DEFAULT_LIGHT_RANGE: f32 = 2.0;
 
 /// An event and when it happens.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -122,6 +153,74 @@ struct RawEvent {
     pointer: Option<RawPointer>,
     button: Option<Button>,
     drag: Option<RawDrag>,
+    light: Option<RawLight>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLight {
+    id: u32,
+    position: Option<Vec<f64>>,
+    circle: Option<RawCircle>,
+    color: Option<Vec<f64>>,
+    range: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCircle {
+    center: Vec<f64>,
+    radius: f64,
+    period_ms: f64,
+}
+
+impl RawLight {
+    fn check(self) -> Result<Event, String> {
+        let motion = match (self.position, self.circle) {
+            (Some(p), None) => LightMotion::At(vec3(p, "light.position")?),
+            (None, Some(c)) => {
+                if !(c.radius.is_finite() && c.radius > 0.0 && c.radius < f64::from(f32::MAX)) {
+                    return Err(format!(
+                        "light.circle.radius {} must be more than 0",
+                        c.radius
+                    ));
+                }
+                if !(c.period_ms.is_finite() && c.period_ms > 0.0) {
+                    return Err(format!(
+                        "light.circle.period_ms {} must be more than 0",
+                        c.period_ms
+                    ));
+                }
+                LightMotion::Circle {
+                    center: vec3(c.center, "light.circle.center")?,
+                    radius: c.radius as f32,
+                    period_ms: c.period_ms,
+                }
+            }
+            _ => return Err("light needs exactly one of position, circle".into()),
+        };
+        let color = match self.color {
+            Some(c) => {
+                let c = vec3(c, "light.color")?;
+                if c.min_element() < 0.0 {
+                    return Err(format!("light.color {c} must not be negative"));
+                }
+                c.to_array()
+            }
+            None => [1.0; 3],
+        };
+        let range = match self.range {
+            Some(r) if r.is_finite() && r > 0.0 && r < f64::from(f32::MAX) => r as f32,
+            Some(r) => return Err(format!("light.range {r} must be more than 0")),
+            None => DEFAULT_LIGHT_RANGE,
+        };
+        Ok(Event::Light {
+            id: self.id,
+            motion,
+            color,
+            range,
+        })
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -187,11 +286,12 @@ impl RawEvent {
             self.pointer.is_some(),
             self.button.is_some(),
             self.drag.is_some(),
+            self.light.is_some(),
         ];
         let count = kinds.iter().filter(|&&k| k).count();
         if count != 1 {
             return Err(format!(
-                "has {count} kinds of event; give exactly one of view, pointer, button, drag"
+                "has {count} kinds of event; give exactly one of view, pointer, button, drag, light"
             ));
         }
         let event = if let Some(v) = self.view {
@@ -221,6 +321,8 @@ impl RawEvent {
                 by: vec3(d.by, "drag.by")?,
                 duration_ms: d.duration_ms,
             }
+        } else if let Some(l) = self.light {
+            l.check()?
         } else {
             unreachable!("exactly one kind was counted")
         };

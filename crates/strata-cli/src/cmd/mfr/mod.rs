@@ -2,6 +2,7 @@
 //!
 //! - `mod.rs`: the arguments and the run (clients, audit, frames written);
 //! - `clock.rs`: `--clock` and `--trace` parsed;
+//! - `deferred.rs`: `--deferred` (the SC's deep G-buffer lit by the FC);
 //! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary.
 
 use std::io::Write as _;
@@ -19,6 +20,7 @@ use crate::options::{open_scene, search_path};
 
 mod clock;
 mod contact_sheet;
+mod deferred;
 mod summary;
 
 use clock::{make_trace, parse_clock};
@@ -118,6 +120,17 @@ pub(crate) struct Args {
     #[arg(long)]
     pub(crate) no_audit: bool,
 
+    /// Deferred shading (virtual clock): the slow client renders a deep G-buffer (every
+    /// fragment's depth, normal and object), the fast client lights every fragment each frame
+    /// with the current point lights — the trace's `light` events, else --lights circling the
+    /// scene — so moving lights show at the fast client's rate.
+    #[arg(long)]
+    pub(crate) deferred: bool,
+
+    /// With --deferred: how many point lights circle the scene when the trace has none (1 or more).
+    #[arg(long, default_value_t = 4, requires = "deferred")]
+    pub(crate) lights: u32,
+
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
@@ -213,6 +226,9 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 trace.duration_ms()
             ),
         }
+    }
+    if args.deferred {
+        return deferred::run(&args, &scene, trace, clock, migration, size, frames);
     }
     let mut log = match &args.out_dir {
         Some(dir) => {

@@ -1,0 +1,257 @@
+//! MFR deferred shading (Springer 2008 §7.1): the slow client renders a deep G-buffer, the fast
+//! client lights it with the current lights at its own rate.
+//!
+//! ```text
+//! SC: normal fragments of its objects ─► deep G-buffer (DeepFrame: per pixel, every fragment's
+//!     (Client in PackedNormal mode)       window depth f32, packed normal u32, object id u32)
+//! FC: normal fragments of its objects ─┐
+//!                                      ├─ compose_deep (the SC's stale copies of FC objects dropped)
+//!     current lights ──► Shader ───────┴─► shaded DeepFrame ─► resolve ─► image
+//! ```
+//!
+//! The G-buffer holds every fragment of every pixel, translucent layers included, so a moving
+//! light lights them all; the seed's holds one opaque surface per pixel. The material is not
+//! transferred: the object id indexes the palette ([`crate::lighting::Shader`]). Both clients'
+//! fragments go through the same shader after composition (the seed's "unified lighting
+//! shader"), so the result equals the whole scene's normal fragments shaded at once, bit for
+//! bit. Size: 4 bytes of offset per pixel plus 12 bytes per fragment (the seed: 16 bytes per
+//! pixel, one surface).
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use strata_core::{DeepFrame, ObjectId, Rgb8Image};
+use strata_raster::FragmentOutput;
+use strata_scene::Scene;
+
+use crate::authority::{Authority, Snapshot};
+use crate::client::{Client, ClientError};
+use crate::compose::compose_deep;
+use crate::lighting::{LightRig, LightingError, LightingModel, PointLight, Shader};
+use crate::simulate::{Migration, SimulateError, VirtualClock, fc_draws, sc_render};
+use crate::trace::{Event, Trace};
+use crate::transfer::TransferBuffer;
+
+/// Bytes one pixel's run offset takes in a DeepFrame.
+pub const OFFSET_BYTES: u64 = 4;
+/// Bytes one normal fragment takes (depth, packed normal, object id).
+pub const FRAGMENT_BYTES: u64 = 12;
+
+/// Why a deferred frame failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DeferredError {
+    /// The two clients' G-buffers could not be composed.
+    #[error("the slow and fast clients' G-buffers do not compose: {0}")]
+    Compose(#[from] strata_core::DeepFrameError),
+    /// Shading failed.
+    #[error(transparent)]
+    Lighting(#[from] LightingError),
+    /// A client could not render.
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    /// The run could not go on.
+    #[error(transparent)]
+    Run(#[from] SimulateError),
+}
+
+/// The FC's deferred frame: the SC's G-buffer `sc` minus the objects in `fc_objects` (sorted
+/// ids), merged with the FC's normal fragments `fc`, every fragment shaded by `shader`.
+///
+/// # Errors
+/// When the frames differ in size or hold an object the shader does not know.
+pub fn deferred_frame(
+    sc: &DeepFrame,
+    fc: &DeepFrame,
+    fc_objects: &[ObjectId],
+    shader: &Shader,
+) -> Result<DeepFrame, DeferredError> {
+    let normals = compose_deep(sc, fc, fc_objects)?;
+    Ok(shader.shade_frame(&normals)?)
+}
+
+/// [`deferred_frame`] resolved onto `background`.
+///
+/// # Errors
+/// As [`deferred_frame`].
+pub fn deferred_image(
+    sc: &DeepFrame,
+    fc: &DeepFrame,
+    fc_objects: &[ObjectId],
+    shader: &Shader,
+    background: [f32; 3],
+) -> Result<Rgb8Image, DeferredError> {
+    Ok(deferred_frame(sc, fc, fc_objects, shader)?.resolve(background))
+}
+
+/// Bytes of a deep G-buffer holding `fragments` fragments over `pixels` pixels.
+pub fn gbuffer_bytes(pixels: u64, fragments: u64) -> u64 {
+    pixels * OFFSET_BYTES + fragments * FRAGMENT_BYTES
+}
+
+/// One FC frame of a deferred run.
+#[derive(Clone, Debug)]
+pub struct DeferredFrame {
+    /// FC frame number, from 0.
+    pub index: u64,
+    /// Its time on the virtual clock (ms).
+    pub t_ms: f64,
+    /// The state it shows.
+    pub snapshot: Arc<Snapshot>,
+    /// The SC G-buffer it composed with (`None` before the first arrives).
+    pub sc: Option<Arc<TransferBuffer>>,
+    /// The objects the FC drew, as sorted ids.
+    pub fc_ids: Vec<ObjectId>,
+    /// The lights it was lit with (world space).
+    pub lights: Vec<PointLight>,
+    /// The shader it was lit with (the view of the SC buffer, or the snapshot's before one).
+    pub shader: Shader,
+    /// The lit fragments.
+    pub shaded: DeepFrame,
+    /// The image shown.
+    pub image: Rgb8Image,
+    /// Wall-clock milliseconds the FC spent composing, lighting and resolving.
+    pub fc_shading_ms: f64,
+}
+
+/// Wall-clock cost of the SC's G-buffer frames of a deferred run.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ScCost {
+    /// SC frames rendered.
+    pub frames: u64,
+    /// Their total wall-clock time (ms).
+    pub total_ms: f64,
+    /// Fragments in the largest G-buffer.
+    pub max_fragments: u64,
+}
+
+/// The lights of frame time `t_ms`: the snapshot's when the trace keys lights (none before the
+/// first key), else `rig`'s.
+fn frame_lights(
+    snapshot: &Snapshot,
+    trace_keys_lights: bool,
+    rig: &LightRig,
+    t_ms: f64,
+) -> Vec<PointLight> {
+    if trace_keys_lights {
+        snapshot.lights.iter().map(|l| l.light).collect()
+    } else {
+        rig.at(t_ms)
+    }
+}
+
+/// Deferred shading on the virtual clock: as [`crate::simulate::run_virtual`] with deep
+/// composition, but the SC renders a deep G-buffer (normal fragments) and the FC composes normal
+/// fragments and lights every one with the lights of its own frame time: the trace's `light`
+/// events if it has any, else `rig`'s. Calls `on_frame` with each FC frame; returns the SC's cost.
+///
+/// # Errors
+/// When a client fails, the clock is not valid, or a fragment's object is unknown.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the run's parameters, each documented"
+)]
+pub fn run_deferred_virtual(
+    scene: &Scene,
+    trace: Trace,
+    clock: VirtualClock,
+    migration: Migration,
+    rig: &LightRig,
+    model: LightingModel,
+    (width, height): (u32, u32),
+    fc_frames: u64,
+    mut on_frame: impl FnMut(&DeferredFrame),
+) -> Result<ScCost, DeferredError> {
+    let ok = |v: f64| v.is_finite() && v > 0.0;
+    if !(ok(clock.sc_ms)
+        && ok(clock.fc_ms)
+        && clock.transfer_ms.is_finite()
+        && clock.transfer_ms >= 0.0)
+    {
+        return Err(SimulateError::Clock(clock).into());
+    }
+    let trace_keys_lights = trace
+        .events()
+        .iter()
+        .any(|e| matches!(e.event, Event::Light { .. }));
+    let mut authority = Authority::new(scene, trace);
+    let client = || Client::new(width, height).with_output(FragmentOutput::PackedNormal);
+    let (mut sc_client, mut fc_client) = (client(), client());
+    let projection = scene.camera.projection(width, height);
+    let mut cost = ScCost::default();
+    let mut next_sc_start = 0.0f64;
+    let mut in_flight: Vec<(f64, Arc<TransferBuffer>)> = Vec::new();
+    let mut delivered: Option<Arc<TransferBuffer>> = None;
+    for index in 0..fc_frames {
+        let t = index as f64 * clock.fc_ms;
+        while next_sc_start <= t {
+            let snapshot = authority.advance_to(next_sc_start);
+            let started = Instant::now();
+            let buffer = sc_render(scene, &mut sc_client, &snapshot, migration, cost.frames)?;
+            cost.total_ms += started.elapsed().as_secs_f64() * 1e3;
+            cost.max_fragments = cost.max_fragments.max(buffer.frame.fragment_count() as u64);
+            cost.frames += 1;
+            in_flight.push((
+                next_sc_start + clock.sc_ms + clock.transfer_ms,
+                Arc::new(buffer),
+            ));
+            next_sc_start += clock.sc_ms;
+        }
+        while in_flight.first().is_some_and(|(at, _)| *at <= t) {
+            delivered = Some(in_flight.remove(0).1);
+        }
+        let snapshot = authority.advance_to(t);
+        let fc_objects = fc_draws(scene, &snapshot, delivered.as_deref(), migration);
+        let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
+        fc_ids.sort_unstable();
+        let view = delivered.as_ref().map_or(snapshot.view, |sc| sc.view);
+        let lights = frame_lights(&snapshot, trace_keys_lights, rig, t);
+        let shader = Shader::new(
+            scene,
+            (width, height),
+            view.matrix(),
+            projection,
+            &lights,
+            model,
+        );
+        let fc = fc_client
+            .render_footprint(scene, &snapshot, &view, &fc_objects)?
+            .to_full()?;
+        let started = Instant::now();
+        let shaded = match &delivered {
+            Some(sc) => deferred_frame(&sc.frame, &fc, &fc_ids, &shader)?,
+            None => shader.shade_frame(&fc)?,
+        };
+        let image = shaded.resolve(scene.background);
+        let fc_shading_ms = started.elapsed().as_secs_f64() * 1e3;
+        on_frame(&DeferredFrame {
+            index,
+            t_ms: t,
+            snapshot,
+            sc: delivered.clone(),
+            fc_ids,
+            lights,
+            shader,
+            shaded,
+            image,
+            fc_shading_ms,
+        });
+    }
+    Ok(cost)
+}
+
+/// The whole scene of `frame`'s state rendered at once as normal fragments through the view it
+/// composed with, lit by the same shader: what the frame must equal, bit for bit.
+///
+/// # Errors
+/// When the client fails or a fragment's object is unknown.
+pub fn deferred_reference(
+    scene: &Scene,
+    client: &mut Client,
+    frame: &DeferredFrame,
+) -> Result<DeepFrame, DeferredError> {
+    let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
+    let all: Vec<usize> = (0..scene.objects.len()).collect();
+    let normals = client.render(scene, &frame.snapshot, &view, &all)?;
+    Ok(frame.shader.shade_frame(&normals)?)
+}

@@ -1,0 +1,527 @@
+//! Point lights and the one shader both clients use in deferred shading (Springer 2008 §7.1's
+//! "unified lighting shader"), applied to normal fragments.
+//!
+//! A normal fragment ([`strata_raster::FragmentOutput::PackedNormal`]) holds window depth, a
+//! packed eye-space normal and the object id; the object id indexes a material palette (the
+//! scene's materials). [`Shader::shade_fragment`] turns one into a colour:
+//!
+//! ```text
+//! P  = unproject(pixel centre, depth)          eye space, P⁻¹ then divide by w
+//! V  = -P / |P|
+//! N  = unpack(normal), flipped towards V       two-sided, like the headlight's |N·L|
+//! for each light i (eye-space position Lᵢ, colour cᵢ, range rᵢ):
+//!     d  = |Lᵢ - P|,  L = (Lᵢ - P) / d,  H = (L + V) / |L + V|
+//!     aᵢ = 1 / (1 + d² / rᵢ²)                  distance attenuation, 1/2 at d = rᵢ
+//!     D += aᵢ · cᵢ · max(N·L, 0)
+//!     S += aᵢ · cᵢ · max(N·H, 0)^s · max(N·L, 0)
+//! rgb = albedo · (k_a + D) + k_s · S,  alpha = albedo alpha     quantised as unorm8
+//! ```
+//!
+//! A fragment without a normal ([`strata_core::PackedNormal::NONE`]) gets the ambient term only;
+//! an unlit object keeps its flat colour. The highlight is weighted by `N·L` so that it fades
+//! out where the light reaches the surface grazing, instead of being cut off: every term is
+//! continuous in the normal, which bounds what packing the normal changes. The constants `k_a`, `k_s` and the integer exponent `s`
+//! are a [`LightingModel`]. The exponent is applied by repeated squaring (no `powf`), so the same
+//! inputs give the same bits everywhere.
+//!
+//! Background pixels hold no fragment and cost nothing (the seed's stencil skip).
+
+use glam::{Mat4, Vec3, Vec4};
+use strata_core::fragment::unorm8;
+use strata_core::material::Shading;
+use strata_core::{DeepFrame, DeepFrameError, Fragment, Material, PackedNormal, Rgba8};
+use strata_scene::Scene;
+
+use crate::trace::{Event, LightMotion, Trace};
+
+/// A point light in world space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointLight {
+    /// World-space position.
+    pub position: Vec3,
+    /// RGB intensity (1 is full white at the light).
+    pub color: [f32; 3],
+    /// Distance at which the light falls to half (> 0).
+    pub range: f32,
+}
+
+/// The material-independent constants of the shader.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightingModel {
+    /// Ambient term `k_a`, a fraction of the albedo.
+    pub ambient: f32,
+    /// Specular weight `k_s` (white highlights).
+    pub specular: f32,
+    /// Blinn-Phong exponent `s`.
+    pub shininess: u32,
+}
+
+impl Default for LightingModel {
+    fn default() -> Self {
+        LightingModel {
+            ambient: 0.15,
+            specular: 0.3,
+            shininess: 32,
+        }
+    }
+}
+
+/// Why a frame could not be shaded.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LightingError {
+    /// A fragment carries an object id the palette does not know.
+    #[error("a fragment belongs to object id {0}, which is not in the scene")]
+    UnknownObject(u32),
+    /// The frame does not have the shader's size.
+    #[error("the frame is {found:?} pixels but the shader is for {expected:?}")]
+    Size {
+        /// The shader's size.
+        expected: (u32, u32),
+        /// The frame's.
+        found: (u32, u32),
+    },
+    /// The shaded frame could not be built.
+    #[error("the shaded frame is invalid: {0}")]
+    DeepFrame(#[from] DeepFrameError),
+}
+
+/// A light in eye space, ready for shading.
+#[derive(Clone, Copy, Debug)]
+struct EyeLight {
+    position: Vec3,
+    color: Vec3,
+    inv_range2: f32,
+}
+
+/// The shader for one frame: size, projection, lights (in eye space) and material palette.
+#[derive(Clone, Debug)]
+pub struct Shader {
+    width: u32,
+    height: u32,
+    inverse_projection: Mat4,
+    lights: Vec<EyeLight>,
+    palette: Vec<Option<Material>>,
+    model: LightingModel,
+}
+
+impl Shader {
+    /// The shader of `scene`'s materials for a `width × height` frame seen through `view` and
+    /// `projection`, lit by `lights`.
+    pub fn new(
+        scene: &Scene,
+        (width, height): (u32, u32),
+        view: Mat4,
+        projection: Mat4,
+        lights: &[PointLight],
+        model: LightingModel,
+    ) -> Shader {
+        let slots = scene.objects.iter().map(|o| o.id.0 as usize + 1).max();
+        let mut palette = vec![None; slots.unwrap_or(0)];
+        for o in &scene.objects {
+            palette[o.id.0 as usize] = Some(o.material);
+        }
+        let lights = lights
+            .iter()
+            .map(|l| EyeLight {
+                position: view.transform_point3(l.position),
+                color: Vec3::from(l.color),
+                inv_range2: 1.0 / (l.range * l.range),
+            })
+            .collect();
+        Shader {
+            width,
+            height,
+            inverse_projection: projection.inverse(),
+            lights,
+            palette,
+            model,
+        }
+    }
+
+    /// The eye-space position of a fragment at window depth `depth` in pixel `(x, y)` (row 0 on
+    /// top, pixel centres at `+½`).
+    #[inline]
+    pub fn eye_position(&self, x: u32, y: u32, depth: f32) -> Vec3 {
+        let ndc = Vec4::new(
+            (x as f32 + 0.5) / self.width as f32 * 2.0 - 1.0,
+            1.0 - (y as f32 + 0.5) / self.height as f32 * 2.0,
+            depth * 2.0 - 1.0,
+            1.0,
+        );
+        let p = self.inverse_projection * ndc;
+        p.truncate() / p.w
+    }
+
+    /// The colour of a normal fragment of `object` at pixel `(x, y)`.
+    ///
+    /// # Errors
+    /// When `object` is not in the palette.
+    #[inline]
+    pub fn shade_fragment(
+        &self,
+        x: u32,
+        y: u32,
+        fragment: &Fragment,
+    ) -> Result<Rgba8, LightingError> {
+        let material = self
+            .palette
+            .get(fragment.object.0 as usize)
+            .copied()
+            .flatten()
+            .ok_or(LightingError::UnknownObject(fragment.object.0))?;
+        if material.shading == Shading::Unlit {
+            return Ok(Rgba8::from_unorm(material.color));
+        }
+        let p = self.eye_position(x, y, fragment.depth);
+        let normal = PackedNormal::from_bits(fragment.color.to_bits()).unpack();
+        Ok(self.shade(material.color, p, normal.map(Vec3::from)))
+    }
+
+    /// The shading rule of the module docs for albedo `color` at eye position `p` with unit
+    /// normal `n` (`None`: ambient only). Forward and deferred shading both call this; they
+    /// differ only in the normal they pass.
+    #[inline]
+    pub fn shade(&self, color: [f32; 4], p: Vec3, n: Option<Vec3>) -> Rgba8 {
+        let m = &self.model;
+        let (mut diffuse, mut specular) = (Vec3::ZERO, Vec3::ZERO);
+        if let Some(n) = n {
+            let v = (-p).normalize_or_zero();
+            let n = if n.dot(v) < 0.0 { -n } else { n };
+            for light in &self.lights {
+                let to_light = light.position - p;
+                let d2 = to_light.length_squared();
+                let d = d2.sqrt();
+                if d <= 0.0 {
+                    continue;
+                }
+                let l = to_light / d;
+                let ndl = n.dot(l);
+                if ndl <= 0.0 {
+                    continue;
+                }
+                let a = 1.0 / (1.0 + d2 * light.inv_range2);
+                diffuse += light.color * (a * ndl);
+                let h = (l + v).normalize_or_zero();
+                specular += light.color * (a * ndl * pow_u32(n.dot(h).max(0.0), m.shininess));
+            }
+        }
+        let albedo = Vec3::new(color[0], color[1], color[2]);
+        let rgb = albedo * (Vec3::splat(m.ambient) + diffuse) + specular * m.specular;
+        Rgba8([
+            unorm8(rgb.x),
+            unorm8(rgb.y),
+            unorm8(rgb.z),
+            unorm8(color[3]),
+        ])
+    }
+
+    /// Every fragment of the normal-fragment frame `normals` shaded; empty pixels are skipped.
+    ///
+    /// # Errors
+    /// When the frame has another size or holds an object the palette does not know.
+    pub fn shade_frame(&self, normals: &DeepFrame) -> Result<DeepFrame, LightingError> {
+        let found = (normals.width(), normals.height());
+        if found != (self.width, self.height) {
+            return Err(LightingError::Size {
+                expected: (self.width, self.height),
+                found,
+            });
+        }
+        if let Some(o) = normals
+            .objects()
+            .iter()
+            .find(|o| self.palette.get(o.0 as usize).copied().flatten().is_none())
+        {
+            return Err(LightingError::UnknownObject(o.0));
+        }
+        let counts: Vec<u32> = normals.counts().collect();
+        let width = self.width as usize;
+        Ok(DeepFrame::build(
+            self.width,
+            self.height,
+            &counts,
+            |p, out| {
+                let (x, y) = ((p % width) as u32, (p / width) as u32);
+                out.extend(normals.run(p).iter().map(|f| Fragment {
+                    // Every object was checked above.
+                    color: self.shade_fragment(x, y, &f).unwrap_or(Rgba8([0, 0, 0, 0])),
+                    ..f
+                }));
+            },
+        )?)
+    }
+}
+
+/// `x^e` by repeated squaring: the same bits on every machine.
+#[inline]
+fn pow_u32(mut x: f32, mut e: u32) -> f32 {
+    let mut r = 1.0;
+    while e > 0 {
+        if e & 1 == 1 {
+            r *= x;
+        }
+        x *= x;
+        e >>= 1;
+    }
+    r
+}
+
+/// How a light moves: through keyed positions or around a circle.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LightPath {
+    /// Positions at times (ms, increasing), linear in between, held before the first and after
+    /// the last.
+    Keys(Vec<(f64, Vec3)>),
+    /// A horizontal circle (in the xz plane) around `center`, one turn per `period_ms`, starting
+    /// at angle `phase` (radians) at time 0.
+    Circle {
+        /// Centre of the circle.
+        center: Vec3,
+        /// Radius.
+        radius: f32,
+        /// Milliseconds per turn (> 0).
+        period_ms: f64,
+        /// Angle at time 0.
+        phase: f32,
+    },
+}
+
+impl LightPath {
+    /// The position at `t_ms`; `None` for a path with no keys.
+    pub fn position_at(&self, t_ms: f64) -> Option<Vec3> {
+        match self {
+            LightPath::Keys(keys) => {
+                let first = keys.first()?;
+                let after = keys.partition_point(|(t, _)| *t <= t_ms);
+                if after == 0 {
+                    return Some(first.1);
+                }
+                let (t0, p0) = keys[after - 1];
+                let Some(&(t1, p1)) = keys.get(after) else {
+                    return Some(p0);
+                };
+                let s = ((t_ms - t0) / (t1 - t0)) as f32;
+                Some(p0.lerp(p1, s))
+            }
+            LightPath::Circle {
+                center,
+                radius,
+                period_ms,
+                phase,
+            } => {
+                let turns = (t_ms / period_ms).fract() as f32;
+                let a = phase + turns * std::f32::consts::TAU;
+                Some(*center + Vec3::new(a.cos(), 0.0, a.sin()) * *radius)
+            }
+        }
+    }
+}
+
+/// Lights that move: each a light (its position is replaced) and the path it follows.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LightRig {
+    /// The lights and their paths.
+    pub lights: Vec<(PointLight, LightPath)>,
+}
+
+/// Colours of the built-in ring, cycled.
+const RING_COLORS: [[f32; 3]; 4] = [
+    [1.0, 0.85, 0.7],
+    [0.6, 0.7, 1.0],
+    [0.9, 0.5, 0.5],
+    [0.5, 0.9, 0.6],
+];
+
+impl LightRig {
+    /// `count` lights circling `center` at `radius` and height `center.y`, evenly spaced, one
+    /// turn per `period_ms`; each light's range is the radius.
+    pub fn ring(count: usize, center: Vec3, radius: f32, period_ms: f64) -> LightRig {
+        let lights = (0..count)
+            .map(|i| {
+                let light = PointLight {
+                    position: center,
+                    color: RING_COLORS[i % RING_COLORS.len()],
+                    range: radius,
+                };
+                let phase = i as f32 / count as f32 * std::f32::consts::TAU;
+                let path = LightPath::Circle {
+                    center,
+                    radius,
+                    period_ms,
+                    phase,
+                };
+                (light, path)
+            })
+            .collect();
+        LightRig { lights }
+    }
+
+    /// The lights at `t_ms` (a light whose path has no keys stays where it is).
+    pub fn at(&self, t_ms: f64) -> Vec<PointLight> {
+        self.lights
+            .iter()
+            .map(|(light, path)| PointLight {
+                position: path.position_at(t_ms).unwrap_or(light.position),
+                ..*light
+            })
+            .collect()
+    }
+}
+
+/// A light of a snapshot: its trace id and where it is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightPose {
+    /// The id its `light` events give it.
+    pub id: u32,
+    /// The light, at its position at the snapshot's time.
+    pub light: PointLight,
+}
+
+/// The `light` events of a trace, evaluated at any time: how the state authority poses lights.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TraceLights {
+    /// `(t_ms, id, motion, colour, range)` in trace order.
+    keys: Vec<(f64, u32, LightMotion, [f32; 3], f32)>,
+}
+
+impl TraceLights {
+    /// The `light` events of `trace`.
+    pub fn new(trace: &Trace) -> TraceLights {
+        let keys = trace
+            .events()
+            .iter()
+            .filter_map(|e| match e.event {
+                Event::Light {
+                    id,
+                    motion,
+                    color,
+                    range,
+                } => Some((e.t_ms, id, motion, color, range)),
+                _ => None,
+            })
+            .collect();
+        TraceLights { keys }
+    }
+
+    /// True when the trace has no `light` events.
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// Every light keyed at or before `t_ms`, by id: at its last key's position, moving linearly
+    /// towards its next key's position, or on its circle.
+    pub fn at(&self, t_ms: f64) -> Vec<LightPose> {
+        let mut ids: Vec<u32> = self
+            .keys
+            .iter()
+            .filter(|k| k.0 <= t_ms)
+            .map(|k| k.1)
+            .collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids.into_iter()
+            .filter_map(|id| self.pose(id, t_ms))
+            .collect()
+    }
+
+    fn pose(&self, id: u32, t_ms: f64) -> Option<LightPose> {
+        let mine: Vec<_> = self.keys.iter().filter(|k| k.1 == id).collect();
+        let last = mine.iter().rposition(|k| k.0 <= t_ms)?;
+        let (t0, _, motion, color, range) = *mine[last];
+        let position = match motion {
+            LightMotion::At(p) => match mine.get(last + 1) {
+                Some(&&(t1, _, LightMotion::At(q), _, _)) if t1 > t0 => {
+                    p.lerp(q, ((t_ms - t0) / (t1 - t0)) as f32)
+                }
+                _ => p,
+            },
+            LightMotion::Circle {
+                center,
+                radius,
+                period_ms,
+            } => LightPath::Circle {
+                center,
+                radius,
+                period_ms,
+                phase: 0.0,
+            }
+            .position_at(t_ms - t0)?,
+        };
+        Some(LightPose {
+            id,
+            light: PointLight {
+                position,
+                color,
+                range,
+            },
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trace_lights_appear_at_their_first_key_and_move_between_keys() {
+        let trace = Trace::from_toml(
+            "test",
+            r#"
+            [[event]]
+            t_ms = 100
+            light = { id = 3, position = [0.0, 1.0, 0.0], color = [1.0, 0.5, 0.25] }
+            [[event]]
+            t_ms = 200
+            light = { id = 3, position = [2.0, 1.0, 0.0] }
+            [[event]]
+            t_ms = 300
+            light = { id = 3, circle = { center = [0.0, 1.0, 0.0], radius = 1.0, period_ms = 400 } }
+            "#,
+        )
+        .expect("a trace");
+        let lights = TraceLights::new(&trace);
+        assert!(lights.at(50.0).is_empty());
+        let mid = lights.at(150.0);
+        assert_eq!(mid.len(), 1);
+        assert_eq!(mid[0].id, 3);
+        assert_eq!(mid[0].light.position, Vec3::new(1.0, 1.0, 0.0));
+        assert_eq!(mid[0].light.color, [1.0, 0.5, 0.25]);
+        // The second key gives its own colour (the default) from its time on.
+        assert_eq!(lights.at(250.0)[0].light.color, [1.0; 3]);
+        // A quarter turn after the circle starts.
+        let q = lights.at(400.0)[0].light.position;
+        assert!((q - Vec3::new(0.0, 1.0, 1.0)).length() < 1e-5, "{q}");
+    }
+
+    #[test]
+    fn pow_by_squaring_matches_powi() {
+        for e in [0, 1, 2, 7, 32] {
+            let x = 0.93f32;
+            assert!((pow_u32(x, e) - x.powi(e as i32)).abs() < 1e-6, "{e}");
+        }
+    }
+
+    #[test]
+    fn keyed_paths_interpolate_and_hold() {
+        let path = LightPath::Keys(vec![(100.0, Vec3::ZERO), (200.0, Vec3::new(2.0, 0.0, 0.0))]);
+        assert_eq!(path.position_at(0.0), Some(Vec3::ZERO));
+        assert_eq!(path.position_at(150.0), Some(Vec3::new(1.0, 0.0, 0.0)));
+        assert_eq!(path.position_at(900.0), Some(Vec3::new(2.0, 0.0, 0.0)));
+        assert_eq!(LightPath::Keys(Vec::new()).position_at(1.0), None);
+    }
+
+    #[test]
+    fn circles_turn_once_per_period() {
+        let path = LightPath::Circle {
+            center: Vec3::new(0.0, 1.0, 0.0),
+            radius: 2.0,
+            period_ms: 1000.0,
+            phase: 0.0,
+        };
+        let q = path.position_at(250.0).expect("a position");
+        assert!((q - Vec3::new(0.0, 1.0, 2.0)).length() < 1e-5, "{q}");
+        let full = path.position_at(1000.0).expect("a position");
+        assert!((full - Vec3::new(2.0, 1.0, 0.0)).length() < 1e-5, "{full}");
+    }
+}
