@@ -43,6 +43,9 @@
 //! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
 //!   strata-wire messages; network threads feed the same triple buffers.
 //!
+//! - [`warp`](mod@warp): depth-image warping — the SC's deep frame moved to the FC's current view
+//!   every FC frame, holes filled, so navigation follows the FC's rate.
+//!
 //! Composition is deep (exact), digital (the seed's colour + depth) or optical (the FC's image
 //! over the SC's, the seed's projectors), the last two kept to show their artefacts.
 
@@ -57,6 +60,7 @@ pub mod tcp;
 pub mod timeline;
 pub mod trace;
 pub mod transfer;
+pub mod warp;
 pub mod window;
 
 pub use audit::{FrameAudit, audit};
