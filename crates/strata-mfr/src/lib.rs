@@ -46,6 +46,8 @@
 //! - [`lighting`], [`deferred`]: point lights moving along paths, one Blinn-Phong shader for
 //!   normal fragments, and deferred shading: the SC renders a deep G-buffer, the FC lights it with
 //!   the current lights (the seed's §7.1).
+//! - [`warp`](mod@warp): depth-image warping — the SC's deep frame moved to the FC's current view
+//!   every FC frame, holes filled, so navigation follows the FC's rate.
 //!
 //! Composition is deep (exact), digital (the seed's colour + depth) or optical (the FC's image
 //! over the SC's, the seed's projectors), the last two kept to show their artefacts.
@@ -63,6 +65,7 @@ pub mod tcp;
 pub mod timeline;
 pub mod trace;
 pub mod transfer;
+pub mod warp;
 pub mod window;
 
 pub use audit::{FrameAudit, audit};

@@ -81,6 +81,9 @@ pub struct FcFrame {
     pub composition: Composition,
     /// The frame shown.
     pub image: strata_core::Rgb8Image,
+    /// With warping ([`crate::warp`]): what warping the SC buffer to this frame's view did (`sc`
+    /// is then the warped buffer).
+    pub warp: Option<Arc<crate::warp::WarpInfo>>,
 }
 
 impl FcFrame {
@@ -127,6 +130,7 @@ impl FcWork {
             fc: self.fc,
             composition,
             image: self.image,
+            warp: None,
         }
     }
 }
@@ -212,6 +216,33 @@ pub fn run_virtual(
     composition: Composition,
     (width, height): (u32, u32),
     fc_frames: u64,
+    on_frame: impl FnMut(&FcFrame),
+) -> Result<(), SimulateError> {
+    run_clients(
+        scene,
+        trace,
+        clock,
+        (migration, composition),
+        (width, height),
+        fc_frames,
+        false,
+        on_frame,
+    )
+}
+
+/// [`run_virtual`], with `warp`: each FC frame warps the SC buffer to its own view first.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the run's parameters, each documented"
+)]
+pub(crate) fn run_clients(
+    scene: &Scene,
+    trace: Trace,
+    clock: VirtualClock,
+    (migration, composition): (Migration, Composition),
+    (width, height): (u32, u32),
+    fc_frames: u64,
+    warp: bool,
     mut on_frame: impl FnMut(&FcFrame),
 ) -> Result<(), SimulateError> {
     let ok = |v: f64| v.is_finite() && v > 0.0;
@@ -247,15 +278,24 @@ pub fn run_virtual(
             delivered = Some(in_flight.remove(0).1);
         }
         let snapshot = authority.advance_to(t);
+        let (shown, warped) = match &delivered {
+            Some(sc) if warp => {
+                let (buffer, info) = crate::warp::warp_buffer(scene, sc, &snapshot.view);
+                (Some(Arc::new(buffer)), Some(Arc::new(info)))
+            }
+            _ => (delivered.clone(), None),
+        };
         let work = fc_frame(
             scene,
             &mut fc_client,
             &snapshot,
-            delivered.as_deref(),
+            shown.as_deref(),
             migration,
             composition,
         )?;
-        on_frame(&work.into_frame(index, t, snapshot, delivered.clone(), composition));
+        let mut frame = work.into_frame(index, t, snapshot, shown, composition);
+        frame.warp = warped;
+        on_frame(&frame);
     }
     Ok(())
 }

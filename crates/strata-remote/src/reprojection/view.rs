@@ -197,6 +197,29 @@ impl View {
 }
 
 impl View {
+    /// Forward warping of a **colour** fragment (post-rendering 3D warping, Mark et al. 1997):
+    /// `f`, seen at `pixel` in this view, moved to `to` — its surfel by eq. 5.10 here, projected
+    /// by eq. 5.9 there — keeping its colour (the shading of this view: only the position moves).
+    /// Where the object is placed and seen exactly as in `to`, the fragment stays bit for bit.
+    /// `None` if it leaves `to`'s view volume or its object is unknown to either view.
+    pub fn warp(&self, to: &View, pixel: u32, f: Fragment) -> Option<(u32, Fragment)> {
+        if to.unchanged(self, f.object.0 as usize) {
+            return Some((pixel, f));
+        }
+        // The entry's normal (from colour bits) and shading are not used: only its position.
+        let surfel = self.entry(pixel, f)?.surfel;
+        let (p, moved) = to.project(f.object, &surfel)?;
+        Some((
+            p,
+            Fragment {
+                color: f.color,
+                ..moved
+            },
+        ))
+    }
+}
+
+impl View {
     /// The colour fragments the normal fragments of `normals` (rendered at this view) shade to,
     /// runs sorted; fragments of unknown objects are left out.
     pub fn shade_frame(&self, normals: &DeepFrame) -> DeepFrame {

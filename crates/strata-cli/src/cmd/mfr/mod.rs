@@ -3,7 +3,8 @@
 //! - `mod.rs`: the arguments and the run (clients, audit, frames written);
 //! - `clock.rs`: `--clock` and `--trace` parsed;
 //! - `deferred.rs`: `--deferred` (the SC's deep G-buffer lit by the FC);
-//! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary.
+//! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary;
+//! - `view.rs`: navigation figures — against the current view, warping's holes, view latency.
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -22,6 +23,7 @@ mod clock;
 mod contact_sheet;
 mod deferred;
 mod summary;
+mod view;
 
 use clock::{make_trace, parse_clock};
 use summary::{Totals, frame_json, frame_record, incidents_text, summary_json, summary_text};
@@ -131,6 +133,14 @@ pub(crate) struct Args {
     #[arg(long, default_value_t = 4, requires = "deferred")]
     pub(crate) lights: u32,
 
+    /// Virtual clock only: warp the SC buffer to the current view every FC frame (its fragments
+    /// moved by their depths; holes where the SC saw nothing filled from their neighbours), so
+    /// camera moves reach the screen at the FC's rate instead of the SC's. Warped fragments keep
+    /// the SC's shading. summary.json's `view` section gives the holes, the bad pixels against the
+    /// exact render at the current view and the view-to-screen latency.
+    #[arg(long, conflicts_with = "deferred")]
+    pub(crate) warp: bool,
+
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
@@ -201,6 +211,9 @@ pub(crate) fn run(args: Args) -> Result<()> {
     {
         bail!("--transport, --sc-load and --sc-priority need the real clock (--clock real)");
     }
+    if args.warp && !matches!(clock, Clock::Virtual(_)) {
+        bail!("--warp needs the virtual clock (--clock virtual:…)");
+    }
     if let Some(dir) = &args.out_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -251,6 +264,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
     );
     let mut reference = Client::new(size.0, size.1);
     let mut totals = Totals::default();
+    let mut views = view::ViewTotals::default();
+    let mut view_reference = Client::new(size.0, size.1);
     let mut failure: Option<anyhow::Error> = None;
     let composition = match args.mode {
         ModeArg::Deep => Composition::Deep,
@@ -270,6 +285,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             return;
         }
         let result = audit_frame(&scene, &mut reference, f).and_then(|(a, reference)| {
+            views.add(&scene, &mut view_reference, f, &a, shown_ms)?;
             let r = frame_record(f, shown_ms, Some(a));
             if let Some(sheets) = &mut sheets {
                 sheets.offer(f, &reference, &a);
@@ -309,16 +325,30 @@ pub(crate) fn run(args: Args) -> Result<()> {
     };
     let real = match clock {
         Clock::Virtual(c) => {
-            run_virtual(
-                &scene,
-                trace.clone(),
-                c,
-                migration,
-                composition,
-                size,
-                frames,
-                |f| handle(f, f.t_ms + c.fc_ms),
-            )?;
+            let on_frame = |f: &FcFrame| handle(f, f.t_ms + c.fc_ms);
+            if args.warp {
+                strata_mfr::warp::run_virtual_warped(
+                    &scene,
+                    trace.clone(),
+                    c,
+                    migration,
+                    composition,
+                    size,
+                    frames,
+                    on_frame,
+                )?;
+            } else {
+                run_virtual(
+                    &scene,
+                    trace.clone(),
+                    c,
+                    migration,
+                    composition,
+                    size,
+                    frames,
+                    on_frame,
+                )?;
+            }
             None
         }
         Clock::Real { fc_hz } => {
@@ -390,8 +420,18 @@ pub(crate) fn run(args: Args) -> Result<()> {
             dir.display()
         );
     }
-    let summary = summary_json(&args, &scene, &trace, clock, size, &mut totals, real);
+    let mut summary = summary_json(&args, &scene, &trace, clock, size, &mut totals, real);
+    let navigates = trace
+        .events()
+        .iter()
+        .any(|e| matches!(e.event, strata_mfr::Event::View { .. }));
+    if args.warp || navigates {
+        summary["view"] = views.json(&trace, args.warp);
+    }
     outln!("{}{}", summary_text(&summary), incidents_text(&summary))?;
+    if let Some(v) = summary.get("view") {
+        outln!("{}", view::view_text(v))?;
+    }
     if let Some(dir) = &args.out_dir {
         let path = dir.join("summary.json");
         std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
