@@ -325,3 +325,40 @@ fn a_run_without_trace_lights_uses_the_rig() {
     assert_eq!(cost.frames, 2);
     assert!(cost.max_fragments > 0);
 }
+
+#[test]
+fn light_events_parse_from_json_lines_and_bad_ones_are_refused_clearly() {
+    let ok = Trace::from_json_lines(
+        "l.jsonl",
+        r#"{"t_ms": 5, "light": {"id": 2, "position": [0, 1, 2], "range": 3}}"#,
+    )
+    .expect("a light event");
+    assert_eq!(ok.events().len(), 1);
+    let cases = [
+        (
+            r#"{"t_ms": 0, "light": {"id": 0, "position": [0, 1, 2], "circle": {"center": [0, 0, 0], "radius": 1, "period_ms": 9}}}"#,
+            "exactly one of position, circle",
+        ),
+        (
+            r#"{"t_ms": 0, "light": {"id": 0, "position": [0, 1, 2], "range": 0}}"#,
+            "light.range 0 must be more than 0",
+        ),
+        (
+            r#"{"t_ms": 0, "light": {"id": 0, "circle": {"center": [0, 0, 0], "radius": 1, "period_ms": 0}}}"#,
+            "period_ms 0 must be more than 0",
+        ),
+        (
+            r#"{"t_ms": 0, "light": {"id": 0, "position": [0, 1]}}"#,
+            "light.position needs 3 numbers",
+        ),
+        (
+            r#"{"t_ms": 0, "light": {"id": 0, "position": [0, 1, 2], "color": [1, -1, 0]}}"#,
+            "must not be negative",
+        ),
+    ];
+    for (line, words) in cases {
+        let err = Trace::from_json_lines("l.jsonl", line).expect_err(line);
+        assert!(err.to_string().contains(words), "{err} lacks {words}");
+        assert!(err.to_string().contains("line 1"), "{err}");
+    }
+}
