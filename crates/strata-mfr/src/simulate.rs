@@ -280,7 +280,7 @@ pub(crate) fn run_clients(
         let snapshot = authority.advance_to(t);
         let (shown, warped) = match &delivered {
             Some(sc) if warp => {
-                let (buffer, info) = crate::warp::warp_buffer(scene, sc, &snapshot.view);
+                let (buffer, info) = crate::warp::warp_buffer(scene, sc, &snapshot.view)?;
                 (Some(Arc::new(buffer)), Some(Arc::new(info)))
             }
             _ => (delivered.clone(), None),

@@ -32,7 +32,7 @@
 //! columns), so the FC's deep composition and the audit take it unchanged.
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, Fragment, ObjectId};
+use strata_core::{DeepFrame, DeepFrameError, Fragment, ObjectId};
 use strata_remote::reprojection::View;
 use strata_scene::Scene;
 
@@ -71,12 +71,13 @@ fn view_at(scene: &Scene, ids: &[ObjectId], pose: &ViewPose, (w, h): (u32, u32))
 }
 
 /// `frame` (seen through `from`) forward-warped to `to` and its holes filled; what it did.
+/// Fails only if the filled frame would hold more than 2³² fragments.
 pub fn warp_frame(
     scene: &Scene,
     frame: &DeepFrame,
     from: &ViewPose,
     to: &ViewPose,
-) -> (DeepFrame, WarpInfo) {
+) -> Result<(DeepFrame, WarpInfo), DeepFrameError> {
     let size = (frame.width(), frame.height());
     let ids: Vec<ObjectId> = scene.objects.iter().map(|o| o.id).collect();
     let (v_from, v_to) = (
@@ -98,7 +99,7 @@ pub fn warp_frame(
         })
         .collect();
     let lost = moved.iter().filter(|(p, _)| *p == NOWHERE).count() as u64;
-    let mut warped = bucket(size, &moved);
+    let mut warped = bucket(size, &moved)?;
     let empty: Vec<u32> = (0..pixels as u32)
         .filter(|&p| warped.run(p as usize).is_empty())
         .collect();
@@ -109,7 +110,7 @@ pub fn warp_frame(
             break;
         }
         filled += fills.len() as u64;
-        warped = apply_fills(&warped, &fills);
+        warped = apply_fills(&warped, &fills)?;
     }
     let info = WarpInfo {
         from: Some(*from),
@@ -117,7 +118,7 @@ pub fn warp_frame(
         filled,
         lost,
     };
-    (warped, info)
+    Ok((warped, info))
 }
 
 /// The SC buffer warped to `to`: its frame and image replaced, its view set to `to` (so the FC
@@ -126,8 +127,8 @@ pub fn warp_buffer(
     scene: &Scene,
     sc: &TransferBuffer,
     to: &ViewPose,
-) -> (TransferBuffer, WarpInfo) {
-    let (frame, info) = warp_frame(scene, &sc.frame, &sc.view, to);
+) -> Result<(TransferBuffer, WarpInfo), DeepFrameError> {
+    let (frame, info) = warp_frame(scene, &sc.frame, &sc.view, to)?;
     let image = frame.resolve(scene.background);
     let buffer = TransferBuffer {
         view: *to,
@@ -135,11 +136,11 @@ pub fn warp_buffer(
         image,
         ..sc.clone()
     };
-    (buffer, info)
+    Ok((buffer, info))
 }
 
 /// The fragments of `moved` gathered per target pixel (source order kept), runs sorted.
-fn bucket((w, h): (u32, u32), moved: &[(u32, Fragment)]) -> DeepFrame {
+fn bucket((w, h): (u32, u32), moved: &[(u32, Fragment)]) -> Result<DeepFrame, DeepFrameError> {
     let pixels = w as usize * h as usize;
     let mut offsets = vec![0u32; pixels + 1];
     for &(p, _) in moved.iter().filter(|(p, _)| *p != NOWHERE) {
@@ -160,7 +161,6 @@ fn bucket((w, h): (u32, u32), moved: &[(u32, Fragment)]) -> DeepFrame {
     DeepFrame::build(w, h, &counts, |p, run| {
         run.extend_from_slice(&out[offsets[p] as usize..offsets[p + 1] as usize]);
     })
-    .unwrap_or_else(|_| DeepFrame::empty(w, h))
 }
 
 /// The holes of `warped` to fill this pass: `(empty pixel, neighbour whose run it takes)`.
@@ -205,11 +205,18 @@ const NEIGHBOURS: [(i64, i64); 8] = [
 ];
 
 /// `frame` with each `(p, q)` of `fills` (ascending `p`) giving pixel `p` a copy of `q`'s run.
-fn apply_fills(frame: &DeepFrame, fills: &[(u32, u32)]) -> DeepFrame {
+fn apply_fills(frame: &DeepFrame, fills: &[(u32, u32)]) -> Result<DeepFrame, DeepFrameError> {
     let pixels = frame.offsets().len() - 1;
     let mut source: Vec<u32> = (0..pixels as u32).collect();
     for &(p, q) in fills {
         source[p as usize] = q;
+    }
+    let total: u64 = source
+        .iter()
+        .map(|&q| frame.run(q as usize).len() as u64)
+        .sum();
+    if total > u64::from(u32::MAX) {
+        return Err(DeepFrameError::TooManyFragments(total));
     }
     let counts: Vec<u32> = source
         .iter()
@@ -218,7 +225,6 @@ fn apply_fills(frame: &DeepFrame, fills: &[(u32, u32)]) -> DeepFrame {
     DeepFrame::build(frame.width(), frame.height(), &counts, |p, run| {
         run.extend(frame.run(source[p] as usize).iter());
     })
-    .unwrap_or_else(|_| DeepFrame::empty(frame.width(), frame.height()))
 }
 
 /// One warped frame measured against the exact render at the current view.

@@ -101,7 +101,7 @@ fn warping_a_frame_to_its_own_view_changes_nothing() {
     let frame = Client::new(SIZE.0, SIZE.1)
         .render(&scene, &snapshot, &snapshot.view, &all)
         .expect("renders");
-    let (warped, info) = warp_frame(&scene, &frame, &snapshot.view, &snapshot.view);
+    let (warped, info) = warp_frame(&scene, &frame, &snapshot.view, &snapshot.view).expect("warps");
     assert_eq!(warped, frame);
     let empty = (0..SIZE.0 * SIZE.1)
         .filter(|&p| frame.run(p as usize).is_empty())
