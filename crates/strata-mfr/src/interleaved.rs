@@ -26,6 +26,11 @@
 //! - **fixed:N**: chunks of N triangles while the deadline has not passed — a chunk may run past
 //!   it; kept to compare.
 //!
+//! Every period captures one chunk at least (adaptive: [`MIN_TRIANGLES`]), even with no time
+//! left, so an FC frame longer than its period slows the SC down but cannot starve it. The SC's
+//! first frame is rendered in one call before the FC starts (it is also the one-shot reference
+//! the chunking overhead is measured against).
+//!
 //! The export is one step: it runs when its last measured time fits in the time left, or when it
 //! was already put off once (so a frame too short for any export still finishes its SC frames).
 //!
@@ -261,6 +266,9 @@ impl<'s> ScSide<'s> {
         deadline: Instant,
         stats: &mut InterleavedStats,
     ) -> Result<(), SimulateError> {
+        // One chunk per period at least, even past the deadline, so that an FC frame longer
+        // than its period does not starve the SC.
+        let mut progressed = false;
         loop {
             self.start(snapshot, fc_index)?;
             let Some(job) = self.job.as_mut() else {
@@ -268,11 +276,16 @@ impl<'s> ScSide<'s> {
             };
             let left = deadline.saturating_duration_since(Instant::now());
             if job.next < job.total {
-                let n = chunk_size(self.chunking, self.cost_per_triangle, left)
-                    .min(job.total - job.next);
-                if n == 0 {
-                    return Ok(());
+                let n = match chunk_size(self.chunking, self.cost_per_triangle, left) {
+                    0 if progressed => return Ok(()),
+                    0 => match self.chunking {
+                        Chunking::Fixed(n) => n,
+                        Chunking::Adaptive => MIN_TRIANGLES,
+                    },
+                    n => n,
                 }
+                .min(job.total - job.next);
+                progressed = true;
                 let part = job.input.triangle_range(job.next..job.next + n);
                 let start = Instant::now();
                 self.client.capture_part(&part)?;
@@ -368,9 +381,11 @@ pub fn run_interleaved(
     // store's pool and warms the pool's thread up, as the run's first SC frame does).
     let first = authority.advance_to(0.0);
     let mut one_shot = Client::new(width, height);
+    let mut initial = None;
     for _ in 0..2 {
         let start = Instant::now();
-        pool.install(|| sc_render(scene, &mut one_shot, &first, config.migration, 0))?;
+        initial =
+            Some(pool.install(|| sc_render(scene, &mut one_shot, &first, config.migration, 0))?);
         stats.one_shot_sc_ms = start.elapsed().as_secs_f64() * 1e3;
     }
     drop(one_shot);
@@ -382,9 +397,11 @@ pub fn run_interleaved(
         chunking,
         client: Client::new(width, height),
         job: None,
-        newest: None,
-        last_snapshot: None,
-        sc_frames: 0,
+        // The SC's first frame is ready when the run starts (as an SC that rendered the first
+        // state before the FC began): until then the FC would draw everything itself.
+        newest: initial.map(Arc::new),
+        last_snapshot: Some(first.id),
+        sc_frames: 1,
         cost_per_triangle: None,
         export_ms: None,
     };
