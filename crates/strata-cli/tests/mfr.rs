@@ -216,3 +216,42 @@ fn real_time_clients_compose_exactly_and_report_their_times() {
     assert!(fc > 0.0, "{s}");
     assert!(s["cpu"].as_str().is_some_and(|c| !c.is_empty()));
 }
+
+#[test]
+fn interleaved_runs_are_exact_and_report_their_chunking() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut cmd = strata();
+    cmd.args([
+        "mfr", "mixed", "--size", "64x36", "--trace", GRAB, "--frames", "24",
+    ])
+    .args([
+        "--clock",
+        "real:fc_hz=30",
+        "--interleaved",
+        "fixed:40",
+        "--out-dir",
+    ])
+    .arg(dir.path());
+    let ran = run_ok(&mut cmd);
+    assert_mentions(&ran.stdout, &["interleaved (fixed:40)", "FC deadlines hit"]);
+    let s = read_json(&dir.path().join("summary.json"));
+    assert_eq!(s["frames_with_bad_pixels"], 0, "exact whatever the timing");
+    let i = &s["interleaved"];
+    assert_eq!(i["chunking"], "fixed:40");
+    let rate = i["fc_deadline_hit_rate"].as_f64().expect("hit rate");
+    assert!((0.0..=1.0).contains(&rate), "{i}");
+    assert!(i["sc_frames"].as_u64().is_some(), "{i}");
+    assert!(i["sc_one_shot_ms"].as_f64().is_some_and(|v| v > 0.0), "{i}");
+    // Not with a slow client elsewhere.
+    let mut cmd = strata();
+    cmd.args([
+        "mfr",
+        "mixed",
+        "--clock",
+        "real",
+        "--interleaved",
+        "--sc-load",
+        "idle",
+    ]);
+    assert_mentions(&run_err(&mut cmd), &["--interleaved", "--sc-load"]);
+}

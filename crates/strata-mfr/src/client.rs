@@ -83,6 +83,25 @@ impl Client {
         indices: &[usize],
     ) -> Result<DeepFrame, ClientError> {
         self.capture(scene, snapshot, view, indices)?;
+        self.export()
+    }
+
+    /// Empties the store for a frame captured in parts with [`Client::capture_part`].
+    pub fn begin_parts(&mut self) -> Result<(), ClientError> {
+        Ok(self.store.clear(self.width, self.height)?)
+    }
+
+    /// Adds `part` (a chunk of [`Client::frame_input`], see
+    /// [`FrameInput::triangle_range`]) to what the store holds since [`Client::begin_parts`]:
+    /// the store's captures accumulate, so the parts give the frame one capture would.
+    pub fn capture_part(&mut self, part: &FrameInput<'_>) -> Result<(), ClientError> {
+        let mut timings = strata_core::PassTimings::new();
+        self.store.capture(&mut self.raster, part, &mut timings)?;
+        Ok(())
+    }
+
+    /// Everything the store holds, as a DeepFrame.
+    pub fn export(&self) -> Result<DeepFrame, ClientError> {
         match self.store.deep_frame() {
             Some(Ok(frame)) => Ok(frame),
             Some(Err(e)) => Err(ClientError::DeepFrame(e.to_string())),
@@ -185,6 +204,22 @@ impl Client {
         view: &ViewPose,
         indices: &[usize],
     ) -> Result<(), ClientError> {
+        let input = self.frame_input(scene, snapshot, view, indices)?;
+        // Clear and capture only: the store's own resolve would composite every pixel, and a
+        // client hands over fragments (the FC re-resolves only its footprint).
+        self.begin_parts()?;
+        self.capture_part(&input)
+    }
+
+    /// What the rasterizer draws for the objects at `indices`, posed as `snapshot` says, seen
+    /// through `view`.
+    pub fn frame_input<'s>(
+        &self,
+        scene: &'s Scene,
+        snapshot: &Snapshot,
+        view: &ViewPose,
+        indices: &[usize],
+    ) -> Result<FrameInput<'s>, ClientError> {
         let count = scene.objects.len();
         let mut objects = Vec::with_capacity(indices.len());
         for &index in indices {
@@ -201,7 +236,7 @@ impl Client {
                 id: o.id,
             });
         }
-        let input = FrameInput {
+        Ok(FrameInput {
             width: self.width,
             height: self.height,
             view: view.matrix(),
@@ -209,12 +244,6 @@ impl Client {
             background: scene.background,
             objects,
             output: self.output,
-        };
-        // Clear and capture only: the store's own resolve would composite every pixel, and a
-        // client hands over fragments (the FC re-resolves only its footprint).
-        let mut timings = strata_core::PassTimings::new();
-        self.store.clear(self.width, self.height)?;
-        self.store.capture(&mut self.raster, &input, &mut timings)?;
-        Ok(())
+        })
     }
 }

@@ -40,6 +40,9 @@
 //! - [`realtime`]: the same clients on their own threads in real time, handing over through
 //!   triple buffers; the FC never waits for the SC.
 //!
+//! - [`interleaved`]: both clients on one thread — each FC frame first, then the SC's frame in
+//!   chunks of geometry in the time left before the FC's next deadline.
+//!
 //! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
 //!   strata-wire messages; network threads feed the same triple buffers.
 //!
@@ -57,6 +60,7 @@ pub mod authority;
 pub mod client;
 pub mod compose;
 pub mod deferred;
+pub mod interleaved;
 pub mod lighting;
 pub mod realtime;
 pub mod simulate;
@@ -71,6 +75,7 @@ pub mod window;
 pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use compose::Composition;
+pub use interleaved::{Chunking, InterleavedStats, ScFrameRecord, run_interleaved};
 pub use realtime::{Incident, RealConfig, RealStats, ScLoad, ScPriority, Transport, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};

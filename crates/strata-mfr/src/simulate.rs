@@ -308,6 +308,27 @@ pub(crate) fn sc_render(
     migration: Migration,
     sc_frame: u64,
 ) -> Result<TransferBuffer, SimulateError> {
+    let (rendered, excluded, indices) = sc_share(snapshot, migration);
+    let frame = client.render(scene, snapshot, &snapshot.view, &indices)?;
+    let image = frame.resolve(scene.background);
+    Ok(TransferBuffer {
+        sc_frame,
+        snapshot_id: snapshot.id,
+        snapshot_t_ms: snapshot.t_ms,
+        view: snapshot.view,
+        rendered,
+        excluded,
+        frame,
+        image,
+    })
+}
+
+/// The objects `migration` leaves the SC at `snapshot`: (id, version) of those it renders and
+/// the ids of those it leaves out, both sorted, and the indices it renders in scene order.
+pub(crate) fn sc_share(
+    snapshot: &Snapshot,
+    migration: Migration,
+) -> (Vec<(ObjectId, u64)>, Vec<ObjectId>, Vec<usize>) {
     let keeps = |state: ObjectState| match migration {
         Migration::Naive => state != ObjectState::Selected,
         Migration::Predictive => state == ObjectState::Inactive,
@@ -323,18 +344,7 @@ pub(crate) fn sc_render(
     }
     rendered.sort_unstable();
     excluded.sort_unstable();
-    let frame = client.render(scene, snapshot, &snapshot.view, &indices)?;
-    let image = frame.resolve(scene.background);
-    Ok(TransferBuffer {
-        sc_frame,
-        snapshot_id: snapshot.id,
-        snapshot_t_ms: snapshot.t_ms,
-        view: snapshot.view,
-        rendered,
-        excluded,
-        frame,
-        image,
-    })
+    (rendered, excluded, indices)
 }
 
 /// The objects the FC draws (indices, scene order).

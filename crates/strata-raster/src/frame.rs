@@ -91,4 +91,64 @@ impl<'a> FrameInput<'a> {
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize
     }
+
+    /// The same frame drawing only the triangles whose index in the whole frame — objects in
+    /// order, each object's triangles in order — falls in `range`: one chunk of the geometry, for
+    /// a store that captures a frame over several calls. Objects with no triangle in the range
+    /// are left out; the others keep their geometry, placement and id, so the fragments of the
+    /// chunks together are exactly those of the whole frame.
+    pub fn triangle_range(&self, range: std::ops::Range<u64>) -> FrameInput<'a> {
+        let mut objects = Vec::new();
+        let mut first = 0u64;
+        for o in &self.objects {
+            let n = o.triangles.len() as u64;
+            let (lo, hi) = (range.start.max(first), range.end.min(first + n));
+            if lo < hi {
+                objects.push(DrawObject {
+                    triangles: &o.triangles[(lo - first) as usize..(hi - first) as usize],
+                    ..*o
+                });
+            }
+            first += n;
+        }
+        FrameInput {
+            width: self.width,
+            height: self.height,
+            view: self.view,
+            projection: self.projection,
+            background: self.background,
+            objects,
+            output: self.output,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn triangle_ranges_partition_the_frame() {
+        let scene = strata_scene::open_scene("mixed", &strata_scene::SearchPath::default())
+            .expect("built-in scene");
+        let input = FrameInput::from_scene(&scene, 0);
+        let total = input.triangle_count();
+        assert!(total > 10);
+        let cut = [0, 3, total / 2, total - 1, total];
+        let mut seen = Vec::new();
+        for w in cut.windows(2) {
+            let part = input.triangle_range(w[0]..w[1]);
+            assert_eq!(part.triangle_count(), w[1] - w[0]);
+            for o in &part.objects {
+                seen.extend(o.triangles.iter().map(|t| (o.id, *t)));
+            }
+        }
+        let all: Vec<_> = input
+            .objects
+            .iter()
+            .flat_map(|o| o.triangles.iter().map(|t| (o.id, *t)))
+            .collect();
+        assert_eq!(seen, all);
+        assert!(input.triangle_range(total..total + 5).objects.is_empty());
+    }
 }

@@ -76,6 +76,21 @@ pub struct PixelMap {
 }
 
 /// A multi-fragment rendering method; see the crate docs.
+///
+/// # Capturing a frame in chunks
+///
+/// A frame is `clear`, then one or more `capture` calls, then `resolve` and/or `deep_frame`.
+/// For a store whose [`Method::captures_in_chunks`] is true, several capture calls between a
+/// clear and the export **accumulate**: capturing the frame's objects in any split — some objects
+/// per call, or consecutive ranges of their triangles
+/// ([`FrameInput::triangle_range`](strata_raster::FrameInput::triangle_range)), in order —
+/// leaves the store holding what one capture of the whole frame would, and its DeepFrame is
+/// bit-identical to one capture's. A capture therefore never resets what earlier captures of the
+/// frame stored (counters, lists, regions); only `clear` does. Each [`CaptureReport`] covers its
+/// own call, except `fragments_stored`, which counts what the store holds after it. Every exact
+/// store that keeps fragments in one geometry pass holds this contract (tested over the registry
+/// in `tests/chunked_capture.rs`) except TFSS, whose regrow restarts the frame; depth peeling
+/// does not either, as it needs all the geometry in every peel.
 pub trait Method: Send {
     /// The name it is selected by (`--method`).
     fn name(&self) -> &'static str;
@@ -115,6 +130,12 @@ pub trait Method: Send {
 
     /// The captured fragments as a DeepFrame; `None` for methods that do not keep fragments.
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>>;
+
+    /// Whether capture calls between a clear and the export accumulate (see the trait docs);
+    /// false by default.
+    fn captures_in_chunks(&self) -> bool {
+        false
+    }
 }
 
 /// Everything one rendered frame produced.

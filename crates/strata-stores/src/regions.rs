@@ -140,6 +140,25 @@ impl Regions {
         Ok(())
     }
 
+    /// Copies what each pixel of `old` holds to the front of its region here, as if those
+    /// fragments had been captured first. Used when a frame captured in chunks outgrows the
+    /// layout its earlier chunks sized: both must be of one frame size, and every region here at
+    /// least as large as `old`'s fill.
+    pub(crate) fn refill_from(&mut self, old: &Regions) {
+        assert_eq!(
+            (old.width, old.height),
+            (self.width, self.height),
+            "refill from regions of the same frame"
+        );
+        for (p, fill) in self.fill.iter_mut().enumerate() {
+            let run = old.stored(p);
+            let start = self.offsets[p] as usize;
+            self.slots[start..start + run.len()].copy_from_slice(run);
+            *fill = run.len() as u32;
+        }
+        self.lost.store(old.lost.load(Relaxed), Relaxed);
+    }
+
     /// Empties every region (keeps the sizes).
     pub fn clear(&mut self) {
         self.fill.par_iter_mut().for_each(|f| *f = 0);

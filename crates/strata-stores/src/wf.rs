@@ -156,6 +156,10 @@ impl Method for WeightFactor {
         self.store.memory()
     }
 
+    fn captures_in_chunks(&self) -> bool {
+        true
+    }
+
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
         Some(self.store.regions().deep_frame())
     }

@@ -207,6 +207,49 @@ impl LinkedListABuffer {
         Ok(())
     }
 
+    /// Where this capture starts: the first node it may take and the fragments stored before.
+    fn chunk_mark(&self) -> (u32, u64) {
+        let next = self.next_free.load(Relaxed).min(self.nodes.len() as u32);
+        (next, self.stored.load(Relaxed))
+    }
+
+    /// Undoes a capture that started at `mark`: lists are newest first, so the nodes it took
+    /// (indices from `mark.0` on) are at the front of each list and are unlinked there; what
+    /// earlier captures of the frame stored stays.
+    fn roll_back_to(&mut self, (first, stored): (u32, u64)) {
+        let nodes = &self.nodes;
+        self.heads.par_iter_mut().for_each(|h| {
+            while *h != EMPTY && *h >= first {
+                *h = nodes[*h as usize].load().1;
+            }
+        });
+        self.next_free.store(first, Relaxed);
+        self.stored.store(stored, Relaxed);
+        self.dropped.store(0, Relaxed);
+    }
+
+    /// Grows the pool to `n` nodes, keeping the first `keep` (the frame's earlier captures).
+    fn grow_pool_keeping(&mut self, n: u64, keep: u32) -> Result<(), StoreError> {
+        if keep == 0 {
+            return self.resize_pool(n);
+        }
+        let n = n.clamp(1, MAX_CAPACITY) as usize;
+        let grown: Vec<Node> = try_alloc(
+            n,
+            || format!("a node pool of {n} fragments"),
+            "give a smaller --pool (a multiple of the pixel count like 4x), or auto",
+        )?;
+        grown[..keep as usize]
+            .par_iter()
+            .zip(&self.nodes[..keep as usize])
+            .for_each(|(to, from)| {
+                let (f, next) = from.load();
+                to.store(f, next);
+            });
+        self.nodes = grown;
+        Ok(())
+    }
+
     fn reset_lists(&mut self) {
         self.heads.par_iter_mut().for_each(|h| *h = EMPTY);
         self.next_free.store(0, Relaxed);
@@ -356,6 +399,8 @@ impl Method for LinkedListABuffer {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
         let mut regrows = 0;
+        // What earlier captures of this frame hold (captures accumulate, see `Method`).
+        let mark = self.chunk_mark();
         loop {
             let start = Instant::now();
             let stats = prepared.rasterize(self);
@@ -379,8 +424,11 @@ impl Method for LinkedListABuffer {
             // for the next frames, and capture again.
             let start = Instant::now();
             let slack = prepared.layout().count() as u64 * u64::from(BLOCK);
-            self.resize_pool((stats.fragments + slack) * 5 / 4)?;
-            self.reset_lists();
+            self.roll_back_to(mark);
+            self.grow_pool_keeping(
+                (u64::from(mark.0) + stats.fragments + slack) * 5 / 4,
+                mark.0,
+            )?;
             regrows += 1;
             timings.add("capture.regrow", start.elapsed());
         }
@@ -436,6 +484,10 @@ impl Method for LinkedListABuffer {
         (self.heads.len() * size_of::<u32>()
             + self.nodes.len() * size_of::<Node>()
             + size_of::<AtomicU32>()) as u64
+    }
+
+    fn captures_in_chunks(&self) -> bool {
+        true
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {

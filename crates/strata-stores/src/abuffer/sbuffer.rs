@@ -53,6 +53,11 @@ pub const NAME: &str = "sbuffer";
 pub struct SBuffer {
     counts: FragmentCounts,
     regions: Regions,
+    /// The layout of the chunks captured so far while a later chunk is laid out (see
+    /// [`SBuffer::capture_exact`]); empty unless frames are captured in chunks.
+    previous: Regions,
+    /// Whether a capture has run since the last clear.
+    holding: bool,
     depth: Option<DepthStats>,
 }
 
@@ -74,6 +79,12 @@ impl SBuffer {
 
     /// Runs the count, prefix-sum and capture passes (shared with the weight-factor resolve,
     /// whose M-buffer is this layout).
+    ///
+    /// Captures accumulate (see [`Method`]): the counts of a later chunk add to the earlier
+    /// ones', the regions are laid out again for the total, and the fragments already stored are
+    /// copied to the front of their new regions before the chunk is captured behind them — in
+    /// arrival order, as one capture would have stored them. Each later chunk thus copies what
+    /// the store holds: chunks suit the linked-list A-buffer better.
     pub(crate) fn capture_exact(
         &mut self,
         raster: &mut Rasterizer,
@@ -88,9 +99,18 @@ impl SBuffer {
         timings.add("capture.count", start.elapsed());
 
         let start = Instant::now();
+        if self.holding {
+            std::mem::swap(&mut self.regions, &mut self.previous);
+        }
         self.regions
             .with_capacities(input.width, input.height, self.counts.counts())?;
         timings.add("capture.prefix_sum", start.elapsed());
+        if self.holding {
+            let start = Instant::now();
+            self.regions.refill_from(&self.previous);
+            timings.add("capture.carry_over", start.elapsed());
+        }
+        self.holding = true;
 
         let start = Instant::now();
         let captured = prepared.rasterize(&mut RegionCapture {
@@ -103,7 +123,7 @@ impl SBuffer {
         let dropped = self.regions.lost();
         Ok(CaptureReport {
             fragments_rasterized: counted.fragments + captured.fragments,
-            fragments_stored: captured.fragments - dropped,
+            fragments_stored: self.regions.stored_count(),
             dropped,
             regrows: 0,
             raster_passes: 2,
@@ -114,11 +134,12 @@ impl SBuffer {
 
     pub(crate) fn clear_counts(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         self.depth = None;
+        self.holding = false;
         self.counts.clear(width, height)
     }
 
     pub(crate) fn memory(&self) -> u64 {
-        self.counts.memory_bytes() + self.regions.memory_bytes()
+        self.counts.memory_bytes() + self.regions.memory_bytes() + self.previous.memory_bytes()
     }
 }
 
@@ -153,6 +174,10 @@ impl Method for SBuffer {
     /// Counters, offsets, fill counters and exactly `Σ counts` slots: allocated equals used.
     fn memory_bytes(&self) -> u64 {
         self.memory()
+    }
+
+    fn captures_in_chunks(&self) -> bool {
+        true
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {

@@ -3,6 +3,7 @@
 //! - `mod.rs`: the arguments and the run (clients, audit, frames written);
 //! - `clock.rs`: `--clock` and `--trace` parsed;
 //! - `deferred.rs`: `--deferred` (the SC's deep G-buffer lit by the FC);
+//! - `interleaved.rs`: `--interleaved` (both clients on one thread) and its summary;
 //! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary;
 //! - `view.rs`: navigation figures — against the current view, warping's holes, view latency.
 
@@ -22,6 +23,7 @@ use crate::options::{open_scene, search_path};
 mod clock;
 mod contact_sheet;
 mod deferred;
+mod interleaved;
 mod summary;
 mod view;
 
@@ -89,6 +91,13 @@ pub(crate) struct Args {
     /// scheduled first; give `strata mfr-slow` its own `--priority`).
     #[arg(long, value_enum, default_value_t = PriorityArg::Normal)]
     pub(crate) sc_priority: PriorityArg,
+
+    /// Real clock only: both clients on one thread — each FC frame first, then the slow
+    /// client's frame in chunks of geometry in the time left before the FC's next deadline,
+    /// swapped in when complete. Chunk size `adaptive` (from the measured cost per triangle, the
+    /// default) or `fixed:N` (N triangles a chunk).
+    #[arg(long, value_name = "CHUNKING", num_args = 0..=1, default_missing_value = "adaptive")]
+    pub(crate) interleaved: Option<String>,
 
     /// FC frames to run (default: until the trace is over and the SC has caught up).
     #[arg(long)]
@@ -214,6 +223,19 @@ pub(crate) fn run(args: Args) -> Result<()> {
     if args.warp && !matches!(clock, Clock::Virtual(_)) {
         bail!("--warp needs the virtual clock (--clock virtual:…)");
     }
+    let chunking = match &args.interleaved {
+        Some(_) if matches!(clock, Clock::Virtual(_)) => {
+            bail!("--interleaved needs the real clock (--clock real)")
+        }
+        Some(value) => Some(interleaved::parse_interleaved(
+            value,
+            transport == Transport::Thread
+                && args.sc_load == ScLoadArg::Busy
+                && args.sc_priority == PriorityArg::Normal,
+        )?),
+        None => None,
+    };
+    let mut interleaved_summary = None;
     if let Some(dir) = &args.out_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -371,7 +393,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                 sc_priority: args.sc_priority.into(),
                 ..RealConfig::new(size, frames)
             };
-            let stats = run_real(scene, trace.clone(), &config, |f| {
+            let keep = |f: &FcFrame| {
                 let bytes = f.fc.memory_bytes() + f.image.as_bytes().len() as u64;
                 if !args.no_audit && kept + bytes <= AUDIT_BUDGET {
                     kept += bytes;
@@ -382,7 +404,21 @@ pub(crate) fn run(args: Args) -> Result<()> {
                         f.sc.as_ref().map(|sc| sc.sc_frame),
                     ));
                 }
-            })?;
+            };
+            let stats = match chunking {
+                Some(chunking) => {
+                    let s = strata_mfr::run_interleaved(
+                        &scene,
+                        trace.clone(),
+                        &config,
+                        chunking,
+                        keep,
+                    )?;
+                    interleaved_summary = Some(interleaved::interleaved_json(chunking, &s));
+                    interleaved::real_stats(&s)
+                }
+                None => run_real(scene, trace.clone(), &config, keep)?,
+            };
             // A frame is on screen when its work is done.
             let shown_at = |index: u64, t_ms: f64| {
                 t_ms + stats
@@ -428,7 +464,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
     if args.warp || navigates {
         summary["view"] = views.json(&trace, args.warp);
     }
-    outln!("{}{}", summary_text(&summary), incidents_text(&summary))?;
+    let mut text = summary_text(&summary);
+    if let Some(v) = interleaved_summary {
+        text.push_str(&interleaved::interleaved_text(&v));
+        summary["interleaved"] = v;
+    }
+    outln!("{}{}", text, incidents_text(&summary))?;
     if let Some(v) = summary.get("view") {
         outln!("{}", view::view_text(v))?;
     }
