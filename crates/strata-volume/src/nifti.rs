@@ -335,7 +335,7 @@ fn check_dims(path: &Path, dim: &[i16; 8]) -> Result<[usize; 3], NiftiError> {
 
 fn check_vox_offset(path: &Path, offset: f32) -> Result<usize, NiftiError> {
     const MAX_EXTENSION: f32 = (1 << 24) as f32;
-    if !offset.is_finite() || offset < 352.0 || offset > MAX_EXTENSION || offset.fract() != 0.0 {
+    if !(352.0..=MAX_EXTENSION).contains(&offset) || offset.fract() != 0.0 {
         return Err(header_error(
             path,
             format!(
