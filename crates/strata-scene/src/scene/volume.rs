@@ -118,7 +118,7 @@ pub(super) fn check(c: &impl Checker, f: VolumeFile) -> Result<VolumeSpec, super
     let source = source(c, &f)?;
     let min = Vec3::from(f.min.map_or([-0.5; 3], |n| n.0));
     let max = Vec3::from(f.max.map_or([0.5; 3], |n| n.0));
-    if !(min.is_finite() && max.is_finite()) || !min.cmplt(max).all() {
+    if !(min.is_finite() && max.is_finite() && min.cmplt(max).all()) {
         return Err(c.invalid_at(
             "volume.max",
             format!("the box {min} .. {max} must be finite with max above min on every axis"),
