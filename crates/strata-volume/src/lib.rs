@@ -7,6 +7,7 @@
 //! - [`cast`]: fixed steps from the ray's entry into the volume box, opacity correction, front-to-back
 //!   compositing with early termination, rays ending at opaque geometry;
 //! - [`geometry`]: analytic opaque solids (boxes, tubes — the interactive "well path");
+//! - [`spec`]: a scene file's `[volume]` table made into a [`stencil::VolumeScene`];
 //! - [`stencil`]: the slow client casts the whole image over its static geometry; the fast client
 //!   re-casts only the rays its interactive object shortens, matching the single renderer exactly.
 //!
@@ -32,6 +33,7 @@
 pub mod cast;
 pub mod geometry;
 pub mod nifti;
+pub mod spec;
 pub mod stencil;
 pub mod transfer;
 pub mod volume;

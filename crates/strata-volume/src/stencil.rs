@@ -107,7 +107,12 @@ impl<'a> Renderer<'a> {
 
     /// The FC frame over `sc`: the interactive solids against the SC depth, stencil re-cast.
     pub fn fast(&self, sc: &ScFrame) -> FcFrame {
-        let objects = trace_layer(&self.rays, &self.scene.interactive);
+        self.fast_with(sc, &self.scene.interactive)
+    }
+
+    /// [`Renderer::fast`] with the interactive solids where the user has moved them.
+    pub fn fast_with(&self, sc: &ScFrame, interactive: &[Solid]) -> FcFrame {
+        let objects = trace_layer(&self.rays, interactive);
         let stencil = visible_pixels(&objects.depth, &sc.geometry.depth);
         let mut image = sc.image.clone();
         let recast: Vec<usize> = (0..stencil.len()).filter(|&i| stencil[i]).collect();
@@ -133,11 +138,16 @@ impl<'a> Renderer<'a> {
 
     /// The single renderer: all solids (static first), every ray cast.
     pub fn single(&self) -> Vec<[f32; 3]> {
+        self.single_with(&self.scene.interactive)
+    }
+
+    /// [`Renderer::single`] with the interactive solids where the user has moved them.
+    pub fn single_with(&self, interactive: &[Solid]) -> Vec<[f32; 3]> {
         let solids: Vec<Solid> = self
             .scene
             .statics
             .iter()
-            .chain(&self.scene.interactive)
+            .chain(interactive)
             .copied()
             .collect();
         let geometry = trace_layer(&self.rays, &solids);

@@ -58,6 +58,12 @@ pub const SCENES: &[BuiltinScene] = &[
         meshes: &[],
     },
     BuiltinScene {
+        name: "volume-head",
+        description: "for `strata mfr --volume`: a procedural volume with a well path of thin tubes through it",
+        source: include_str!("scenes/volume-head.toml"),
+        meshes: &[],
+    },
+    BuiltinScene {
         name: "bunny",
         description: "Stanford bunny, alpha 0.5, 1280x720 (needs bunny.obj)",
         source: include_str!("scenes/bunny.toml"),
@@ -92,6 +98,12 @@ pub const SCENES: &[BuiltinScene] = &[
         description: "for `strata mfr`: the translucent 2 Cylinder Engine, one object per mesh node (needs 2CylinderEngine.glb)",
         source: include_str!("scenes/mfr-engine.toml"),
         meshes: &["2CylinderEngine.glb"],
+    },
+    BuiltinScene {
+        name: "volume-ch2",
+        description: "for `strata mfr --volume`: the ch2 head MRI, 181x217x181 voxels, with a well path (needs ch2.nii.gz)",
+        source: include_str!("scenes/volume-ch2.toml"),
+        meshes: &["ch2.nii.gz"],
     },
 ];
 
