@@ -2,7 +2,8 @@
 //!
 //! - `mod.rs`: the arguments and the run (clients, audit, frames written);
 //! - `clock.rs`: `--clock` and `--trace` parsed;
-//! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary.
+//! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary;
+//! - `volume.rs`: `--volume`, volume ray casting with the FC's stencil re-cast.
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -20,6 +21,7 @@ use crate::options::{open_scene, search_path};
 mod clock;
 mod contact_sheet;
 mod summary;
+mod volume;
 
 use clock::{make_trace, parse_clock};
 use summary::{Totals, frame_json, frame_record, incidents_text, summary_json, summary_text};
@@ -121,6 +123,18 @@ pub(crate) struct Args {
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
+
+    /// Volume ray casting instead (scenes with a `[volume]` table: `volume-head`, `volume-ch2`):
+    /// the SC casts the whole image once, the FC moves the well path each of --frames frames
+    /// (default 8), re-casts only the rays the path shortens and is compared bit for bit with the
+    /// single renderer. Prints the full cast and re-cast times; --trace, --clock and --mode do not
+    /// apply.
+    #[arg(long)]
+    pub(crate) volume: bool,
+
+    /// With --volume: samples along the volume box's diagonal (default: the scene's `samples`).
+    #[arg(long, requires = "volume", value_parser = clap::value_parser!(u32).range(1..=65536))]
+    pub(crate) volume_samples: Option<u32>,
 }
 
 /// Composed frames a real-time run keeps to audit afterwards, at most (bytes).
@@ -179,6 +193,9 @@ pub(crate) enum Clock {
 
 /// Runs `strata mfr`.
 pub(crate) fn run(args: Args) -> Result<()> {
+    if args.volume {
+        return volume::run(&args);
+    }
     let clock = parse_clock(&args.clock)?;
     let transport = parse_transport(&args.transport)?;
     if matches!(clock, Clock::Virtual(_))
