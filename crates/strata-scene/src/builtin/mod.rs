@@ -107,6 +107,14 @@ pub const SCENES: &[BuiltinScene] = &[
     },
 ];
 
+impl BuiltinScene {
+    /// Whether it is a volume scene (a `[volume]` table, no meshes to rasterize): for
+    /// `strata mfr --volume`, not for the fragment renderers.
+    pub fn is_volume(&self) -> bool {
+        self.source.contains("\n[volume]")
+    }
+}
+
 /// The built-in scene called `name`.
 pub fn find(name: &str) -> Option<&'static BuiltinScene> {
     SCENES.iter().find(|s| s.name == name)
