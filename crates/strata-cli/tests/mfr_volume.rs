@@ -51,4 +51,7 @@ fn volume_scenes_without_points_or_with_a_truncated_file_are_errors() {
     // A scene without a volume.
     let e = run_err(strata().args(["mfr", "spheres", "--volume"]));
     assert_mentions(&e, &["no [volume] table"]);
+    // A volume scene without --volume.
+    let e = run_err(strata().args(["mfr", "volume-head"]));
+    assert_mentions(&e, &["volume scene", "--volume"]);
 }

@@ -209,6 +209,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
+    if scene.objects.is_empty() && scene.volume.is_some() {
+        bail!(
+            "{} is a volume scene with no objects: add --volume",
+            args.scene
+        );
+    }
     let trace = make_trace(&args.trace, &scene)?;
     let migration = match args.migration {
         MigrationArg::Predictive => Migration::Predictive,
