@@ -67,8 +67,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let search = args.render.search_path();
     let threads = pool.current_num_threads();
     let mut raster = Rasterizer::default();
-    let (available, skipped): (Vec<&builtin::BuiltinScene>, Vec<_>) =
-        builtin::SCENES.iter().partition(|s| s.available(&search));
+    let (available, skipped): (Vec<&builtin::BuiltinScene>, Vec<_>) = builtin::SCENES
+        .iter()
+        .filter(|s| !s.is_volume())
+        .partition(|s| s.available(&search));
     let mut rows = Vec::new();
     let started = Instant::now();
     for (i, b) in available.iter().enumerate() {

@@ -58,6 +58,12 @@ pub const SCENES: &[BuiltinScene] = &[
         meshes: &[],
     },
     BuiltinScene {
+        name: "volume-head",
+        description: "for `strata mfr --volume`: a procedural volume with a well path of thin tubes through it",
+        source: include_str!("scenes/volume-head.toml"),
+        meshes: &[],
+    },
+    BuiltinScene {
         name: "bunny",
         description: "Stanford bunny, alpha 0.5, 1280x720 (needs bunny.obj)",
         source: include_str!("scenes/bunny.toml"),
@@ -93,7 +99,21 @@ pub const SCENES: &[BuiltinScene] = &[
         source: include_str!("scenes/mfr-engine.toml"),
         meshes: &["2CylinderEngine.glb"],
     },
+    BuiltinScene {
+        name: "volume-ch2",
+        description: "for `strata mfr --volume`: the ch2 head MRI, 181x217x181 voxels, with a well path (needs ch2.nii.gz)",
+        source: include_str!("scenes/volume-ch2.toml"),
+        meshes: &["ch2.nii.gz"],
+    },
 ];
+
+impl BuiltinScene {
+    /// Whether it is a volume scene (a `[volume]` table, no meshes to rasterize): for
+    /// `strata mfr --volume`, not for the fragment renderers.
+    pub fn is_volume(&self) -> bool {
+        self.source.contains("\n[volume]")
+    }
+}
 
 /// The built-in scene called `name`.
 pub fn find(name: &str) -> Option<&'static BuiltinScene> {

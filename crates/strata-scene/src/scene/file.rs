@@ -136,6 +136,7 @@ struct SceneFile {
     #[serde(default)]
     objects: Vec<ObjectFile>,
     animation: Option<AnimationFile>,
+    volume: Option<super::volume::VolumeFile>,
 }
 
 #[derive(Deserialize)]
@@ -213,7 +214,7 @@ struct AnimationFile {
 /// Unlike serde's `[f32; N]`, which reads `N` elements and leaves the rest unread (and the TOML
 /// deserializer does not object), every element is counted, so `[1, 0, 0, 99]` is an error.
 #[derive(Clone, Copy, Debug)]
-struct Numbers<const N: usize>([f32; N]);
+pub(super) struct Numbers<const N: usize>(pub(super) [f32; N]);
 
 impl<const N: usize> Default for Numbers<N> {
     fn default() -> Self {
@@ -260,6 +261,16 @@ impl<'de, const N: usize> serde::de::Visitor<'de> for NumbersVisitor<N> {
     }
 }
 
+impl super::volume::Checker for Resolver<'_> {
+    fn invalid_at(&self, key: &str, msg: String) -> SceneError {
+        self.invalid(key, msg)
+    }
+
+    fn find_file(&self, key: &str, name: &str) -> Result<PathBuf, SceneError> {
+        self.find(key, name)
+    }
+}
+
 // ----- validation and resolution --------------------------------------------------------------
 
 /// One loaded model, shared by every object that names the same file.
@@ -298,7 +309,11 @@ impl Resolver<'_> {
         let background = file.background.map_or([1.0; 3], |b| b.0);
         self.unit_range("background", &background)?;
         let camera = self.camera(file.camera)?;
-        if file.objects.is_empty() {
+        let volume = file
+            .volume
+            .map(|v| super::volume::check(&self, v))
+            .transpose()?;
+        if file.objects.is_empty() && volume.is_none() {
             return Err(self.invalid("objects", "the scene has no [[objects]]; add at least one"));
         }
         let mut objects = Vec::new();
@@ -334,6 +349,7 @@ impl Resolver<'_> {
             camera,
             objects,
             animation,
+            volume,
         })
     }
 
@@ -613,6 +629,13 @@ impl Resolver<'_> {
                 },
             ),
         }
+    }
+
+    /// A file other than a mesh (a volume), found like one.
+    fn find(&self, key: &str, name: &str) -> Result<PathBuf, SceneError> {
+        self.search
+            .resolve(name, self.origin.dir())
+            .map_err(|tried| self.not_found(key, name, tried))
     }
 
     fn shape(&mut self, key: &str, name: &str) -> Result<Arc<Vec<LoadedPart>>, SceneError> {

@@ -23,6 +23,7 @@
 
 pub mod file;
 mod keys;
+pub mod volume;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -53,6 +54,8 @@ pub struct Scene {
     pub objects: Vec<SceneObject>,
     /// The animation, if the scene has one.
     pub animation: Option<Animation>,
+    /// The `[volume]` table, if the scene has one (see [`volume`]).
+    pub volume: Option<volume::VolumeSpec>,
 }
 
 /// One object: a mesh, where it is, what it looks like, and its id.

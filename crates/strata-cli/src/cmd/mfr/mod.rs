@@ -6,6 +6,7 @@
 //! - `interleaved.rs`: `--interleaved` (both clients on one thread) and its summary;
 //! - `summary.rs`: totals, the per-frame JSON line, `summary.json` and the text summary;
 //! - `view.rs`: navigation figures — against the current view, warping's holes, view latency.
+//! - `volume.rs`: `--volume`, volume ray casting with the FC's stencil re-cast.
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -26,6 +27,7 @@ mod deferred;
 mod interleaved;
 mod summary;
 mod view;
+mod volume;
 
 use clock::{make_trace, parse_clock};
 use summary::{Totals, frame_json, frame_record, incidents_text, summary_json, summary_text};
@@ -153,6 +155,18 @@ pub(crate) struct Args {
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
+
+    /// Volume ray casting instead (scenes with a `[volume]` table: `volume-head`, `volume-ch2`):
+    /// the SC casts the whole image once, the FC moves the well path each of --frames frames
+    /// (default 8), re-casts only the rays the path shortens and is compared bit for bit with the
+    /// single renderer. Prints the full cast and re-cast times; --trace, --clock and --mode do not
+    /// apply.
+    #[arg(long)]
+    pub(crate) volume: bool,
+
+    /// With --volume: samples along the volume box's diagonal (default: the scene's `samples`).
+    #[arg(long, requires = "volume", value_parser = clap::value_parser!(u32).range(1..=65536))]
+    pub(crate) volume_samples: Option<u32>,
 }
 
 /// Composed frames a real-time run keeps to audit afterwards, at most (bytes).
@@ -211,6 +225,9 @@ pub(crate) enum Clock {
 
 /// Runs `strata mfr`.
 pub(crate) fn run(args: Args) -> Result<()> {
+    if args.volume {
+        return volume::run(&args);
+    }
     let clock = parse_clock(&args.clock)?;
     let transport = parse_transport(&args.transport)?;
     if matches!(clock, Clock::Virtual(_))
@@ -240,6 +257,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
+    if scene.objects.is_empty() && scene.volume.is_some() {
+        bail!(
+            "{} is a volume scene with no objects: add --volume",
+            args.scene
+        );
+    }
     let trace = make_trace(&args.trace, &scene)?;
     let migration = match args.migration {
         MigrationArg::Predictive => Migration::Predictive,
