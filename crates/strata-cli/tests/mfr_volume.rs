@@ -54,4 +54,17 @@ fn volume_scenes_without_points_or_with_a_truncated_file_are_errors() {
     // A volume scene without --volume.
     let e = run_err(strata().args(["mfr", "volume-head"]));
     assert_mentions(&e, &["volume scene", "--volume"]);
+    // Options a volume run does not follow are refused, not ignored.
+    for extra in [
+        ["--trace", "grab:"],
+        ["--mode", "digital"],
+        ["--clock", "real"],
+    ] {
+        let e = run_err(
+            strata()
+                .args(["mfr", "volume-head", "--volume"])
+                .args(extra),
+        );
+        assert_mentions(&e, &["cannot be used with"]);
+    }
 }

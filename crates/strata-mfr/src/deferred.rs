@@ -28,7 +28,9 @@ use crate::authority::{Authority, Snapshot};
 use crate::client::{Client, ClientError};
 use crate::compose::compose_deep;
 use crate::lighting::{LightRig, LightingError, LightingModel, PointLight, Shader};
-use crate::simulate::{Migration, SimulateError, VirtualClock, fc_draws, sc_render};
+use crate::simulate::{
+    Migration, SimulateError, VirtualClock, VirtualTimeline, fc_draws, sc_render,
+};
 use crate::trace::{Event, Trace};
 use crate::transfer::TransferBuffer;
 
@@ -162,14 +164,7 @@ pub fn run_deferred_virtual(
     fc_frames: u64,
     mut on_frame: impl FnMut(&DeferredFrame),
 ) -> Result<ScCost, DeferredError> {
-    let ok = |v: f64| v.is_finite() && v > 0.0;
-    if !(ok(clock.sc_ms)
-        && ok(clock.fc_ms)
-        && clock.transfer_ms.is_finite()
-        && clock.transfer_ms >= 0.0)
-    {
-        return Err(SimulateError::Clock(clock).into());
-    }
+    let mut timeline = VirtualTimeline::new(clock)?;
     let trace_keys_lights = trace
         .events()
         .iter()
@@ -179,27 +174,17 @@ pub fn run_deferred_virtual(
     let (mut sc_client, mut fc_client) = (client(), client());
     let projection = scene.camera.projection(width, height);
     let mut cost = ScCost::default();
-    let mut next_sc_start = 0.0f64;
-    let mut in_flight: Vec<(f64, Arc<TransferBuffer>)> = Vec::new();
-    let mut delivered: Option<Arc<TransferBuffer>> = None;
     for index in 0..fc_frames {
         let t = index as f64 * clock.fc_ms;
-        while next_sc_start <= t {
-            let snapshot = authority.advance_to(next_sc_start);
+        let delivered = timeline.tick(t, |start_ms, sc_frame| {
+            let snapshot = authority.advance_to(start_ms);
             let started = Instant::now();
-            let buffer = sc_render(scene, &mut sc_client, &snapshot, migration, cost.frames)?;
+            let buffer = sc_render(scene, &mut sc_client, &snapshot, migration, sc_frame)?;
             cost.total_ms += started.elapsed().as_secs_f64() * 1e3;
             cost.max_fragments = cost.max_fragments.max(buffer.frame.fragment_count() as u64);
             cost.frames += 1;
-            in_flight.push((
-                next_sc_start + clock.sc_ms + clock.transfer_ms,
-                Arc::new(buffer),
-            ));
-            next_sc_start += clock.sc_ms;
-        }
-        while in_flight.first().is_some_and(|(at, _)| *at <= t) {
-            delivered = Some(in_flight.remove(0).1);
-        }
+            Ok::<_, DeferredError>(buffer)
+        })?;
         let snapshot = authority.advance_to(t);
         let fc_objects = fc_draws(scene, &snapshot, delivered.as_deref(), migration);
         let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
@@ -228,7 +213,7 @@ pub fn run_deferred_virtual(
             index,
             t_ms: t,
             snapshot,
-            sc: delivered.clone(),
+            sc: delivered,
             fc_ids,
             lights,
             shader,

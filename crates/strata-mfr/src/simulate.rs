@@ -245,38 +245,15 @@ pub(crate) fn run_clients(
     warp: bool,
     mut on_frame: impl FnMut(&FcFrame),
 ) -> Result<(), SimulateError> {
-    let ok = |v: f64| v.is_finite() && v > 0.0;
-    if !(ok(clock.sc_ms)
-        && ok(clock.fc_ms)
-        && clock.transfer_ms.is_finite()
-        && clock.transfer_ms >= 0.0)
-    {
-        return Err(SimulateError::Clock(clock));
-    }
+    let mut timeline = VirtualTimeline::new(clock)?;
     let mut authority = Authority::new(scene, trace);
     let (mut sc_client, mut fc_client) = (Client::new(width, height), Client::new(width, height));
-    let mut next_sc_start = 0.0f64;
-    let mut sc_frame = 0u64;
-    // Buffers rendered but not yet delivered: (delivery time, buffer), in delivery order.
-    let mut in_flight: Vec<(f64, Arc<TransferBuffer>)> = Vec::new();
-    let mut delivered: Option<Arc<TransferBuffer>> = None;
     for index in 0..fc_frames {
         let t = index as f64 * clock.fc_ms;
-        // Every SC frame that starts at or before this FC tick, in time order.
-        while next_sc_start <= t {
-            let snapshot = authority.advance_to(next_sc_start);
-            let buffer = sc_render(scene, &mut sc_client, &snapshot, migration, sc_frame)?;
-            in_flight.push((
-                next_sc_start + clock.sc_ms + clock.transfer_ms,
-                Arc::new(buffer),
-            ));
-            sc_frame += 1;
-            next_sc_start += clock.sc_ms;
-        }
-        // Latest wins: the newest buffer delivered by now.
-        while in_flight.first().is_some_and(|(at, _)| *at <= t) {
-            delivered = Some(in_flight.remove(0).1);
-        }
+        let delivered = timeline.tick(t, |start_ms, sc_frame| {
+            let snapshot = authority.advance_to(start_ms);
+            sc_render(scene, &mut sc_client, &snapshot, migration, sc_frame)
+        })?;
         let snapshot = authority.advance_to(t);
         let (shown, warped) = match &delivered {
             Some(sc) if warp => {
@@ -298,6 +275,59 @@ pub(crate) fn run_clients(
         on_frame(&frame);
     }
     Ok(())
+}
+
+/// The virtual clock's schedule: the SC starts a frame every `sc_ms` with the newest snapshot,
+/// its buffer is usable `sc_ms + transfer_ms` later, and at each FC tick the newest buffer
+/// delivered by then wins. Shared by every virtual-clock run (plain, warped, deferred).
+pub(crate) struct VirtualTimeline {
+    clock: VirtualClock,
+    next_sc_start: f64,
+    sc_frame: u64,
+    /// Buffers rendered but not yet delivered: (delivery time, buffer), in delivery order.
+    in_flight: std::collections::VecDeque<(f64, Arc<TransferBuffer>)>,
+    delivered: Option<Arc<TransferBuffer>>,
+}
+
+impl VirtualTimeline {
+    /// The schedule of `clock`, whose periods must be positive and finite (transfer 0 or more).
+    pub(crate) fn new(clock: VirtualClock) -> Result<Self, SimulateError> {
+        let ok = |v: f64| v.is_finite() && v > 0.0;
+        if !(ok(clock.sc_ms)
+            && ok(clock.fc_ms)
+            && clock.transfer_ms.is_finite()
+            && clock.transfer_ms >= 0.0)
+        {
+            return Err(SimulateError::Clock(clock));
+        }
+        Ok(VirtualTimeline {
+            clock,
+            next_sc_start: 0.0,
+            sc_frame: 0,
+            in_flight: std::collections::VecDeque::new(),
+            delivered: None,
+        })
+    }
+
+    /// Moves to FC tick `t_ms`: renders, in time order, every SC frame that starts by then
+    /// (`render(start_ms, sc_frame)`), and returns the newest buffer delivered by then.
+    pub(crate) fn tick<E>(
+        &mut self,
+        t_ms: f64,
+        mut render: impl FnMut(f64, u64) -> Result<TransferBuffer, E>,
+    ) -> Result<Option<Arc<TransferBuffer>>, E> {
+        while self.next_sc_start <= t_ms {
+            let buffer = render(self.next_sc_start, self.sc_frame)?;
+            let at = self.next_sc_start + self.clock.sc_ms + self.clock.transfer_ms;
+            self.in_flight.push_back((at, Arc::new(buffer)));
+            self.sc_frame += 1;
+            self.next_sc_start += self.clock.sc_ms;
+        }
+        while self.in_flight.front().is_some_and(|(at, _)| *at <= t_ms) {
+            self.delivered = self.in_flight.pop_front().map(|(_, b)| b);
+        }
+        Ok(self.delivered.clone())
+    }
 }
 
 /// The SC's frame: the objects its policy leaves it, at `snapshot`.

@@ -160,8 +160,8 @@ pub(crate) struct Args {
     /// the SC casts the whole image once, the FC moves the well path each of --frames frames
     /// (default 8), re-casts only the rays the path shortens and is compared bit for bit with the
     /// single renderer. Prints the full cast and re-cast times; --trace, --clock and --mode do not
-    /// apply.
-    #[arg(long)]
+    /// apply (giving one is an error).
+    #[arg(long, conflicts_with_all = ["trace", "clock", "mode", "migration", "deferred", "warp"])]
     pub(crate) volume: bool,
 
     /// With --volume: samples along the volume box's diagonal (default: the scene's `samples`).
