@@ -142,3 +142,30 @@ fn every_exact_store_captures_a_frame_in_chunks_as_in_one_call() {
         "no later chunk outgrew its store: the regrow path went untested"
     );
 }
+
+/// A store that cannot capture in chunks still survives a second capture call between clear and
+/// export (it may start over or refuse), and its export is a valid frame: no store panics when a
+/// caller breaks the contract.
+#[test]
+fn a_second_capture_never_panics_any_store() {
+    let s = scene("mixed", 48, 32);
+    let input = FrameInput::from_scene(&s, 3);
+    let half = input.triangle_range(0..input.triangle_count() / 2);
+    for info in strata_stores::METHODS {
+        let mut method = create(info.name, &MethodOptions::default()).expect("registered");
+        let mut raster = Rasterizer::default();
+        let mut timings = strata_core::PassTimings::new();
+        pool(2).install(|| {
+            method.clear(48, 32).expect("clear");
+            for chunk in [&half, &input] {
+                // An error is an acceptable answer; a panic is not.
+                let _ = method.capture(&mut raster, chunk, &mut timings);
+            }
+            if let Some(frame) = method.deep_frame() {
+                frame.unwrap_or_else(|e| panic!("{}: invalid DeepFrame: {e}", info.name));
+            }
+            let image = method.resolve(s.background, &mut timings);
+            assert_eq!((image.width(), image.height()), (48, 32), "{}", info.name);
+        });
+    }
+}
