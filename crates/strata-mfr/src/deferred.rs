@@ -27,10 +27,11 @@ use strata_scene::Scene;
 use crate::authority::{Authority, Snapshot};
 use crate::client::{Client, ClientError};
 use crate::compose::compose_deep;
-use crate::lighting::{LightRig, LightingError, LightingModel, PointLight, Shader};
+use crate::lighting::{LightingError, LightingModel, PointLight, Shader};
 use crate::simulate::{
     Migration, SimulateError, VirtualClock, VirtualTimeline, fc_draws, sc_render,
 };
+use crate::timeline::{FrameRecord, latency};
 use crate::trace::{Event, Trace};
 use crate::transfer::TransferBuffer;
 
@@ -55,6 +56,9 @@ pub enum DeferredError {
     /// The run could not go on.
     #[error(transparent)]
     Run(#[from] SimulateError),
+    /// The trace keys no light.
+    #[error("the trace has no `light` events: deferred shading needs at least one light")]
+    NoLights,
 }
 
 /// The FC's deferred frame: the SC's G-buffer `sc` minus the objects in `fc_objects` (sorted
@@ -127,28 +131,34 @@ pub struct ScCost {
     pub max_fragments: u64,
 }
 
-/// The lights of frame time `t_ms`: the snapshot's when the trace keys lights (none before the
-/// first key), else `rig`'s.
-fn frame_lights(
-    snapshot: &Snapshot,
-    trace_keys_lights: bool,
-    rig: &LightRig,
-    t_ms: f64,
-) -> Vec<PointLight> {
-    if trace_keys_lights {
-        snapshot.lights.iter().map(|l| l.light).collect()
-    } else {
-        rig.at(t_ms)
-    }
+/// Where the lights are applied.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ShadeOn {
+    /// Deferred shading: the SC sends its deep G-buffer, the FC lights every fragment with the
+    /// lights of its own frame time, so lights move at the FC's rate.
+    #[default]
+    Fc,
+    /// Forward, for comparison: the SC lights its G-buffer with the lights of the state it
+    /// renders and sends lit fragments; the FC lights only its own objects' fragments, with the
+    /// current lights, and composes. Lights on the SC's objects move at the SC's rate.
+    Sc,
+}
+
+/// The lights of `snapshot` (those the trace keyed at or before its time).
+fn snapshot_lights(snapshot: &Snapshot) -> Vec<PointLight> {
+    snapshot.lights.iter().map(|l| l.light).collect()
 }
 
 /// Deferred shading on the virtual clock: as [`crate::simulate::run_virtual`] with deep
-/// composition, but the SC renders a deep G-buffer (normal fragments) and the FC composes normal
-/// fragments and lights every one with the lights of its own frame time: the trace's `light`
-/// events if it has any, else `rig`'s. Calls `on_frame` with each FC frame; returns the SC's cost.
+/// composition, but the SC renders a deep G-buffer (normal fragments) and the lights are the
+/// trace's `light` events. With [`ShadeOn::Fc`] the FC composes normal fragments and lights
+/// every one with the lights of its own frame time; with [`ShadeOn::Sc`] the SC lights its
+/// G-buffer with the lights of the state it renders and the FC lights only its own fragments.
+/// Calls `on_frame` with each FC frame; returns the SC's cost.
 ///
 /// # Errors
-/// When a client fails, the clock is not valid, or a fragment's object is unknown.
+/// When the trace keys no light, a client fails, the clock is not valid, or a fragment's object
+/// is unknown.
 #[allow(
     clippy::too_many_arguments,
     reason = "the run's parameters, each documented"
@@ -158,30 +168,44 @@ pub fn run_deferred_virtual(
     trace: Trace,
     clock: VirtualClock,
     migration: Migration,
-    rig: &LightRig,
+    shade_on: ShadeOn,
     model: LightingModel,
     (width, height): (u32, u32),
     fc_frames: u64,
     mut on_frame: impl FnMut(&DeferredFrame),
 ) -> Result<ScCost, DeferredError> {
+    if !trace.has_lights() {
+        return Err(DeferredError::NoLights);
+    }
     let mut timeline = VirtualTimeline::new(clock)?;
-    let trace_keys_lights = trace
-        .events()
-        .iter()
-        .any(|e| matches!(e.event, Event::Light { .. }));
     let mut authority = Authority::new(scene, trace);
     let client = || Client::new(width, height).with_output(FragmentOutput::PackedNormal);
     let (mut sc_client, mut fc_client) = (client(), client());
     let projection = scene.camera.projection(width, height);
+    let shader_for = |view: &crate::authority::ViewPose, lights: &[PointLight]| {
+        Shader::new(
+            scene,
+            (width, height),
+            view.matrix(),
+            projection,
+            lights,
+            model,
+        )
+    };
     let mut cost = ScCost::default();
     for index in 0..fc_frames {
         let t = index as f64 * clock.fc_ms;
         let delivered = timeline.tick(t, |start_ms, sc_frame| {
             let snapshot = authority.advance_to(start_ms);
             let started = Instant::now();
-            let buffer = sc_render(scene, &mut sc_client, &snapshot, migration, sc_frame)?;
-            cost.total_ms += started.elapsed().as_secs_f64() * 1e3;
+            let mut buffer = sc_render(scene, &mut sc_client, &snapshot, migration, sc_frame)?;
             cost.max_fragments = cost.max_fragments.max(buffer.frame.fragment_count() as u64);
+            if shade_on == ShadeOn::Sc {
+                let shader = shader_for(&snapshot.view, &snapshot_lights(&snapshot));
+                buffer.frame = shader.shade_frame(&buffer.frame)?;
+                buffer.image = buffer.frame.resolve(scene.background);
+            }
+            cost.total_ms += started.elapsed().as_secs_f64() * 1e3;
             cost.frames += 1;
             Ok::<_, DeferredError>(buffer)
         })?;
@@ -190,22 +214,16 @@ pub fn run_deferred_virtual(
         let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
         fc_ids.sort_unstable();
         let view = delivered.as_ref().map_or(snapshot.view, |sc| sc.view);
-        let lights = frame_lights(&snapshot, trace_keys_lights, rig, t);
-        let shader = Shader::new(
-            scene,
-            (width, height),
-            view.matrix(),
-            projection,
-            &lights,
-            model,
-        );
+        let lights = snapshot_lights(&snapshot);
+        let shader = shader_for(&view, &lights);
         let fc = fc_client
             .render_footprint(scene, &snapshot, &view, &fc_objects)?
             .to_full()?;
         let started = Instant::now();
-        let shaded = match &delivered {
-            Some(sc) => deferred_frame(&sc.frame, &fc, &fc_ids, &shader)?,
-            None => shader.shade_frame(&fc)?,
+        let shaded = match (&delivered, shade_on) {
+            (Some(sc), ShadeOn::Fc) => deferred_frame(&sc.frame, &fc, &fc_ids, &shader)?,
+            (Some(sc), ShadeOn::Sc) => compose_deep(&sc.frame, &shader.shade_frame(&fc)?, &fc_ids)?,
+            (None, _) => shader.shade_frame(&fc)?,
         };
         let image = shaded.resolve(scene.background);
         let fc_shading_ms = started.elapsed().as_secs_f64() * 1e3;
@@ -226,7 +244,8 @@ pub fn run_deferred_virtual(
 }
 
 /// The whole scene of `frame`'s state rendered at once as normal fragments through the view it
-/// composed with, lit by the same shader: what the frame must equal, bit for bit.
+/// composed with, lit by the same shader (the frame's lights): what a deferred frame must equal,
+/// bit for bit; a forward frame differs where the SC's lights are older than the frame's.
 ///
 /// # Errors
 /// When the client fails or a fragment's object is unknown.
@@ -239,4 +258,37 @@ pub fn deferred_reference(
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     let normals = client.render(scene, &frame.snapshot, &view, &all)?;
     Ok(frame.shader.shade_frame(&normals)?)
+}
+
+/// The light-to-screen lag of a run (ms).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LightLag {
+    /// Per `light` event, from the event to the first frame showing the SC's objects lit by it.
+    pub shown_ms: Vec<f64>,
+    /// `light` events the run ended before showing.
+    pub not_shown: usize,
+}
+
+/// The light-to-screen lag of every `light` event of `trace` in `frames` (frame order): to the
+/// first frame that lights the SC's objects with the lights at or after the event — the first
+/// frame whose state includes the event with [`ShadeOn::Fc`] (the FC path), the first frame
+/// composed with an SC buffer rendered from a state at or after it with [`ShadeOn::Sc`] (the SC
+/// path; the FC's own objects follow the lights at the FC's rate in both).
+pub fn light_lag(trace: &Trace, frames: &[FrameRecord], shade_on: ShadeOn) -> LightLag {
+    let all = latency(trace, frames);
+    let mut out = LightLag::default();
+    for (event, lag) in trace.events().iter().zip(&all.per_event) {
+        if !matches!(event.event, Event::Light { .. }) {
+            continue;
+        }
+        let ms = match shade_on {
+            ShadeOn::Fc => lag.fc_path_ms,
+            ShadeOn::Sc => lag.sc_path_ms,
+        };
+        match ms {
+            Some(ms) => out.shown_ms.push(ms),
+            None => out.not_shown += 1,
+        }
+    }
+    out
 }

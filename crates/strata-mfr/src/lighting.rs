@@ -267,106 +267,11 @@ fn pow_u32(mut x: f32, mut e: u32) -> f32 {
     r
 }
 
-/// How a light moves: through keyed positions or around a circle.
-#[derive(Clone, Debug, PartialEq)]
-pub enum LightPath {
-    /// Positions at times (ms, increasing), linear in between, held before the first and after
-    /// the last.
-    Keys(Vec<(f64, Vec3)>),
-    /// A horizontal circle (in the xz plane) around `center`, one turn per `period_ms`, starting
-    /// at angle `phase` (radians) at time 0.
-    Circle {
-        /// Centre of the circle.
-        center: Vec3,
-        /// Radius.
-        radius: f32,
-        /// Milliseconds per turn (> 0).
-        period_ms: f64,
-        /// Angle at time 0.
-        phase: f32,
-    },
-}
-
-impl LightPath {
-    /// The position at `t_ms`; `None` for a path with no keys.
-    pub fn position_at(&self, t_ms: f64) -> Option<Vec3> {
-        match self {
-            LightPath::Keys(keys) => {
-                let first = keys.first()?;
-                let after = keys.partition_point(|(t, _)| *t <= t_ms);
-                if after == 0 {
-                    return Some(first.1);
-                }
-                let (t0, p0) = keys[after - 1];
-                let Some(&(t1, p1)) = keys.get(after) else {
-                    return Some(p0);
-                };
-                let s = ((t_ms - t0) / (t1 - t0)) as f32;
-                Some(p0.lerp(p1, s))
-            }
-            LightPath::Circle {
-                center,
-                radius,
-                period_ms,
-                phase,
-            } => {
-                let turns = (t_ms / period_ms).fract() as f32;
-                let a = phase + turns * std::f32::consts::TAU;
-                Some(*center + Vec3::new(a.cos(), 0.0, a.sin()) * *radius)
-            }
-        }
-    }
-}
-
-/// Lights that move: each a light (its position is replaced) and the path it follows.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct LightRig {
-    /// The lights and their paths.
-    pub lights: Vec<(PointLight, LightPath)>,
-}
-
-/// Colours of the built-in ring, cycled.
-const RING_COLORS: [[f32; 3]; 4] = [
-    [1.0, 0.85, 0.7],
-    [0.6, 0.7, 1.0],
-    [0.9, 0.5, 0.5],
-    [0.5, 0.9, 0.6],
-];
-
-impl LightRig {
-    /// `count` lights circling `center` at `radius` and height `center.y`, evenly spaced, one
-    /// turn per `period_ms`; each light's range is the radius.
-    pub fn ring(count: usize, center: Vec3, radius: f32, period_ms: f64) -> LightRig {
-        let lights = (0..count)
-            .map(|i| {
-                let light = PointLight {
-                    position: center,
-                    color: RING_COLORS[i % RING_COLORS.len()],
-                    range: radius,
-                };
-                let phase = i as f32 / count as f32 * std::f32::consts::TAU;
-                let path = LightPath::Circle {
-                    center,
-                    radius,
-                    period_ms,
-                    phase,
-                };
-                (light, path)
-            })
-            .collect();
-        LightRig { lights }
-    }
-
-    /// The lights at `t_ms` (a light whose path has no keys stays where it is).
-    pub fn at(&self, t_ms: f64) -> Vec<PointLight> {
-        self.lights
-            .iter()
-            .map(|(light, path)| PointLight {
-                position: path.position_at(t_ms).unwrap_or(light.position),
-                ..*light
-            })
-            .collect()
-    }
+/// The point `t_ms` into a turn around a horizontal circle (in the xz plane) about `center`, one
+/// turn per `period_ms`, from the circle's +x point.
+fn on_circle(center: Vec3, radius: f32, period_ms: f64, t_ms: f64) -> Vec3 {
+    let a = (t_ms / period_ms).fract() as f32 * std::f32::consts::TAU;
+    center + Vec3::new(a.cos(), 0.0, a.sin()) * radius
 }
 
 /// A light of a snapshot: its trace id and where it is.
@@ -440,13 +345,7 @@ impl TraceLights {
                 center,
                 radius,
                 period_ms,
-            } => LightPath::Circle {
-                center,
-                radius,
-                period_ms,
-                phase: 0.0,
-            }
-            .position_at(t_ms - t0)?,
+            } => on_circle(center, radius, period_ms, t_ms - t0),
         };
         Some(LightPose {
             id,
@@ -503,25 +402,11 @@ mod tests {
     }
 
     #[test]
-    fn keyed_paths_interpolate_and_hold() {
-        let path = LightPath::Keys(vec![(100.0, Vec3::ZERO), (200.0, Vec3::new(2.0, 0.0, 0.0))]);
-        assert_eq!(path.position_at(0.0), Some(Vec3::ZERO));
-        assert_eq!(path.position_at(150.0), Some(Vec3::new(1.0, 0.0, 0.0)));
-        assert_eq!(path.position_at(900.0), Some(Vec3::new(2.0, 0.0, 0.0)));
-        assert_eq!(LightPath::Keys(Vec::new()).position_at(1.0), None);
-    }
-
-    #[test]
     fn circles_turn_once_per_period() {
-        let path = LightPath::Circle {
-            center: Vec3::new(0.0, 1.0, 0.0),
-            radius: 2.0,
-            period_ms: 1000.0,
-            phase: 0.0,
-        };
-        let q = path.position_at(250.0).expect("a position");
+        let at = |t| on_circle(Vec3::new(0.0, 1.0, 0.0), 2.0, 1000.0, t);
+        let q = at(250.0);
         assert!((q - Vec3::new(0.0, 1.0, 2.0)).length() < 1e-5, "{q}");
-        let full = path.position_at(1000.0).expect("a position");
+        let full = at(1000.0);
         assert!((full - Vec3::new(2.0, 1.0, 0.0)).length() < 1e-5, "{full}");
     }
 }

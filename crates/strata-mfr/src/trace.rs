@@ -31,8 +31,9 @@
 //! zero-length directions are errors naming the file and the event (and its line).
 //!
 //! Generators make the traces the evaluation sweeps: [`grab`] (approach an object, pre-select
-//! it, grab, drag, release, leave; Springer 2008 §6.1) and [`orbit`] (the camera circles the
-//! target).
+//! it, grab, drag, release, leave; Springer 2008 §6.1), [`orbit`] (the camera circles the
+//! target) and [`light_ring`] (point lights keyed around the target, for deferred shading);
+//! [`Trace::merged`] runs two traces at once.
 
 use std::path::Path;
 
@@ -359,6 +360,35 @@ impl Trace {
             }
         }
         Ok(Trace { events })
+    }
+
+    /// This trace's events and `other`'s, in time order (at equal times this trace's first):
+    /// both traces played at once, e.g. a grab while lights move.
+    pub fn merged(&self, other: &Trace) -> Trace {
+        let mut events = Vec::with_capacity(self.events.len() + other.events.len());
+        let (mut a, mut b) = (
+            self.events.iter().peekable(),
+            other.events.iter().peekable(),
+        );
+        loop {
+            let next = match (a.peek(), b.peek()) {
+                (Some(x), Some(y)) if y.t_ms < x.t_ms => b.next(),
+                (Some(_), _) => a.next(),
+                (None, _) => b.next(),
+            };
+            match next {
+                Some(e) => events.push(*e),
+                None => break,
+            }
+        }
+        Trace { events }
+    }
+
+    /// True when some event is a `light` event.
+    pub fn has_lights(&self) -> bool {
+        self.events
+            .iter()
+            .any(|e| matches!(e.event, Event::Light { .. }))
     }
 
     /// The events, in time order.
@@ -713,4 +743,139 @@ pub fn orbit(
         })
         .collect();
     Trace::ordered(origin, events, |i| format!("step {i}"))
+}
+
+/// Parameters of [`light_ring`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightRingParams {
+    /// Lights, evenly spaced around the ring (1 or more).
+    pub count: u32,
+    /// Milliseconds per turn.
+    pub period_ms: f64,
+    /// How long the lights are keyed; they stay at their last keys afterwards.
+    pub duration_ms: f64,
+    /// Milliseconds between two keys of a light.
+    pub step_ms: f64,
+}
+
+impl Default for LightRingParams {
+    fn default() -> Self {
+        LightRingParams {
+            count: 4,
+            period_ms: 4000.0,
+            duration_ms: 4000.0,
+            step_ms: 100.0,
+        }
+    }
+}
+
+impl LightRingParams {
+    /// Parses `key=value,…` (`count`, `period_ms`, `duration_ms`, `step_ms`) over the defaults.
+    pub fn parse(spec: &str) -> Result<Self, TraceError> {
+        let mut p = LightRingParams::default();
+        let origin = format!("lights:{spec}");
+        for item in spec.split(',').filter(|s| !s.trim().is_empty()) {
+            let (key, value) = item
+                .split_once('=')
+                .ok_or_else(|| TraceError::new(&origin, format!("'{item}': expected key=value")))?;
+            let (key, value) = (key.trim(), value.trim());
+            let bad = |what: &str| TraceError::new(&origin, format!("{key}={value}: {what}"));
+            let ms = || {
+                value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite() && *x > 0.0)
+                    .ok_or_else(|| bad("expected milliseconds, more than 0"))
+            };
+            match key {
+                "count" => {
+                    p.count = value
+                        .parse::<u32>()
+                        .ok()
+                        .filter(|n| (1..=64).contains(n))
+                        .ok_or_else(|| bad("expected 1 to 64 lights"))?
+                }
+                "period_ms" => p.period_ms = ms()?,
+                "duration_ms" => p.duration_ms = ms()?,
+                "step_ms" => p.step_ms = ms()?,
+                _ => {
+                    return Err(TraceError::new(
+                        &origin,
+                        format!(
+                            "unknown parameter '{key}' (lights takes count, period_ms, \
+                             duration_ms, step_ms)"
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(p)
+    }
+}
+
+/// Colours of the ring's lights, cycled.
+const RING_COLORS: [[f32; 3]; 4] = [
+    [1.0, 0.85, 0.7],
+    [0.6, 0.7, 1.0],
+    [0.9, 0.5, 0.5],
+    [0.5, 0.9, 0.6],
+];
+
+/// `p.count` point lights (ids 0, 1, …) circling above the camera's target, evenly spaced, one
+/// turn per `p.period_ms`: a `light` event with its position for every light every `p.step_ms`
+/// for `p.duration_ms`, so each light moves in straight steps between keys. The ring's radius is
+/// 0.6 of the camera's distance to its target, its height half the radius above the target, and
+/// each light's range is the radius.
+///
+/// # Errors
+/// No lights, a time that is not more than 0, or more than a million keys.
+pub fn light_ring(scene: &Scene, p: &LightRingParams) -> Result<Trace, TraceError> {
+    let origin = "lights";
+    if p.count == 0 {
+        return Err(TraceError::new(origin, "count=0: give 1 light or more"));
+    }
+    for (name, v) in [
+        ("period_ms", p.period_ms),
+        ("duration_ms", p.duration_ms),
+        ("step_ms", p.step_ms),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(TraceError::new(
+                origin,
+                format!("{name}={v}: must be more than 0"),
+            ));
+        }
+    }
+    let steps = (p.duration_ms / p.step_ms).floor() as u64;
+    if (steps + 1) * u64::from(p.count) > 1_000_000 {
+        return Err(TraceError::new(
+            origin,
+            format!(
+                "{} keys: at most a million; lengthen step_ms or shorten duration_ms",
+                (steps + 1) * u64::from(p.count)
+            ),
+        ));
+    }
+    let cam = &scene.camera;
+    let radius = (cam.eye - cam.target).length().max(1e-3) * 0.6;
+    let center = cam.target + Vec3::Y * radius * 0.5;
+    let mut events = Vec::with_capacity(((steps + 1) * u64::from(p.count)) as usize);
+    for step in 0..=steps {
+        let t_ms = step as f64 * p.step_ms;
+        let turns = (t_ms / p.period_ms).fract();
+        for id in 0..p.count {
+            let a = (turns + f64::from(id) / f64::from(p.count)) * std::f64::consts::TAU;
+            let (s, c) = (a as f32).sin_cos();
+            events.push(TimedEvent {
+                t_ms,
+                event: Event::Light {
+                    id,
+                    motion: LightMotion::At(center + Vec3::new(c, 0.0, s) * radius),
+                    color: RING_COLORS[id as usize % RING_COLORS.len()],
+                    range: radius,
+                },
+            });
+        }
+    }
+    Trace::ordered(origin, events, |i| format!("key {i}"))
 }

@@ -8,12 +8,14 @@ use strata_core::{DeepFrame, ObjectId, PackedNormal};
 use strata_mfr::authority::{Authority, Snapshot};
 use strata_mfr::client::Client;
 use strata_mfr::deferred::{
-    deferred_frame, deferred_image, deferred_reference, run_deferred_virtual,
+    DeferredError, ShadeOn, deferred_frame, deferred_image, deferred_reference, light_lag,
+    run_deferred_virtual,
 };
-use strata_mfr::lighting::{LightRig, LightingError, LightingModel, PointLight, Shader};
+use strata_mfr::lighting::{LightingError, LightingModel, PointLight, Shader, TraceLights};
 use strata_mfr::simulate::{Migration, VirtualClock};
+use strata_mfr::timeline::FrameRecord;
 use strata_mfr::trace::Trace;
-use strata_mfr::trace::{GrabParams, grab};
+use strata_mfr::trace::{Event, GrabParams, LightMotion, LightRingParams, grab, light_ring};
 use strata_raster::FragmentOutput;
 use strata_scene::{Scene, SearchPath, open_scene};
 
@@ -35,6 +37,25 @@ fn posed(base: &Snapshot, fc: &[usize], t_ms: f64) -> Snapshot {
         s.objects[i].version = 1;
     }
     s
+}
+
+/// `count` lights of the built-in ring (400 ms a turn) where they are at `t_ms`.
+fn ring(scene: &Scene, count: u32, t_ms: f64) -> Vec<PointLight> {
+    let trace = light_ring(
+        scene,
+        &LightRingParams {
+            count,
+            period_ms: 400.0,
+            duration_ms: 1000.0,
+            step_ms: 10.0,
+        },
+    )
+    .expect("a light ring");
+    TraceLights::new(&trace)
+        .at(t_ms)
+        .into_iter()
+        .map(|l| l.light)
+        .collect()
 }
 
 fn shader(scene: &Scene, snapshot: &Snapshot, lights: &[PointLight]) -> Shader {
@@ -62,7 +83,6 @@ fn sc_plus_fc_deferred_equals_the_whole_scene_lit_by_the_same_shader_every_frame
     let fc_objects = vec![1usize, 3];
     let mut fc_ids: Vec<ObjectId> = fc_objects.iter().map(|&i| scene.objects[i].id).collect();
     fc_ids.sort_unstable();
-    let rig = LightRig::ring(4, Vec3::new(0.0, 1.0, 0.0), 2.5, 400.0);
     let (mut sc, mut fc, mut whole) = (normal_client(), normal_client(), normal_client());
     let fc_ms = 1000.0 / 60.0;
     let mut gbuffer: Option<DeepFrame> = None;
@@ -81,7 +101,7 @@ fn sc_plus_fc_deferred_equals_the_whole_scene_lit_by_the_same_shader_every_frame
         let fc_frame = fc
             .render(&scene, &now, &now.view, &fc_objects)
             .expect("FC renders");
-        let lights = rig.at(t);
+        let lights = ring(&scene, 4, t);
         let shader = shader(&scene, &now, &lights);
         let deferred = deferred_frame(sc_frame, &fc_frame, &fc_ids, &shader).expect("deferred");
         let reference_normals = whole
@@ -123,12 +143,11 @@ fn moving_lights_change_the_image_without_a_new_gbuffer() {
         .render(&scene, &base, &base.view, &all)
         .expect("SC renders");
     let none = DeepFrame::empty(SIZE.0, SIZE.1);
-    let rig = LightRig::ring(1, Vec3::new(0.0, 1.0, 0.0), 2.5, 400.0);
     let a = deferred_image(
         &gbuffer,
         &none,
         &[],
-        &shader(&scene, &base, &rig.at(0.0)),
+        &shader(&scene, &base, &ring(&scene, 1, 0.0)),
         [0.0; 3],
     )
     .expect("image");
@@ -136,7 +155,7 @@ fn moving_lights_change_the_image_without_a_new_gbuffer() {
         &gbuffer,
         &none,
         &[],
-        &shader(&scene, &base, &rig.at(200.0)),
+        &shader(&scene, &base, &ring(&scene, 1, 200.0)),
         [0.0; 3],
     )
     .expect("image");
@@ -200,7 +219,7 @@ proptest! {
         p in prop::array::uniform3(-2.0f32..2.0),
         depth in 0.5f32..10.0,
         color in prop::array::uniform4(0.0f32..1.0),
-        light_count in 1usize..=8,
+        light_count in 1u32..=8,
         t in 0.0f64..1000.0,
     ) {
         let n = Vec3::from(n);
@@ -211,7 +230,7 @@ proptest! {
         prop_assume!(n.dot(v).abs() > 2.0 * PACKING_ANGLE);
         let scene = mixed();
         let base = Authority::new(&scene, Trace::default()).current();
-        let lights = LightRig::ring(light_count, Vec3::new(0.0, 1.0, 0.0), 2.5, 400.0).at(t);
+        let lights = ring(&scene, light_count, t);
         let shader = shader(&scene, &base, &lights);
         let packed = PackedNormal::pack(n.to_array()).unpack().map(Vec3::from);
         let forward = shader.shade(color, p, Some(n));
@@ -269,13 +288,12 @@ fn a_virtual_clock_run_with_trace_lights_is_exact_in_every_frame() {
     };
     let mut reference = normal_client();
     let (mut frames, mut with_fc, mut light_counts) = (0, 0, Vec::new());
-    let fallback = LightRig::default();
     run_deferred_virtual(
         &scene,
         trace,
         clock,
         Migration::Predictive,
-        &fallback,
+        ShadeOn::Fc,
         LightingModel::default(),
         SIZE,
         20,
@@ -300,30 +318,206 @@ fn a_virtual_clock_run_with_trace_lights_is_exact_in_every_frame() {
 }
 
 #[test]
-fn a_run_without_trace_lights_uses_the_rig() {
+fn a_run_without_lights_is_refused() {
     let scene = mixed();
-    let rig = LightRig::ring(3, Vec3::new(0.0, 1.0, 0.0), 2.0, 500.0);
     let clock = VirtualClock {
         sc_ms: 40.0,
         fc_ms: 20.0,
         transfer_ms: 0.0,
     };
-    let mut counts = Vec::new();
-    let cost = run_deferred_virtual(
+    let err = run_deferred_virtual(
         &scene,
         Trace::default(),
         clock,
         Migration::Predictive,
-        &rig,
+        ShadeOn::Fc,
         LightingModel::default(),
         SIZE,
         4,
-        |f| counts.push(f.lights.len()),
+        |_| {},
     )
-    .expect("the run");
-    assert_eq!(counts, [3, 3, 3, 3]);
-    assert_eq!(cost.frames, 2);
-    assert!(cost.max_fragments > 0);
+    .expect_err("no lights");
+    assert!(matches!(err, DeferredError::NoLights), "{err}");
+    assert!(err.to_string().contains("no `light` events"), "{err}");
+}
+
+/// The ring generator keys every light at every step, on its circle, evenly spaced.
+#[test]
+fn the_light_ring_keys_every_light_on_its_circle() {
+    let scene = mixed();
+    let p = LightRingParams {
+        count: 3,
+        period_ms: 1200.0,
+        duration_ms: 300.0,
+        step_ms: 100.0,
+    };
+    let trace = light_ring(&scene, &p).expect("a ring");
+    assert_eq!(
+        trace.events().len(),
+        4 * 3,
+        "3 lights at 0, 100, 200 and 300 ms"
+    );
+    let cam = &scene.camera;
+    let radius = (cam.eye - cam.target).length() * 0.6;
+    let center = cam.target + Vec3::Y * radius * 0.5;
+    let mut positions = Vec::new();
+    for e in trace.events() {
+        let Event::Light {
+            id,
+            motion: LightMotion::At(p),
+            range,
+            ..
+        } = e.event
+        else {
+            panic!("not a keyed light: {e:?}");
+        };
+        assert!(id < 3);
+        assert!(
+            ((p - center).length() - radius).abs() < 1e-4 * radius,
+            "{p} off the circle"
+        );
+        assert!((p.y - center.y).abs() < 1e-6);
+        assert_eq!(range, radius);
+        positions.push((e.t_ms, id, p));
+    }
+    // At 0 ms the lights are a third of a turn apart; 100 ms later each has turned 1/12.
+    let at = |t: f64, id: u32| {
+        positions
+            .iter()
+            .find(|k| k.0 == t && k.1 == id)
+            .expect("a key")
+            .2
+    };
+    let angle = |p: Vec3| (p.z - center.z).atan2(p.x - center.x);
+    let third = std::f32::consts::TAU / 3.0;
+    let d = (angle(at(0.0, 1)) - angle(at(0.0, 0))).rem_euclid(std::f32::consts::TAU);
+    assert!((d - third).abs() < 1e-4, "{d}");
+    let d = (angle(at(100.0, 0)) - angle(at(0.0, 0))).rem_euclid(std::f32::consts::TAU);
+    assert!((d - third / 4.0).abs() < 1e-4, "{d}");
+    for (spec, words) in [
+        ("count=0", "expected 1 to 64 lights"),
+        ("step_ms=0", "more than 0"),
+        ("speed=3", "unknown parameter 'speed'"),
+        ("count", "expected key=value"),
+    ] {
+        let err = LightRingParams::parse(spec).expect_err(spec);
+        assert!(err.to_string().contains(words), "{err} lacks {words}");
+    }
+    let huge = LightRingParams {
+        step_ms: 0.001,
+        duration_ms: 1e6,
+        ..p
+    };
+    assert!(
+        light_ring(&scene, &huge)
+            .expect_err("too many keys")
+            .to_string()
+            .contains("at most a million")
+    );
+}
+
+#[test]
+fn merged_traces_keep_every_event_in_time_order() {
+    let scene = mixed();
+    let grabbed = grab(&scene, &GrabParams::default()).expect("a grab");
+    let lights = light_ring(&scene, &LightRingParams::default()).expect("a ring");
+    let both = grabbed.merged(&lights);
+    assert_eq!(
+        both.events().len(),
+        grabbed.events().len() + lights.events().len()
+    );
+    assert!(both.events().windows(2).all(|w| w[0].t_ms <= w[1].t_ms));
+    assert!(both.has_lights() && !grabbed.has_lights());
+    // Trace::new accepts it: it is in order.
+    Trace::new(both.events().to_vec()).expect("in time order");
+}
+
+/// Deferred against forward on one trace: the deferred frames equal the whole scene lit by the
+/// frame's lights in every frame; the forward frames (the SC lights its own objects with the
+/// lights of the state it renders) differ while the lights move and the SC lags, and match
+/// again once the lights stop and the SC has caught up. The measured light-to-screen lag is one
+/// FC frame deferred, the SC path forward.
+#[test]
+fn lights_reach_the_screen_at_the_fc_rate_deferred_and_the_sc_rate_forward() {
+    let scene = mixed();
+    let p = LightRingParams {
+        count: 2,
+        period_ms: 400.0,
+        duration_ms: 200.0,
+        step_ms: 40.0,
+    };
+    let trace = light_ring(&scene, &p).expect("a ring");
+    let clock = VirtualClock {
+        sc_ms: 80.0,
+        fc_ms: 20.0,
+        transfer_ms: 0.0,
+    };
+    let frames = 24;
+    let mut lags = Vec::new();
+    let mut bad_frames = Vec::new();
+    for shade_on in [ShadeOn::Fc, ShadeOn::Sc] {
+        let mut reference = normal_client();
+        let mut records = Vec::new();
+        let mut bad = Vec::new();
+        run_deferred_virtual(
+            &scene,
+            trace.clone(),
+            clock,
+            Migration::Predictive,
+            shade_on,
+            LightingModel::default(),
+            SIZE,
+            frames,
+            |f| {
+                let expected = deferred_reference(&scene, &mut reference, f).expect("reference");
+                bad.push(f.shaded != expected);
+                records.push(FrameRecord {
+                    index: f.index,
+                    t_ms: f.t_ms,
+                    shown_ms: f.t_ms + clock.fc_ms,
+                    events_applied: f.snapshot.events_applied,
+                    sc_state_ms: f.sc.as_ref().map(|sc| sc.snapshot_t_ms),
+                    selected: Vec::new(),
+                    audit: None,
+                });
+            },
+        )
+        .expect("the run");
+        lags.push(light_lag(&trace, &records, shade_on));
+        bad_frames.push(bad);
+    }
+    assert!(
+        bad_frames[0].iter().all(|&b| !b),
+        "deferred is exact: {:?}",
+        bad_frames[0]
+    );
+    let forward = &bad_frames[1];
+    assert!(
+        forward.iter().filter(|&&b| b).count() >= 3,
+        "forward lags: {forward:?}"
+    );
+    assert!(
+        !forward[frames as usize - 1],
+        "forward catches up once the lights stop"
+    );
+    let (deferred, forward) = (&lags[0], &lags[1]);
+    assert_eq!(deferred.not_shown, 0);
+    assert_eq!(deferred.shown_ms.len(), trace.events().len());
+    assert!(
+        deferred.shown_ms.iter().all(|&ms| ms == clock.fc_ms),
+        "{:?}",
+        deferred.shown_ms
+    );
+    // Forward: an SC frame starts every 80 ms and is delivered 80 ms later, then shown one FC
+    // frame later: at least 100 ms after a key, up to 80 ms more when the key just missed a start.
+    assert!(
+        forward
+            .shown_ms
+            .iter()
+            .all(|&ms| (100.0..=180.0).contains(&ms)),
+        "{:?}",
+        forward.shown_ms
+    );
 }
 
 #[test]

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use strata_mfr::simulate::VirtualClock;
-use strata_mfr::trace::{GrabParams, Trace, grab, orbit};
+use strata_mfr::trace::{GrabParams, LightRingParams, Trace, grab, light_ring, orbit};
 
 use super::Clock;
 
@@ -69,6 +69,9 @@ pub(super) fn parse_clock(s: &str) -> Result<Clock> {
 pub(super) fn make_trace(spec: &str, scene: &strata_scene::Scene) -> Result<Trace> {
     if let Some(params) = spec.strip_prefix("grab:") {
         return Ok(grab(scene, &GrabParams::parse(params)?)?);
+    }
+    if let Some(params) = spec.strip_prefix("lights:") {
+        return Ok(light_ring(scene, &LightRingParams::parse(params)?)?);
     }
     if let Some(params) = spec.strip_prefix("orbit:") {
         let (mut period, mut duration) = (4000.0, 4000.0);

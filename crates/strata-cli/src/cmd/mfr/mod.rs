@@ -45,14 +45,15 @@ use summary::{Totals, frame_json, frame_record, incidents_text, summary_json, su
 /// rendered at once: bad pixels (> 2/255), and ghost, hole and blend pixels (an object shown where
 /// it is not, missing where it is, or blended wrongly). The trace is a file (`.toml` or `.jsonl`,
 /// see docs/mfr.md) or a generator: `grab:object=NAME,start_ms=…,over_lead_ms=…,hold_ms=…,
-/// distance=…,linger_ms=…` or `orbit:period_ms=…,duration_ms=…`. Exit status 0 when the run
+/// distance=…,linger_ms=…`, `orbit:period_ms=…,duration_ms=…` or `lights:count=…,period_ms=…,
+/// duration_ms=…,step_ms=…` (point lights circling the scene, for --deferred). Exit status 0 when the run
 /// completed (artefacts are reported, not failures), 2 on bad input.
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
     pub(crate) scene: String,
 
-    /// Interaction trace: a file (.toml, .jsonl) or `grab:…` / `orbit:…`.
+    /// Interaction trace: a file (.toml, .jsonl) or `grab:…` / `orbit:…` / `lights:…`.
     #[arg(long, default_value = "grab:")]
     pub(crate) trace: String,
 
@@ -135,14 +136,22 @@ pub(crate) struct Args {
 
     /// Deferred shading (virtual clock): the slow client renders a deep G-buffer (every
     /// fragment's depth, normal and object), the fast client lights every fragment each frame
-    /// with the current point lights — the trace's `light` events, else --lights circling the
-    /// scene — so moving lights show at the fast client's rate.
+    /// with the current point lights — the trace's `light` events; when it has none, a ring of
+    /// --lights lights circling the scene (the `lights:` trace) is added to it — so moving lights
+    /// show at the fast client's rate. Prints the light-to-screen lag, the bad pixels against the
+    /// whole scene lit by the frame's lights, both clients' times and the G-buffer's size.
     #[arg(long)]
     pub(crate) deferred: bool,
 
-    /// With --deferred: how many point lights circle the scene when the trace has none (1 or more).
+    /// With --deferred: how many point lights circle the scene when the trace has none (1 to 64).
     #[arg(long, default_value_t = 4, requires = "deferred")]
     pub(crate) lights: u32,
+
+    /// With --deferred: who lights the slow client's objects — `fc` (deferred: the fast client,
+    /// with the lights of its own frame) or `sc` (forward, for comparison: the slow client, with
+    /// the lights of the state it renders, so lights on its objects move at its rate).
+    #[arg(long, value_enum, default_value_t = deferred::ShadeOnArg::Fc, requires = "deferred")]
+    pub(crate) shade_on: deferred::ShadeOnArg,
 
     /// Virtual clock only: warp the SC buffer to the current view every FC frame (its fragments
     /// moved by their depths; holes where the SC saw nothing filled from their neighbours), so
@@ -263,7 +272,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
             args.scene
         );
     }
-    let trace = make_trace(&args.trace, &scene)?;
+    let mut trace = make_trace(&args.trace, &scene)?;
+    if args.deferred {
+        trace = deferred::with_lights(trace, &scene, args.lights)?;
+    }
     let migration = match args.migration {
         MigrationArg::Predictive => Migration::Predictive,
         MigrationArg::Naive => Migration::Naive,
