@@ -62,7 +62,8 @@ pub enum DeferredError {
 }
 
 /// The FC's deferred frame: the SC's G-buffer `sc` minus the objects in `fc_objects` (sorted
-/// ids), merged with the FC's normal fragments `fc`, every fragment shaded by `shader`.
+/// ids), merged with the FC's normal fragments `fc`, every fragment that can show shaded by
+/// `shader` ([`Shader::shade_shown`]: those behind a pixel's first opaque fragment are dropped).
 ///
 /// # Errors
 /// When the frames differ in size or hold an object the shader does not know.
@@ -73,7 +74,7 @@ pub fn deferred_frame(
     shader: &Shader,
 ) -> Result<DeepFrame, DeferredError> {
     let normals = compose_deep(sc, fc, fc_objects)?;
-    Ok(shader.shade_frame(&normals)?)
+    Ok(shader.shade_shown(&normals)?)
 }
 
 /// [`deferred_frame`] resolved onto `background`.
@@ -223,7 +224,7 @@ pub fn run_deferred_virtual(
         let shaded = match (&delivered, shade_on) {
             (Some(sc), ShadeOn::Fc) => deferred_frame(&sc.frame, &fc, &fc_ids, &shader)?,
             (Some(sc), ShadeOn::Sc) => compose_deep(&sc.frame, &shader.shade_frame(&fc)?, &fc_ids)?,
-            (None, _) => shader.shade_frame(&fc)?,
+            (None, _) => shader.shade_shown(&fc)?,
         };
         let image = shaded.resolve(scene.background);
         let fc_shading_ms = started.elapsed().as_secs_f64() * 1e3;
@@ -244,8 +245,9 @@ pub fn run_deferred_virtual(
 }
 
 /// The whole scene of `frame`'s state rendered at once as normal fragments through the view it
-/// composed with, lit by the same shader (the frame's lights): what a deferred frame must equal,
-/// bit for bit; a forward frame differs where the SC's lights are older than the frame's.
+/// composed with, lit by the same shader (the frame's lights), its fragments that can show: what
+/// a deferred frame must equal, bit for bit. A forward frame ([`ShadeOn::Sc`]) keeps its hidden
+/// fragments, so compare its resolved image: it differs where the SC's lights are older.
 ///
 /// # Errors
 /// When the client fails or a fragment's object is unknown.
@@ -257,7 +259,7 @@ pub fn deferred_reference(
     let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
     let all: Vec<usize> = (0..scene.objects.len()).collect();
     let normals = client.render(scene, &frame.snapshot, &view, &all)?;
-    Ok(frame.shader.shade_frame(&normals)?)
+    Ok(frame.shader.shade_shown(&normals)?)
 }
 
 /// The light-to-screen lag of a run (ms).

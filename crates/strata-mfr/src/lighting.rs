@@ -27,9 +27,10 @@
 //! Background pixels hold no fragment and cost nothing (the seed's stencil skip).
 
 use glam::{Mat4, Vec3, Vec4};
+use rayon::prelude::*;
 use strata_core::fragment::unorm8;
 use strata_core::material::Shading;
-use strata_core::{DeepFrame, DeepFrameError, Fragment, Material, PackedNormal, Rgba8};
+use strata_core::{DeepFrame, DeepFrameError, Fragment, Material, ObjectId, PackedNormal, Rgba8};
 use strata_scene::Scene;
 
 use crate::trace::{Event, LightMotion, Trace};
@@ -102,6 +103,8 @@ pub struct Shader {
     inverse_projection: Mat4,
     lights: Vec<EyeLight>,
     palette: Vec<Option<Material>>,
+    /// By object id: whether the material's alpha quantises to 255 (nothing behind shows).
+    opaque: Vec<bool>,
     model: LightingModel,
 }
 
@@ -121,6 +124,10 @@ impl Shader {
         for o in &scene.objects {
             palette[o.id.0 as usize] = Some(o.material);
         }
+        let opaque = palette
+            .iter()
+            .map(|m| m.is_some_and(|m| unorm8(m.color[3]) == u8::MAX))
+            .collect();
         let lights = lights
             .iter()
             .map(|l| EyeLight {
@@ -135,6 +142,7 @@ impl Shader {
             inverse_projection: projection.inverse(),
             lights,
             palette,
+            opaque,
             model,
         }
     }
@@ -217,10 +225,47 @@ impl Shader {
     }
 
     /// Every fragment of the normal-fragment frame `normals` shaded; empty pixels are skipped.
+    /// For a frame that is still to be composed with another (a fragment hidden now may show
+    /// once a stale copy in front of it is dropped); a final frame takes [`Shader::shade_shown`].
     ///
     /// # Errors
     /// When the frame has another size or holds an object the palette does not know.
     pub fn shade_frame(&self, normals: &DeepFrame) -> Result<DeepFrame, LightingError> {
+        self.check(normals)?;
+        let counts: Vec<u32> = normals.counts().collect();
+        self.shade_runs(normals, &counts)
+    }
+
+    /// The fragments of the final normal-fragment frame `normals` that can show, shaded: each
+    /// pixel's run up to and including its first opaque fragment. A fragment's alpha is its
+    /// material's, known before lighting; behind an opaque fragment the transmittance is exactly
+    /// 0, so the fragments there add exactly nothing to the resolved pixel, and are neither lit
+    /// nor kept. The resolved image is the same, bit for bit, as [`Shader::shade_frame`]'s.
+    ///
+    /// # Errors
+    /// As [`Shader::shade_frame`].
+    pub fn shade_shown(&self, normals: &DeepFrame) -> Result<DeepFrame, LightingError> {
+        self.check(normals)?;
+        let pixels = normals.width() as usize * normals.height() as usize;
+        let counts: Vec<u32> = (0..pixels)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|p| self.shown(normals.run(p).object) as u32)
+            .collect();
+        self.shade_runs(normals, &counts)
+    }
+
+    /// How many fragments of a run of `objects` can show: up to and including the first opaque
+    /// one (all of them when none is).
+    fn shown(&self, objects: &[ObjectId]) -> usize {
+        objects
+            .iter()
+            .position(|o| self.opaque.get(o.0 as usize).copied().unwrap_or(false))
+            .map_or(objects.len(), |i| i + 1)
+    }
+
+    /// The frame's size and objects checked against the shader's.
+    fn check(&self, normals: &DeepFrame) -> Result<(), LightingError> {
         let found = (normals.width(), normals.height());
         if found != (self.width, self.height) {
             return Err(LightingError::Size {
@@ -235,15 +280,20 @@ impl Shader {
         {
             return Err(LightingError::UnknownObject(o.0));
         }
-        let counts: Vec<u32> = normals.counts().collect();
+        Ok(())
+    }
+
+    /// The first `counts[p]` fragments of every pixel `p` of a checked frame, shaded.
+    fn shade_runs(&self, normals: &DeepFrame, counts: &[u32]) -> Result<DeepFrame, LightingError> {
         let width = self.width as usize;
         Ok(DeepFrame::build(
             self.width,
             self.height,
-            &counts,
+            counts,
             |p, out| {
                 let (x, y) = ((p % width) as u32, (p / width) as u32);
-                out.extend(normals.run(p).iter().map(|f| Fragment {
+                let run = normals.run(p);
+                out.extend(run.iter().take(counts[p] as usize).map(|f| Fragment {
                     // Every object was checked above.
                     color: self.shade_fragment(x, y, &f).unwrap_or(Rgba8([0, 0, 0, 0])),
                     ..f

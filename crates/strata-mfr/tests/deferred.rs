@@ -107,7 +107,7 @@ fn sc_plus_fc_deferred_equals_the_whole_scene_lit_by_the_same_shader_every_frame
         let reference_normals = whole
             .render(&scene, &now, &now.view, &all)
             .expect("whole scene renders");
-        let reference = shader.shade_frame(&reference_normals).expect("shades");
+        let reference = shader.shade_shown(&reference_normals).expect("shades");
         assert_eq!(deferred, reference, "frame {frame}");
         assert!(
             deferred.fragment_count() > 0,
@@ -470,7 +470,10 @@ fn lights_reach_the_screen_at_the_fc_rate_deferred_and_the_sc_rate_forward() {
             frames,
             |f| {
                 let expected = deferred_reference(&scene, &mut reference, f).expect("reference");
-                bad.push(f.shaded != expected);
+                bad.push(f.image != expected.resolve(scene.background));
+                if shade_on == ShadeOn::Fc {
+                    assert_eq!(f.shaded, expected, "frame {}", f.index);
+                }
                 records.push(FrameRecord {
                     index: f.index,
                     t_ms: f.t_ms,
@@ -555,4 +558,46 @@ fn light_events_parse_from_json_lines_and_bad_ones_are_refused_clearly() {
         assert!(err.to_string().contains(words), "{err} lacks {words}");
         assert!(err.to_string().contains("line 1"), "{err}");
     }
+}
+
+/// Lighting only what can show: the fragments behind each pixel's first opaque one are dropped,
+/// the rest are lit exactly as before, and the image does not change by a bit.
+#[test]
+fn shading_only_the_fragments_that_show_keeps_the_image() {
+    let scene = mixed();
+    let base = Authority::new(&scene, Trace::default()).current();
+    let all: Vec<usize> = (0..scene.objects.len()).collect();
+    let normals = normal_client()
+        .render(&scene, &base, &base.view, &all)
+        .expect("renders");
+    let shader = shader(&scene, &base, &ring(&scene, 3, 50.0));
+    let every = shader.shade_frame(&normals).expect("shades");
+    let shown = shader.shade_shown(&normals).expect("shades");
+    assert_eq!(
+        shown.resolve(scene.background),
+        every.resolve(scene.background)
+    );
+    assert!(
+        shown.fragment_count() < every.fragment_count(),
+        "the scene has fragments behind opaque ones: {} of {}",
+        shown.fragment_count(),
+        every.fragment_count()
+    );
+    let mut dropped = 0;
+    for p in 0..(SIZE.0 * SIZE.1) as usize {
+        let (a, b) = (every.run(p), shown.run(p));
+        // A prefix of the same fragments, lit the same.
+        assert_eq!(a.depth[..b.len()], *b.depth, "pixel {p}");
+        assert_eq!(a.color[..b.len()], *b.color, "pixel {p}");
+        if b.len() < a.len() {
+            dropped += 1;
+            assert_eq!(
+                b.color[b.len() - 1].alpha(),
+                255,
+                "pixel {p} ends on an opaque fragment"
+            );
+            assert!(b.color[..b.len() - 1].iter().all(|c| c.alpha() < 255));
+        }
+    }
+    assert!(dropped > 0);
 }

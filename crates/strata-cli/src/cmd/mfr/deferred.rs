@@ -86,7 +86,8 @@ pub(super) fn run(
             .map_err(anyhow::Error::from)
             .and_then(|expected| {
                 let a = audit(&f.shaded, &expected, scene.background);
-                exact += u64::from(expected == f.shaded);
+                // Images: a forward frame keeps the fragments hidden behind opaque ones.
+                exact += u64::from(expected.resolve(scene.background) == f.image);
                 bad_pixels += a.bad_pixels;
                 shading_ms += f.fc_shading_ms;
                 light_counts = (
