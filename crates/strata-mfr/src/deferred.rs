@@ -119,6 +119,10 @@ pub struct DeferredFrame {
     pub image: Rgb8Image,
     /// Wall-clock milliseconds the FC spent composing, lighting and resolving.
     pub fc_shading_ms: f64,
+    /// Of those, composing the two G-buffers (0 before the first SC buffer).
+    pub fc_compose_ms: f64,
+    /// Of those, lighting.
+    pub fc_light_ms: f64,
 }
 
 /// Wall-clock cost of the SC's G-buffer frames of a deferred run.
@@ -221,13 +225,29 @@ pub fn run_deferred_virtual(
             .render_footprint(scene, &snapshot, &view, &fc_objects)?
             .to_full()?;
         let started = Instant::now();
-        let shaded = match (&delivered, shade_on) {
-            (Some(sc), ShadeOn::Fc) => deferred_frame(&sc.frame, &fc, &fc_ids, &shader)?,
-            (Some(sc), ShadeOn::Sc) => compose_deep(&sc.frame, &shader.shade_frame(&fc)?, &fc_ids)?,
-            (None, _) => shader.shade_shown(&fc)?,
+        let ms = |from: Instant| from.elapsed().as_secs_f64() * 1e3;
+        // The same steps as `deferred_frame`, timed one by one.
+        let (shaded, fc_compose_ms, fc_light_ms) = match (&delivered, shade_on) {
+            (Some(sc), ShadeOn::Fc) => {
+                let normals = compose_deep(&sc.frame, &fc, &fc_ids)?;
+                let composed = ms(started);
+                let lit = Instant::now();
+                (shader.shade_shown(&normals)?, composed, ms(lit))
+            }
+            (Some(sc), ShadeOn::Sc) => {
+                let own = shader.shade_frame(&fc)?;
+                let light = ms(started);
+                let composing = Instant::now();
+                (
+                    compose_deep(&sc.frame, &own, &fc_ids)?,
+                    ms(composing),
+                    light,
+                )
+            }
+            (None, _) => (shader.shade_shown(&fc)?, 0.0, ms(started)),
         };
         let image = shaded.resolve(scene.background);
-        let fc_shading_ms = started.elapsed().as_secs_f64() * 1e3;
+        let fc_shading_ms = ms(started);
         on_frame(&DeferredFrame {
             index,
             t_ms: t,
@@ -239,6 +259,8 @@ pub fn run_deferred_virtual(
             shaded,
             image,
             fc_shading_ms,
+            fc_compose_ms,
+            fc_light_ms,
         });
     }
     Ok(cost)

@@ -24,7 +24,18 @@
 //! are a [`LightingModel`]. The exponent is applied by repeated squaring (no `powf`), so the same
 //! inputs give the same bits everywhere.
 //!
-//! Background pixels hold no fragment and cost nothing (the seed's stencil skip).
+//! Background pixels hold no fragment and cost nothing (the seed's stencil skip), and a final
+//! frame lights only the fragments that can show ([`Shader::shade_shown`]: up to each pixel's
+//! first opaque fragment).
+//!
+//! # Cost
+//!
+//! The lights are kept in groups of four, one a lane (`LightLanes`), so a fragment's four lights
+//! take one pass of four-wide arithmetic (square roots and divisions included) instead of four.
+//! Measured on `mfr-cars` at 1280×720 with 4 lights (2-core AMD EPYC, release, CPU time of 10
+//! frames less that of none): 235 ms of CPU a frame lighting one light at a time, 145 ms with
+//! the lanes. Unpacking the normal (four sines and cosines) is most of what is left; tables of
+//! them (2 × 2¹⁶ entries) were tried and gained nothing: they miss the cache.
 
 use glam::{Mat4, Vec3, Vec4};
 use rayon::prelude::*;
@@ -32,6 +43,7 @@ use strata_core::fragment::unorm8;
 use strata_core::material::Shading;
 use strata_core::{DeepFrame, DeepFrameError, Fragment, Material, ObjectId, PackedNormal, Rgba8};
 use strata_scene::Scene;
+use wide::f32x4;
 
 use crate::trace::{Event, LightMotion, Trace};
 
@@ -87,12 +99,58 @@ pub enum LightingError {
     DeepFrame(#[from] DeepFrameError),
 }
 
-/// A light in eye space, ready for shading.
+/// Four lights in eye space, one a lane, ready for shading: the shader loops over groups of
+/// four and computes the four lights' terms with one instruction each (SSE on x86; `wide` falls
+/// back to the same IEEE operations, one lane at a time, elsewhere, so every machine gets the
+/// same bits). Lanes past the last light are marked invalid and add nothing.
 #[derive(Clone, Copy, Debug)]
-struct EyeLight {
-    position: Vec3,
-    color: Vec3,
-    inv_range2: f32,
+struct LightLanes {
+    x: f32x4,
+    y: f32x4,
+    z: f32x4,
+    r: f32x4,
+    g: f32x4,
+    b: f32x4,
+    inv_range2: f32x4,
+    /// All ones in the lanes that hold a light.
+    valid: f32x4,
+}
+
+impl LightLanes {
+    /// `lights` (world space, at most four) moved into eye space by `view`.
+    fn new(lights: &[PointLight], view: Mat4) -> LightLanes {
+        let lane = |f: &dyn Fn(&PointLight) -> f32| {
+            let mut a = [0.0f32; 4];
+            for (slot, l) in a.iter_mut().zip(lights) {
+                *slot = f(l);
+            }
+            f32x4::from(a)
+        };
+        let eye: Vec<PointLight> = lights
+            .iter()
+            .map(|l| PointLight {
+                position: view.transform_point3(l.position),
+                ..*l
+            })
+            .collect();
+        let lane_eye = |f: &dyn Fn(&PointLight) -> f32| {
+            let mut a = [0.0f32; 4];
+            for (slot, l) in a.iter_mut().zip(&eye) {
+                *slot = f(l);
+            }
+            f32x4::from(a)
+        };
+        LightLanes {
+            x: lane_eye(&|l| l.position.x),
+            y: lane_eye(&|l| l.position.y),
+            z: lane_eye(&|l| l.position.z),
+            r: lane(&|l| l.color[0]),
+            g: lane(&|l| l.color[1]),
+            b: lane(&|l| l.color[2]),
+            inv_range2: lane(&|l| 1.0 / (l.range * l.range)),
+            valid: lane(&|_| f32::from_bits(u32::MAX)),
+        }
+    }
 }
 
 /// The shader for one frame: size, projection, lights (in eye space) and material palette.
@@ -101,7 +159,7 @@ pub struct Shader {
     width: u32,
     height: u32,
     inverse_projection: Mat4,
-    lights: Vec<EyeLight>,
+    lights: Vec<LightLanes>,
     palette: Vec<Option<Material>>,
     /// By object id: whether the material's alpha quantises to 255 (nothing behind shows).
     opaque: Vec<bool>,
@@ -129,12 +187,8 @@ impl Shader {
             .map(|m| m.is_some_and(|m| unorm8(m.color[3]) == u8::MAX))
             .collect();
         let lights = lights
-            .iter()
-            .map(|l| EyeLight {
-                position: view.transform_point3(l.position),
-                color: Vec3::from(l.color),
-                inv_range2: 1.0 / (l.range * l.range),
-            })
+            .chunks(4)
+            .map(|group| LightLanes::new(group, view))
             .collect();
         Shader {
             width,
@@ -196,23 +250,40 @@ impl Shader {
         if let Some(n) = n {
             let v = (-p).normalize_or_zero();
             let n = if n.dot(v) < 0.0 { -n } else { n };
+            let zero = f32x4::ZERO;
+            let one = f32x4::ONE;
+            let (px, py, pz) = (f32x4::splat(p.x), f32x4::splat(p.y), f32x4::splat(p.z));
+            let (nx, ny, nz) = (f32x4::splat(n.x), f32x4::splat(n.y), f32x4::splat(n.z));
+            let (vx, vy, vz) = (f32x4::splat(v.x), f32x4::splat(v.y), f32x4::splat(v.z));
+            let (mut dr, mut dg, mut db) = (zero, zero, zero);
+            let (mut sr, mut sg, mut sb) = (zero, zero, zero);
             for light in &self.lights {
-                let to_light = light.position - p;
-                let d2 = to_light.length_squared();
+                let (tx, ty, tz) = (light.x - px, light.y - py, light.z - pz);
+                let d2 = tx * tx + ty * ty + tz * tz;
                 let d = d2.sqrt();
-                if d <= 0.0 {
-                    continue;
-                }
-                let l = to_light / d;
-                let ndl = n.dot(l);
-                if ndl <= 0.0 {
-                    continue;
-                }
-                let a = 1.0 / (1.0 + d2 * light.inv_range2);
-                diffuse += light.color * (a * ndl);
-                let h = (l + v).normalize_or_zero();
-                specular += light.color * (a * ndl * pow_u32(n.dot(h).max(0.0), m.shininess));
+                let (lx, ly, lz) = (tx / d, ty / d, tz / d);
+                let ndl = nx * lx + ny * ly + nz * lz;
+                // A light at the fragment, or behind its surface, adds nothing (and a NaN from
+                // 0 / 0 is masked away).
+                let lit = light.valid & d.simd_gt(zero) & ndl.simd_gt(zero);
+                let a = one / (one + d2 * light.inv_range2);
+                let (hx, hy, hz) = (lx + vx, ly + vy, lz + vz);
+                let h2 = hx * hx + hy * hy + hz * hz;
+                let h = h2.sqrt();
+                let ndh = ((nx * hx + ny * hy + nz * hz) / h).max(zero);
+                // H is zero (normalize_or_zero) when L and V are opposite: no highlight.
+                let ndh = h2.simd_gt(zero).bitselect(ndh, zero);
+                let w = lit.bitselect(a * ndl, zero);
+                let spec = w * pow_u32x4(ndh, m.shininess);
+                dr += light.r * w;
+                dg += light.g * w;
+                db += light.b * w;
+                sr += light.r * spec;
+                sg += light.g * spec;
+                sb += light.b * spec;
             }
+            diffuse = Vec3::new(dr.reduce_add(), dg.reduce_add(), db.reduce_add());
+            specular = Vec3::new(sr.reduce_add(), sg.reduce_add(), sb.reduce_add());
         }
         let albedo = Vec3::new(color[0], color[1], color[2]);
         let rgb = albedo * (Vec3::splat(m.ambient) + diffuse) + specular * m.specular;
@@ -303,8 +374,22 @@ impl Shader {
     }
 }
 
-/// `x^e` by repeated squaring: the same bits on every machine.
+/// `x^e` lane by lane, by repeated squaring: the same bits on every machine.
 #[inline]
+fn pow_u32x4(mut x: f32x4, mut e: u32) -> f32x4 {
+    let mut r = f32x4::ONE;
+    while e > 0 {
+        if e & 1 == 1 {
+            r *= x;
+        }
+        x *= x;
+        e >>= 1;
+    }
+    r
+}
+
+/// `x^e` by repeated squaring: the same bits on every machine.
+#[cfg(test)]
 fn pow_u32(mut x: f32, mut e: u32) -> f32 {
     let mut r = 1.0;
     while e > 0 {
@@ -441,6 +526,78 @@ mod tests {
         // A quarter turn after the circle starts.
         let q = lights.at(400.0)[0].light.position;
         assert!((q - Vec3::new(0.0, 1.0, 1.0)).length() < 1e-5, "{q}");
+    }
+
+    /// The module docs' rule, one light at a time in plain scalar code: what the four-lane
+    /// shader must compute (up to rounding, which may move a channel by one step).
+    fn scalar_rule(
+        lights: &[PointLight],
+        model: &LightingModel,
+        color: [f32; 4],
+        p: Vec3,
+        n: Vec3,
+    ) -> [f32; 3] {
+        let v = (-p).normalize_or_zero();
+        let n = if n.dot(v) < 0.0 { -n } else { n };
+        let (mut d, mut s) = (Vec3::ZERO, Vec3::ZERO);
+        for l in lights {
+            let to = l.position - p;
+            let dist = to.length();
+            if dist <= 0.0 {
+                continue;
+            }
+            let lv = to / dist;
+            let ndl = n.dot(lv);
+            if ndl <= 0.0 {
+                continue;
+            }
+            let a = 1.0 / (1.0 + dist * dist / (l.range * l.range));
+            let c = Vec3::from(l.color);
+            d += c * (a * ndl);
+            let h = (lv + v).normalize_or_zero();
+            s += c * (a * ndl * n.dot(h).max(0.0).powi(model.shininess as i32));
+        }
+        let albedo = Vec3::new(color[0], color[1], color[2]);
+        (albedo * (Vec3::splat(model.ambient) + d) + s * model.specular).to_array()
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn four_lanes_compute_the_documented_rule(
+            count in 0usize..=9,
+            seed in proptest::array::uniform32(-3.0f32..3.0),
+            n in proptest::array::uniform3(-1.0f32..1.0),
+            color in proptest::array::uniform4(0.0f32..1.0),
+        ) {
+            let n = Vec3::from(n);
+            proptest::prop_assume!(n.length() > 0.1);
+            let n = n.normalize();
+            let lights: Vec<PointLight> = (0..count)
+                .map(|i| PointLight {
+                    position: Vec3::new(seed[3 * i], seed[3 * i + 1], seed[3 * i + 2]),
+                    color: [seed[27 + i % 5].abs() / 3.0, 0.5, 1.0],
+                    range: 0.5 + seed[(i + 30) % 32].abs(),
+                })
+                .collect();
+            let model = LightingModel::default();
+            let shader = Shader {
+                width: 1,
+                height: 1,
+                inverse_projection: Mat4::IDENTITY,
+                lights: lights.chunks(4).map(|g| LightLanes::new(g, Mat4::IDENTITY)).collect(),
+                palette: Vec::new(),
+                opaque: Vec::new(),
+                model,
+            };
+            let p = Vec3::new(0.1, -0.2, -2.0);
+            let got = shader.shade(color, p, Some(n));
+            let want = scalar_rule(&lights, &model, color, p, n);
+            for (k, want) in want.into_iter().enumerate() {
+                let (w, g) = (f32::from(unorm8(want)), f32::from(got.0[k]));
+                proptest::prop_assert!((w - g).abs() <= 1.0, "channel {}: {} vs {}", k, g, w);
+            }
+            proptest::prop_assert_eq!(got.0[3], unorm8(color[3]));
+        }
     }
 
     #[test]

@@ -75,7 +75,9 @@ pub(super) fn run(
     };
     let shade_on = args.shade_on.mode();
     let mut reference = Client::new(size.0, size.1).with_output(FragmentOutput::PackedNormal);
-    let (mut exact, mut shading_ms, mut bad_pixels, mut failure) = (0u64, 0.0f64, 0u64, None);
+    let (mut exact, mut bad_pixels, mut failure) = (0u64, 0u64, None);
+    // Per FC frame: the whole step, composing, lighting (ms).
+    let (mut step_ms, mut compose_ms, mut light_ms) = (Vec::new(), Vec::new(), Vec::new());
     let mut records = Vec::new();
     let mut light_counts = (usize::MAX, 0usize);
     let mut on_frame = |f: &DeferredFrame| {
@@ -89,7 +91,9 @@ pub(super) fn run(
                 // Images: a forward frame keeps the fragments hidden behind opaque ones.
                 exact += u64::from(expected.resolve(scene.background) == f.image);
                 bad_pixels += a.bad_pixels;
-                shading_ms += f.fc_shading_ms;
+                step_ms.push(f.fc_shading_ms);
+                compose_ms.push(f.fc_compose_ms);
+                light_ms.push(f.fc_light_ms);
                 light_counts = (
                     light_counts.0.min(f.lights.len()),
                     light_counts.1.max(f.lights.len()),
@@ -129,6 +133,11 @@ pub(super) fn run(
     if let Some(e) = failure {
         return Err(e);
     }
+    let (step, compose, light) = (
+        median(&mut step_ms),
+        median(&mut compose_ms),
+        median(&mut light_ms),
+    );
     let lag = light_lag(&trace, &records, shade_on);
     let mut lags = lag.shown_ms.clone();
     lags.sort_by(f64::total_cmp);
@@ -159,7 +168,9 @@ pub(super) fn run(
             },
             "sc_gbuffer_frames": cost.frames,
             "sc_gbuffer_ms_mean": cost.total_ms / cost.frames.max(1) as f64,
-            "fc_shading_ms_mean": shading_ms / frames.max(1) as f64,
+            "fc_step_ms_median": step,
+            "fc_compose_ms_median": compose,
+            "fc_light_ms_median": light,
             "gbuffer_max_fragments": cost.max_fragments,
             "gbuffer_bytes_per_pixel": bytes as f64 / pixels.max(1) as f64,
         },
@@ -171,7 +182,8 @@ pub(super) fn run(
          lights: {lights} ({events} `light` events); light-to-screen lag median {med} ms, max {max} ms \
          ({path} path)\n\
          SC G-buffer frames: {sc}, {sc_ms:.2} ms each (wall clock, this machine)\n\
-         FC compose + light + resolve: {fc_ms:.2} ms per frame\n\
+         FC compose + light + resolve: {step:.2} ms per frame (median; compose {compose:.2}, \
+         light {light:.2})\n\
          largest G-buffer: {frags} fragments, {bpp:.1} bytes per pixel",
         mode = match shade_on {
             ShadeOn::Fc => "lit by the fast client",
@@ -190,7 +202,6 @@ pub(super) fn run(
         },
         sc = cost.frames,
         sc_ms = cost.total_ms / cost.frames.max(1) as f64,
-        fc_ms = shading_ms / frames.max(1) as f64,
         frags = cost.max_fragments,
         bpp = bytes as f64 / pixels.max(1) as f64,
     )?;
@@ -201,4 +212,14 @@ pub(super) fn run(
         eprintln!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The median of `v` (0 for none).
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
 }
