@@ -121,6 +121,41 @@ impl FragmentLayer {
         FragmentLayer { starts, fragments }
     }
 
+    /// A layer of a `width`-pixel-wide image of `pixels` pixels whose runs `fill(p, out)` pushes
+    /// for the pixels in columns `cols` of rows `rows` only; every other pixel's run is empty.
+    /// Costs what the window holds plus one offset per pixel.
+    pub fn from_window(
+        pixels: usize,
+        width: u32,
+        cols: std::ops::Range<u32>,
+        rows: std::ops::Range<u32>,
+        mut fill: impl FnMut(usize, &mut Vec<RayFragment>),
+    ) -> FragmentLayer {
+        let mut starts = Vec::with_capacity(pixels + 1);
+        let mut fragments = Vec::new();
+        let mut run = Vec::new();
+        starts.push(0);
+        let cols = cols.start..cols.end.min(width);
+        let width = width as usize;
+        for y in rows {
+            let row = y as usize * width;
+            for x in cols.clone() {
+                let p = row + x as usize;
+                if p >= pixels {
+                    break;
+                }
+                starts.resize(p + 1, fragments.len());
+                run.clear();
+                fill(p, &mut run);
+                settle(&mut run);
+                fragments.extend_from_slice(&run);
+                starts.push(fragments.len());
+            }
+        }
+        starts.resize(pixels + 1, fragments.len());
+        FragmentLayer { starts, fragments }
+    }
+
     /// Pixels in the layer.
     pub fn pixels(&self) -> usize {
         self.starts.len().saturating_sub(1)
@@ -218,5 +253,25 @@ mod tests {
         assert_eq!(layer.opaque_t(1), f32::INFINITY);
         assert_eq!(layer.nearest_t(2), 1.0);
         assert_eq!(layer.run(2).len(), 1);
+    }
+
+    #[test]
+    fn a_window_layer_is_the_full_layer_with_empty_runs_outside_the_window() {
+        // 5 × 3 pixels, each with a fragment at t = its index; window columns 1..3, rows 1..3.
+        let fill = |p: usize, out: &mut Vec<RayFragment>| out.push(frag(p as f32, 0.5, 0.0));
+        let window = FragmentLayer::from_window(15, 5, 1..3, 1..3, fill);
+        let full = FragmentLayer::from_runs(15, |p, out| {
+            let (x, y) = (p % 5, p / 5);
+            if (1..3).contains(&x) && (1..3).contains(&y) {
+                fill(p, out);
+            }
+        });
+        assert_eq!(window, full);
+        assert_eq!(window.fragment_count(), 4);
+        assert_eq!(window.nearest_t(12), 12.0);
+        // Columns past the row's end do not spill into the next row.
+        let wide = FragmentLayer::from_window(15, 5, 3..9, 0..1, fill);
+        assert_eq!(wide.fragment_count(), 2);
+        assert!(wide.run(5).is_empty());
     }
 }

@@ -14,10 +14,14 @@
 //! renderer's. It unprojects the pixel's centre (the ray's own NDC position, [`pixel_ndc`]) at
 //! the fragment's window depth and measures the distance from the ray's origin along its
 //! direction. Colours are the rasterizer's headlight-shaded straight RGBA8; alpha 255 is opaque.
+//!
+//! Only the rectangle the meshes project to is exported and converted (the fast client's path
+//! covers a few percent of the image), with the whole frame as the fallback whenever a fragment
+//! lies outside that guess, so no fragment is ever lost.
 
 use glam::{Mat4, Vec3, Vec4};
 use strata_core::material::{Material, Shading};
-use strata_core::{ObjectId, PassTimings};
+use strata_core::{ObjectId, PassTimings, PixelRect};
 use strata_raster::frame::{DrawObject, FragmentOutput, FrameInput};
 use strata_raster::rasterizer::Rasterizer;
 use strata_stores::abuffer::linked_list::LinkedListABuffer;
@@ -28,6 +32,8 @@ use crate::cast::{Ray, pixel_ndc};
 use crate::fragments::{FragmentLayer, RayFragment};
 use crate::geometry::{Glass, Shape, Solid};
 
+/// Pixels added around a footprint's projected box (rounding, and the rasterizer's fill rule).
+const FOOTPRINT_MARGIN: f32 = 2.0;
 /// Sides of a tube's cross-section.
 const TUBE_SIDES: u32 = 16;
 /// Latitude rings of each of a tube's hemispherical ends.
@@ -228,25 +234,41 @@ impl FragmentRaster {
         self.store.clear(self.width, self.height)?;
         self.store
             .capture(&mut self.raster, &input, &mut PassTimings::new())?;
-        let frame = match self.store.deep_frame() {
-            Some(Ok(frame)) => frame,
-            Some(Err(e)) => return Err(RasterError::DeepFrame(e.to_string())),
-            None => {
-                return Err(RasterError::DeepFrame(
-                    "the store keeps no fragments".into(),
-                ));
-            }
+        let full = PixelRect::full(self.width, self.height);
+        let guess = footprint(
+            &(self.projection * self.view),
+            meshes,
+            self.width,
+            self.height,
+        );
+        // The footprint's fragments, or the whole frame's when some fragment lies outside it.
+        let (rect, frame) = match guess.and_then(|r| self.store.deep_frame_in(r).map(|f| (r, f))) {
+            Some((rect, frame)) => (rect, frame),
+            None => match self.store.deep_frame_in(full) {
+                Some(frame) => (full, frame),
+                None => {
+                    return Err(RasterError::DeepFrame(
+                        "the store holds fragments outside the frame".into(),
+                    ));
+                }
+            },
         };
+        let frame = frame.map_err(|e| RasterError::DeepFrame(e.to_string()))?;
         let (w, h) = (self.width, self.height);
         let inverse = self.inverse_view_proj;
-        Ok(FragmentLayer::from_runs(
-            frame.offsets().len().saturating_sub(1),
+        Ok(FragmentLayer::from_window(
+            w as usize * h as usize,
+            w,
+            rect.x..rect.x + rect.width,
+            rect.y..rect.y + rect.height,
             |p, out| {
                 let Some(ray) = rays.get(p) else {
                     return;
                 };
-                let ndc = pixel_ndc(p as u32 % w, p as u32 / w, w, h);
-                out.extend(frame.run(p).iter().map(|f| {
+                let (px, py) = (p as u32 % w, p as u32 / w);
+                let q = (py - rect.y) as usize * rect.width as usize + (px - rect.x) as usize;
+                let ndc = pixel_ndc(px, py, w, h);
+                out.extend(frame.run(q).iter().map(|f| {
                     let [r, g, b, alpha] = f.color.to_unorm();
                     RayFragment {
                         t: ray_distance(&inverse, ray, ndc, f.depth),
@@ -257,6 +279,45 @@ impl FragmentRaster {
             },
         ))
     }
+}
+
+/// The pixel rectangle the meshes' vertices project to, with a margin; `None` when a vertex
+/// lies behind the eye (its projection is unbounded) or nothing is drawn there.
+fn footprint(
+    view_proj: &Mat4,
+    meshes: &[TriangleMesh],
+    width: u32,
+    height: u32,
+) -> Option<PixelRect> {
+    let (w, h) = (width as f32, height as f32);
+    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+    for p in meshes.iter().flat_map(|m| &m.positions) {
+        let c = *view_proj * Vec3::from(*p).extend(1.0);
+        if c.w.is_nan() || c.w <= 1e-6 {
+            return None;
+        }
+        let (x, y) = ((c.x / c.w + 1.0) * 0.5 * w, (1.0 - c.y / c.w) * 0.5 * h);
+        lo = [lo[0].min(x), lo[1].min(y)];
+        hi = [hi[0].max(x), hi[1].max(y)];
+    }
+    if lo[0] > hi[0] {
+        return Some(PixelRect::default());
+    }
+    let clamp = |v: f32, max: f32| v.clamp(0.0, max) as u32;
+    let (x0, y0) = (
+        clamp((lo[0] - FOOTPRINT_MARGIN).floor(), w),
+        clamp((lo[1] - FOOTPRINT_MARGIN).floor(), h),
+    );
+    let (x1, y1) = (
+        clamp((hi[0] + FOOTPRINT_MARGIN).ceil(), w),
+        clamp((hi[1] + FOOTPRINT_MARGIN).ceil(), h),
+    );
+    Some(PixelRect {
+        x: x0,
+        y: y0,
+        width: x1 - x0,
+        height: y1 - y0,
+    })
 }
 
 #[cfg(test)]

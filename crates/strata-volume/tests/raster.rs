@@ -173,3 +173,26 @@ fn the_stencil_recast_over_rasterized_fragments_equals_the_single_renderer_bit_f
     // The SC frame alone misses the interactive objects.
     assert!((0..pixels).any(|i| sc.image[i] != single[i]));
 }
+
+#[test]
+fn the_footprint_export_keeps_every_fragment_the_whole_frame_export_does() {
+    let scene = scene();
+    let r = Renderer::new(&scene, CastParams::for_samples(&scene.placement, 64));
+    let mut raster = FragmentRaster::new(W, H, view(), projection());
+    let objects = meshes(&scene.interactive, &scene.interactive_glass);
+    let windowed = raster.layer(r.rays(), &objects).expect("footprint");
+    // A box behind the eye has no projected footprint, so the whole frame is exported; it adds
+    // no fragment of its own.
+    let behind = Solid {
+        shape: Shape::Cuboid {
+            min: Vec3::new(0.5, 0.3, 3.0),
+            max: Vec3::new(0.7, 0.5, 3.2),
+        },
+        color: [1.0; 3],
+    };
+    let mut with_behind = objects.clone();
+    with_behind.extend(meshes(&[behind], &[]));
+    let whole = raster.layer(r.rays(), &with_behind).expect("whole frame");
+    assert!(windowed.fragment_count() > 100);
+    assert_eq!(windowed, whole);
+}
