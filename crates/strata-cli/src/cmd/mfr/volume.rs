@@ -19,6 +19,7 @@ use crate::options::{open_scene, search_path};
 /// One FC frame's figures.
 struct Frame {
     ms: f64,
+    raster_ms: f64,
     recast: usize,
     samples: u64,
     bad: usize,
@@ -57,6 +58,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         let interactive = meshes(&path(spec, offset), &glass(spec, true, offset));
         let start = Instant::now();
         let fc_fragments = raster.layer(renderer.rays(), &interactive)?;
+        let raster_ms = start.elapsed().as_secs_f64() * 1e3;
         let fc = renderer.fast_from(&sc, &fc_fragments);
         let ms = start.elapsed().as_secs_f64() * 1e3;
         let bad = if args.no_audit {
@@ -73,6 +75,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         save(args, &format!("frame-{k:04}.png"), width, height, &fc.image)?;
         records.push(Frame {
             ms,
+            raster_ms,
             recast: fc.recast,
             samples: fc.samples,
             bad,
@@ -81,6 +84,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
     let pixels = (width as usize * height as usize) as f64;
     let n = records.len() as f64;
     let fc_ms = records.iter().map(|r| r.ms).sum::<f64>() / n;
+    let fc_raster_ms = records.iter().map(|r| r.raster_ms).sum::<f64>() / n;
     let share = records.iter().map(|r| r.recast as f64).sum::<f64>() / n / pixels;
     let fc_samples = records.iter().map(|r| r.samples).sum::<u64>() / records.len() as u64;
     let bad: usize = records.iter().map(|r| r.bad).sum();
@@ -99,6 +103,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         "fc_frames": records.len(),
         "fc_recast_ms_mean": fc_ms,
         "fc_recast_ms": records.iter().map(|r| r.ms).collect::<Vec<_>>(),
+        "fc_raster_ms_mean": fc_raster_ms,
         "fc_recast_share": share,
         "fc_samples_mean": fc_samples,
         "audited": !args.no_audit,
