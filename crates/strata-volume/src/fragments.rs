@@ -194,20 +194,6 @@ impl FragmentLayer {
         out.extend_from_slice(other.run(p));
         settle(out);
     }
-
-    /// Both layers' fragments in one layer (they must have the same pixel count; the shorter
-    /// one's missing pixels count as empty).
-    pub fn merged(&self, other: &FragmentLayer) -> FragmentLayer {
-        let pixels = self.pixels().max(other.pixels());
-        let lists = (0..pixels)
-            .map(|p| {
-                let mut run = Vec::new();
-                self.merge_into(other, p, &mut run);
-                run
-            })
-            .collect();
-        FragmentLayer::from_lists(lists)
-    }
 }
 
 #[cfg(test)]

@@ -20,6 +20,11 @@
 //! walks. The FC's frame therefore equals the single renderer's bit for bit. A tie (an FC
 //! fragment at exactly the SC's opaque distance) is re-cast, because the order, not the client,
 //! decides which of two fragments at one distance comes first.
+//!
+//! The fragments may come from the analytic solids of the [`VolumeScene`] ([`Renderer::slow`],
+//! [`Renderer::fast_with`], [`Renderer::single_with`]) or from anywhere else — the rasterizer of
+//! [`crate::raster`] in `strata mfr --volume` — through [`Renderer::slow_from`],
+//! [`Renderer::fast_from`] and [`Renderer::single_from`].
 
 use rayon::prelude::*;
 
