@@ -103,3 +103,27 @@ fn a_missing_volume_file_lists_where_it_was_looked_for() {
     let e = load(&text).expect_err("missing");
     assert!(e.contains("no-such-volume.nii.gz"), "{e}");
 }
+
+#[test]
+fn glass_boxes_are_read_and_bad_ones_name_their_entry() {
+    let text = format!(
+        "{HEAD}\n[[volume.glass]]\nmin = [0, -1, -1]\nmax = [0.02, 1, 1]\nalpha = 0.3\n\n\
+         [[volume.glass]]\nmin = [-0.5, 0, 0]\nmax = [-0.4, 0.1, 0.1]\ncolor = [1, 0, 0]\nalpha = 0.5\nmoves = true\n"
+    );
+    let v = load(&text).expect("valid").volume.expect("volume table");
+    assert_eq!(v.glass.len(), 2);
+    assert!(!v.glass[0].moves && v.glass[1].moves);
+    assert_eq!(v.glass[0].alpha, 0.3);
+    assert_eq!(v.glass[1].color, [1.0, 0.0, 0.0]);
+    assert_eq!(v.glass[0].max, glam::Vec3::new(0.02, 1.0, 1.0));
+    let flat = format!("{HEAD}\n[[volume.glass]]\nmin = [0, 0, 0]\nmax = [0, 1, 1]\nalpha = 0.3\n");
+    let e = load(&flat).expect_err("flat box");
+    assert!(
+        e.contains("volume.glass[0]") && e.contains("max above min"),
+        "{e}"
+    );
+    let opaque =
+        format!("{HEAD}\n[[volume.glass]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\nalpha = 1.5\n");
+    let e = load(&opaque).expect_err("alpha out of range");
+    assert!(e.contains("volume.glass[0]") && e.contains("[0, 1]"), "{e}");
+}

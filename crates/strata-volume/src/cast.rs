@@ -12,10 +12,15 @@
 //! Compositing, front to back, with premultiplied sample colour `c_k` and corrected opacity `a_k`:
 //! `C += T·c_k`, `T *= 1 − a_k`, stopping once the transmittance `T` falls below
 //! [`CastParams::termination`]. The pixel is `C + T·geometry colour`.
+//!
+//! [`Caster::cast_through`] walks the same grid together with a pixel's sorted deep fragments,
+//! compositing each fragment where it lies between the samples (translucent geometry inside the
+//! volume; [`crate::fragments`] describes the walk).
 
 use glam::{Mat4, Vec3, Vec4};
 use rayon::prelude::*;
 
+use crate::fragments::{FragmentLayer, RayFragment};
 use crate::transfer::StepTable;
 use crate::volume::Volume;
 
@@ -74,6 +79,16 @@ pub fn slab(ray: &Ray, min: Vec3, max: Vec3) -> Option<(f32, f32)> {
     (t1 >= t0.max(0.0) && t0.is_finite() && t1.is_finite()).then_some((t0, t1))
 }
 
+/// The NDC position of pixel `(px, py)`'s centre in a `width` × `height` image (row 0 at the
+/// top): where its primary ray passes.
+#[inline]
+pub fn pixel_ndc(px: u32, py: u32, width: u32, height: u32) -> (f32, f32) {
+    (
+        2.0 * (px as f32 + 0.5) / width as f32 - 1.0,
+        1.0 - 2.0 * (py as f32 + 0.5) / height as f32,
+    )
+}
+
 /// The primary rays of a `width` × `height` image (row 0 at the top) for `view_proj`.
 pub fn camera_rays(view_proj: Mat4, width: u32, height: u32) -> Vec<Ray> {
     let inv = view_proj.inverse();
@@ -84,8 +99,7 @@ pub fn camera_rays(view_proj: Mat4, width: u32, height: u32) -> Vec<Ray> {
     let mut rays = Vec::with_capacity(width as usize * height as usize);
     for py in 0..height {
         for px in 0..width {
-            let x = 2.0 * (px as f32 + 0.5) / width as f32 - 1.0;
-            let y = 1.0 - 2.0 * (py as f32 + 0.5) / height as f32;
+            let (x, y) = pixel_ndc(px, py, width, height);
             let near = unproject(x, y, -1.0);
             let far = unproject(x, y, 1.0);
             rays.push(Ray {
@@ -121,28 +135,44 @@ pub struct RaySample {
     pub samples: u32,
 }
 
+impl RaySample {
+    /// Nothing composited yet: no colour, full transmittance.
+    pub const CLEAR: RaySample = RaySample {
+        color: [0.0; 3],
+        transmittance: 1.0,
+        samples: 0,
+    };
+}
+
+/// Where a ray's sample grid lies: the box's entry and exit distances and the first sample in
+/// front of the eye.
+#[derive(Clone, Copy, Debug)]
+struct Grid {
+    t_in: f32,
+    t_out: f32,
+    k: u64,
+}
+
 impl Caster<'_> {
-    /// Casts one ray up to distance `t_end`.
-    pub fn cast(&self, ray: &Ray, t_end: f32) -> RaySample {
-        let mut out = RaySample {
-            color: [0.0; 3],
-            transmittance: 1.0,
-            samples: 0,
-        };
-        let Some((t_in, t_out)) = slab(ray, self.placement.min, self.placement.max) else {
-            return out;
-        };
-        let stop = t_out.min(t_end);
-        let size = self.placement.max - self.placement.min;
-        let step = self.params.step;
+    /// The ray's grid, `None` when it misses the box.
+    fn grid(&self, ray: &Ray) -> Option<Grid> {
+        let (t_in, t_out) = slab(ray, self.placement.min, self.placement.max)?;
         // Skip samples behind the eye without moving the grid.
-        let mut k = if t_in < 0.0 {
-            ((-t_in) / step - 0.5).ceil().max(0.0) as u64
+        let k = if t_in < 0.0 {
+            ((-t_in) / self.params.step - 0.5).ceil().max(0.0) as u64
         } else {
             0
         };
+        Some(Grid { t_in, t_out, k })
+    }
+
+    /// Composites the grid's samples from `grid.k` on while they lie before `stop` and the ray
+    /// is not yet opaque; `grid.k` is left at the first sample not taken.
+    fn march(&self, ray: &Ray, grid: &mut Grid, stop: f32, out: &mut RaySample) {
+        let size = self.placement.max - self.placement.min;
+        let step = self.params.step;
         loop {
-            let t = t_in + (k as f32 + 0.5) * step;
+            let t = grid.t_in + (grid.k as f32 + 0.5) * step;
             if t >= stop || out.transmittance < self.params.termination {
                 break;
             }
@@ -152,9 +182,65 @@ impl Caster<'_> {
             out.color = [0, 1, 2].map(|c| out.color[c] + w * s[c]);
             out.transmittance = w * (1.0 - s[3]);
             out.samples += 1;
-            k += 1;
+            grid.k += 1;
+        }
+    }
+
+    /// Casts one ray up to distance `t_end`.
+    pub fn cast(&self, ray: &Ray, t_end: f32) -> RaySample {
+        let mut out = RaySample::CLEAR;
+        if let Some(mut grid) = self.grid(ray) {
+            let stop = grid.t_out.min(t_end);
+            self.march(ray, &mut grid, stop, &mut out);
         }
         out
+    }
+
+    /// Casts one ray through its settled fragment run ([`crate::fragments`]): the samples
+    /// before each fragment, the fragment, and on to the box's exit or the opaque fragment. The
+    /// result's colour includes the fragments; an opaque fragment leaves no transmittance, so
+    /// [`over_geometry`] with the background gives the pixel either way. Early termination
+    /// stops the samples, never the fragments.
+    pub fn cast_through(&self, ray: &Ray, run: &[RayFragment]) -> RaySample {
+        let mut out = RaySample::CLEAR;
+        let mut grid = self.grid(ray);
+        for f in run {
+            if let Some(g) = grid.as_mut() {
+                let stop = g.t_out.min(f.t);
+                self.march(ray, g, stop, &mut out);
+            }
+            let w = out.transmittance;
+            out.color = [0, 1, 2].map(|c| out.color[c] + w * f.alpha * f.color[c]);
+            out.transmittance = w * (1.0 - f.alpha);
+            if f.is_opaque() {
+                return out;
+            }
+        }
+        if let Some(g) = grid.as_mut() {
+            let stop = g.t_out;
+            self.march(ray, g, stop, &mut out);
+        }
+        out
+    }
+
+    /// Casts every pixel's ray through its run of `layer` in parallel, over `background`.
+    pub fn cast_layer(
+        &self,
+        rays: &[Ray],
+        layer: &FragmentLayer,
+        background: [f32; 3],
+    ) -> CastImage {
+        let results: Vec<RaySample> = rays
+            .par_iter()
+            .enumerate()
+            .map(|(p, r)| self.cast_through(r, layer.run(p)))
+            .collect();
+        let samples = results.iter().map(|r| u64::from(r.samples)).sum();
+        let pixels = results
+            .iter()
+            .map(|r| over_geometry(r, background))
+            .collect();
+        CastImage { pixels, samples }
     }
 
     /// Casts every ray to its depth in parallel and composites over `geometry` colours.

@@ -1,17 +1,18 @@
 //! A scene file's `[volume]` table made into a [`VolumeScene`]: the volume read or generated,
 //! the transfer function checked, a floor plate as the static opaque geometry, the well path as
-//! the interactive one.
+//! the interactive one, and the table's glass boxes as translucent objects — static, or
+//! interactive when they move with the path.
 //!
 //! The floor lies just beyond the volume box along the camera's down direction (the box face
 //! whose normal is most nearly the camera's `up`), one box-size wide on each side, so it shows
 //! through and around the volume and the path can pass in front of it.
 
-use glam::Vec3;
+use glam::{Mat4, Vec3};
 use strata_scene::Scene;
-use strata_scene::scene::volume::{VolumeSource, VolumeSpec};
+use strata_scene::scene::volume::{VolumeGlass, VolumeSource, VolumeSpec};
 
 use crate::cast::{CastParams, VolumeBox};
-use crate::geometry::{Shape, Solid, well_path};
+use crate::geometry::{Glass, Shape, Solid, well_path};
 use crate::nifti::{NiftiError, read_nifti};
 use crate::stencil::VolumeScene;
 use crate::transfer::{TfPoint, TransferError, TransferFunction};
@@ -64,7 +65,8 @@ pub fn volume_scene(
         max: spec.max,
     };
     let cam = &scene.camera;
-    let view_proj = cam.projection(width, height) * cam.view();
+    let (view, projection) = camera(scene, width, height);
+    let view_proj = projection * view;
     let params = CastParams::for_samples(&placement, samples.unwrap_or(spec.samples));
     let vs = VolumeScene {
         volume,
@@ -74,9 +76,33 @@ pub fn volume_scene(
         height,
         view_proj,
         statics: vec![floor(spec, cam.up)],
+        static_glass: glass(spec, false, Vec3::ZERO),
         interactive: path(spec, Vec3::ZERO),
+        interactive_glass: glass(spec, true, Vec3::ZERO),
     };
     Ok((vs, params))
+}
+
+/// The scene camera's view and projection at `width` × `height`: what the rasterizer draws
+/// the objects through; their product is the rays' view-projection.
+pub fn camera(scene: &Scene, width: u32, height: u32) -> (Mat4, Mat4) {
+    (scene.camera.view(), scene.camera.projection(width, height))
+}
+
+/// The glass boxes that move (`moves`) or stay, moved by `offset`.
+pub fn glass(spec: &VolumeSpec, moves: bool, offset: Vec3) -> Vec<Glass> {
+    spec.glass
+        .iter()
+        .filter(|g| g.moves == moves)
+        .map(|g: &VolumeGlass| Glass {
+            shape: Shape::Cuboid {
+                min: g.min + offset,
+                max: g.max + offset,
+            },
+            color: g.color,
+            alpha: g.alpha,
+        })
+        .collect()
 }
 
 /// The well path moved by `offset`.

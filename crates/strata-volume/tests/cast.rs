@@ -169,6 +169,8 @@ fn scene() -> VolumeScene {
             },
             color: [0.5, 0.5, 0.45],
         }],
+        static_glass: vec![],
+        interactive_glass: vec![],
         interactive: well_path(
             &[
                 Vec3::new(-0.2, 0.9, 0.1),

@@ -59,7 +59,7 @@ pub const SCENES: &[BuiltinScene] = &[
     },
     BuiltinScene {
         name: "volume-head",
-        description: "for `strata mfr --volume`: a procedural volume with a well path of thin tubes through it",
+        description: "for `strata mfr --volume`: a procedural volume cut by a glass sheet, with a well path of thin tubes through both",
         source: include_str!("scenes/volume-head.toml"),
         meshes: &[],
     },

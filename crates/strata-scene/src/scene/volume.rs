@@ -17,6 +17,13 @@
 //! value = 0.2
 //! color = [0.8, 0.5, 0.3]
 //! alpha = 0.0
+//!
+//! [[volume.glass]]               # translucent boxes (optional, any number)
+//! min = [0.3, -0.5, -0.6]
+//! max = [0.32, 0.6, 0.6]
+//! color = [0.4, 0.8, 1.0]
+//! alpha = 0.35                   # opacity of each of its surfaces
+//! moves = false                  # true: moved with the path by the fast client
 //! ```
 //!
 //! Only the shape of the table is checked here (every key's type, range and line in errors); the
@@ -75,6 +82,23 @@ pub struct VolumeSpec {
     pub path_radius: f32,
     /// The path's colour.
     pub path_color: [f32; 3],
+    /// Translucent boxes inside or around the volume.
+    pub glass: Vec<VolumeGlass>,
+}
+
+/// One `[[volume.glass]]` entry: a translucent box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VolumeGlass {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Maximum corner.
+    pub max: Vec3,
+    /// Linear RGB in [0, 1].
+    pub color: [f32; 3],
+    /// Opacity of each of its surfaces, in [0, 1].
+    pub alpha: f32,
+    /// Whether the fast client moves it with the path (otherwise the slow client draws it).
+    pub moves: bool,
 }
 
 /// Built-in procedural volumes.
@@ -96,6 +120,19 @@ pub(super) struct VolumeFile {
     path: Vec<Numbers<3>>,
     path_radius: Option<f32>,
     path_color: Option<Numbers<3>>,
+    #[serde(default)]
+    glass: Vec<GlassFile>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GlassFile {
+    min: Numbers<3>,
+    max: Numbers<3>,
+    color: Option<Numbers<3>>,
+    alpha: f32,
+    #[serde(default)]
+    moves: bool,
 }
 
 #[derive(Deserialize)]
@@ -158,6 +195,7 @@ pub(super) fn check(c: &impl Checker, f: VolumeFile) -> Result<VolumeSpec, super
             "each component must be in [0, 1]".to_owned(),
         ));
     }
+    let glass = glass(c, &f.glass)?;
     Ok(VolumeSpec {
         source,
         min,
@@ -168,7 +206,35 @@ pub(super) fn check(c: &impl Checker, f: VolumeFile) -> Result<VolumeSpec, super
         path,
         path_radius,
         path_color,
+        glass,
     })
+}
+
+fn glass(c: &impl Checker, boxes: &[GlassFile]) -> Result<Vec<VolumeGlass>, super::SceneError> {
+    let unit = |v: f32| (0.0..=1.0).contains(&v);
+    let mut out = Vec::with_capacity(boxes.len());
+    for (i, g) in boxes.iter().enumerate() {
+        let key = format!("volume.glass[{i}]");
+        let (min, max) = (Vec3::from(g.min.0), Vec3::from(g.max.0));
+        if !(min.is_finite() && max.is_finite() && min.cmplt(max).all()) {
+            return Err(c.invalid_at(
+                &key,
+                format!("the box {min} .. {max} must be finite with max above min on every axis"),
+            ));
+        }
+        let color = g.color.map_or([0.4, 0.8, 1.0], |n| n.0);
+        if !color.iter().all(|&v| unit(v)) || !unit(g.alpha) {
+            return Err(c.invalid_at(&key, "color and alpha must lie in [0, 1]".to_owned()));
+        }
+        out.push(VolumeGlass {
+            min,
+            max,
+            color,
+            alpha: g.alpha,
+            moves: g.moves,
+        });
+    }
+    Ok(out)
 }
 
 fn source(c: &impl Checker, f: &VolumeFile) -> Result<VolumeSource, super::SceneError> {

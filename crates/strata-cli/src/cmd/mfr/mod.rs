@@ -166,9 +166,9 @@ pub(crate) struct Args {
     pub(crate) model_dirs: Vec<PathBuf>,
 
     /// Volume ray casting instead (scenes with a `[volume]` table: `volume-head`, `volume-ch2`):
-    /// the SC casts the whole image once, the FC moves the well path each of --frames frames
-    /// (default 8), re-casts only the rays the path shortens and is compared bit for bit with the
-    /// single renderer. Prints the full cast and re-cast times; --trace, --clock and --mode do not
+    /// the SC casts the whole image once through its static objects (floor, glass), the FC moves
+    /// the well path (and any moving glass) each of --frames frames (default 8), re-casts only the
+    /// rays whose fragments it changes and is compared bit for bit with the single renderer. Prints the full cast and re-cast times; --trace, --clock and --mode do not
     /// apply (giving one is an error).
     #[arg(long, conflicts_with_all = ["trace", "clock", "mode", "migration", "deferred", "warp"])]
     pub(crate) volume: bool,

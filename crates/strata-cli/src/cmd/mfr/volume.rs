@@ -1,6 +1,7 @@
-//! `strata mfr --volume`: the slow client ray-casts the scene's volume over its static geometry
-//! once; the fast client moves the well path every frame, re-casts only the rays the path
-//! shortens (the stencil) and is audited against the single renderer, bit for bit.
+//! `strata mfr --volume`: the slow client rasterizes its static objects (the floor, static glass)
+//! into deep fragments and ray-casts the scene's volume through them once; the fast client moves
+//! the well path (and any moving glass) every frame, rasterizes it, re-casts only the rays whose
+//! fragments it changes (the stencil) and is audited against the single renderer, bit for bit.
 
 use std::path::Path;
 use std::time::Instant;
@@ -8,7 +9,8 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use strata_core::Rgb8Image;
-use strata_volume::spec::{path, volume_scene};
+use strata_volume::raster::{FragmentRaster, TriangleMesh, meshes};
+use strata_volume::spec::{camera, glass, path, volume_scene};
 use strata_volume::stencil::Renderer;
 
 use super::Args;
@@ -17,6 +19,7 @@ use crate::options::{open_scene, search_path};
 /// One FC frame's figures.
 struct Frame {
     ms: f64,
+    raster_ms: f64,
     recast: usize,
     samples: u64,
     bad: usize,
@@ -39,23 +42,30 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let renderer = Renderer::new(&vs, params);
+    let (view, projection) = camera(&scene, width, height);
+    let mut raster = FragmentRaster::new(width, height, view, projection);
+    let statics = meshes(&vs.statics, &vs.static_glass);
     let start = Instant::now();
-    let sc = renderer.slow();
+    let sc = renderer.slow_from(raster.layer(renderer.rays(), &statics)?);
     let sc_ms = start.elapsed().as_secs_f64() * 1e3;
     save(args, "sc.png", width, height, &sc.image)?;
     let size = vs.placement.max - vs.placement.min;
     let mut records = Vec::new();
     for k in 0..frames {
-        // The user drags the path to and fro across the volume.
+        // The user drags the path (and the glass that moves with it) to and fro across the volume.
         let phase = std::f32::consts::TAU * k as f32 / frames as f32;
-        let moved = path(spec, Vec3::new(0.15 * size.x * phase.sin(), 0.0, 0.0));
+        let offset = Vec3::new(0.15 * size.x * phase.sin(), 0.0, 0.0);
+        let interactive = meshes(&path(spec, offset), &glass(spec, true, offset));
         let start = Instant::now();
-        let fc = renderer.fast_with(&sc, &moved);
+        let fc_fragments = raster.layer(renderer.rays(), &interactive)?;
+        let raster_ms = start.elapsed().as_secs_f64() * 1e3;
+        let fc = renderer.fast_from(&sc, &fc_fragments);
         let ms = start.elapsed().as_secs_f64() * 1e3;
         let bad = if args.no_audit {
             0
         } else {
-            let single = renderer.single_with(&moved);
+            let all: Vec<TriangleMesh> = statics.iter().chain(&interactive).cloned().collect();
+            let single = renderer.single_from(&raster.layer(renderer.rays(), &all)?);
             fc.image
                 .iter()
                 .zip(&single)
@@ -65,6 +75,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         save(args, &format!("frame-{k:04}.png"), width, height, &fc.image)?;
         records.push(Frame {
             ms,
+            raster_ms,
             recast: fc.recast,
             samples: fc.samples,
             bad,
@@ -73,6 +84,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
     let pixels = (width as usize * height as usize) as f64;
     let n = records.len() as f64;
     let fc_ms = records.iter().map(|r| r.ms).sum::<f64>() / n;
+    let fc_raster_ms = records.iter().map(|r| r.raster_ms).sum::<f64>() / n;
     let share = records.iter().map(|r| r.recast as f64).sum::<f64>() / n / pixels;
     let fc_samples = records.iter().map(|r| r.samples).sum::<u64>() / records.len() as u64;
     let bad: usize = records.iter().map(|r| r.bad).sum();
@@ -83,6 +95,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         "height": height,
         "volume": dims,
         "samples_per_diagonal": args.volume_samples.unwrap_or(spec.samples),
+        "glass_boxes": spec.glass.len(),
         "step": params.step,
         "threads": rayon::current_num_threads(),
         "sc_full_cast_ms": sc_ms,
@@ -90,6 +103,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         "fc_frames": records.len(),
         "fc_recast_ms_mean": fc_ms,
         "fc_recast_ms": records.iter().map(|r| r.ms).collect::<Vec<_>>(),
+        "fc_raster_ms_mean": fc_raster_ms,
         "fc_recast_share": share,
         "fc_samples_mean": fc_samples,
         "audited": !args.no_audit,
