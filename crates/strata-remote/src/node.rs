@@ -196,6 +196,9 @@ pub enum ConnectionError {
     /// A message from the display that is not a well-formed strata message.
     #[error("reading a request: {0}")]
     Wire(#[source] WireError),
+    /// A request could not be read for another reason.
+    #[error("reading a request: {0}")]
+    Read(#[source] ReadError),
     /// A message from the display that is not a request.
     #[error("expected a request, got a {0:?} message")]
     NotARequest(MessageType),
@@ -416,6 +419,7 @@ async fn serve_requests(
                 });
             }
             Err(ReadError::Wire(e)) => return Err(ConnectionError::Wire(e)),
+            Err(other) => return Err(ConnectionError::Read(other)),
         };
         if msg.kind != MessageType::Request {
             return Err(ConnectionError::NotARequest(msg.kind));

@@ -5,21 +5,9 @@ use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncRead, AsyncReadExt};
 
-use strata_wire::{DecodeOptions, MessageType, PREFIX_LEN, WireError, parse_prefix};
+use strata_wire::{DecodeOptions, MessageType, PREFIX_LEN, parse_prefix};
 
-/// Why no message could be read.
-#[derive(Debug, thiserror::Error)]
-pub(crate) enum ReadError {
-    /// The peer closed the connection between messages.
-    #[error("connection closed")]
-    Closed,
-    /// The socket failed, or closed inside a message.
-    #[error("{0}")]
-    Io(#[from] std::io::Error),
-    /// The prefix is not a strata message or announces too much.
-    #[error("{0}")]
-    Wire(#[from] WireError),
-}
+pub(crate) use strata_wire::stream::ReadError;
 
 /// One message: its type, all its bytes (prefix included), and how long its body took to
 /// arrive after the prefix did (the transfer time the display reports).
