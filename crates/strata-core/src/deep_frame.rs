@@ -356,6 +356,15 @@ impl DeepFrame {
         Ok(frame)
     }
 
+    /// Makes room for `fragments` more fragments and `pixels` more pixels, so that appending
+    /// bands ([`DeepFrame::append_rows`]) up to that size does not move the columns.
+    pub fn reserve(&mut self, fragments: usize, pixels: usize) {
+        self.offsets.reserve(pixels);
+        self.depth.reserve(fragments);
+        self.color.reserve(fragments);
+        self.object.reserve(fragments);
+    }
+
     /// Appends `band`'s rows below this frame's (a frame exported in bands of rows, assembled
     /// band by band): offsets are shifted by the fragments already held and the columns extended,
     /// so the result equals the frame exported in one piece, and no run is sorted or checked
@@ -585,6 +594,13 @@ mod tests {
             assert_eq!(assembled, whole, "{cuts:?}");
             assert_eq!(assembled.resolve([1.0; 3]), whole.resolve([1.0; 3]));
         }
+        let mut reserved = DeepFrame::empty(2, 0);
+        reserved.reserve(whole.fragment_count(), 6);
+        for y in 0..3 {
+            let band = DeepFrame::from_pixel_lists(2, 1, &lists[y * 2..y * 2 + 2]).unwrap();
+            reserved.append_rows(&band).unwrap();
+        }
+        assert_eq!(reserved, whole);
         let mut narrow = DeepFrame::empty(2, 0);
         let e = narrow.append_rows(&DeepFrame::empty(3, 1)).unwrap_err();
         assert_eq!(e, DeepFrameError::WidthMismatch { width: 2, found: 3 });

@@ -496,7 +496,12 @@ impl<'s> ScSide<'s> {
         let e = &mut self.estimates;
         e.chunk.observe(&x, predicted, step.ms);
         job.phase = if next + n >= job.features.total() {
-            Phase::Export(BandedExport::new(&self.client, self.scene.background))
+            let mut export = BandedExport::new(&self.client, self.scene.background);
+            // Room for a tenth more than the previous frame held: appending a band then never
+            // moves the frame assembled so far (a copy the band model does not expect).
+            let expected = e.rows.total() + e.rows.total() / 10;
+            export.reserve(usize::try_from(expected).unwrap_or(0));
+            Phase::Export(export)
         } else {
             Phase::Capture(next + n)
         };

@@ -43,6 +43,13 @@ impl BandedExport {
         }
     }
 
+    /// Makes room for a frame of `fragments` fragments (the previous frame's count, say), so
+    /// that no band moves what the bands before it assembled.
+    pub fn reserve(&mut self, fragments: usize) {
+        let pixels = self.width as usize * self.height as usize;
+        self.frame.reserve(fragments, pixels);
+    }
+
     /// Rows done.
     pub fn rows_done(&self) -> u32 {
         self.frame.height()

@@ -404,6 +404,11 @@ impl BandFeatures {
         BandFeatures { before_row }
     }
 
+    /// Fragments in the frame.
+    pub(crate) fn total(&self) -> u64 {
+        self.before_row.last().copied().unwrap_or(0)
+    }
+
     /// The features of rows `start .. start + rows`.
     pub(crate) fn features(&self, start: u32, rows: u32) -> BandX {
         let at = |y: u32| {
