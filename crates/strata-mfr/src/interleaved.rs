@@ -3,12 +3,12 @@
 //! fig. 5.5: one graphics device serving the fast and the slow client by time slicing).
 //!
 //! ```text
-//! FC period k:  ├─ FC frame ─┤─ SC chunk ─┤─ SC chunk ─┤ idle ├  deadline k+1
-//! FC period k+1:├─ FC frame ─┤─ SC chunk ─┤─ band ─┤─ band ─┤ idle ├
-//! FC period k+2:├─ FC frame ─┤─ band ─┤─ band ─┤ swap ┤─ start, chunk ─┤ idle ├
-//!                  compose with  capture into the SC's   export rows of it; the last
-//!                  the newest SC back store (the captures band swaps the new SC buffer in
-//!                  buffer        accumulate)
+//! FC period k:   ├─ FC frame ─┤─ chunk ─┤─ chunk ─┤ idle ├   scheduled start of k+1
+//! FC period k+1: ├─ FC frame ─┤─ chunk ─┤─ band ─┤─ band ─┤ idle ├
+//! FC period k+2: ├─ FC frame ─┤─ band ─┤─ band ─┤ swap ┤─ start ─┤─ chunk ─┤ idle ├
+//!
+//! FC frame: compose with the newest SC buffer     chunk: capture triangles into the SC's store
+//! band: export, resolve and append rows of it     swap: the assembled frame becomes the newest
 //! ```
 //!
 //! The SC renders into its own client (the *back store*, a linked-list A-buffer whose captures
@@ -25,20 +25,22 @@
 //!
 //! - **adaptive**: each chunk and each band is as large as the cost model predicts fits in the
 //!   time left before the deadline (the next FC frame's scheduled start), with a safety margin.
-//!   The model ([`estimate`]) fits a fixed cost per step plus costs per triangle (per row) and
-//!   per fragment — the fragments each object and each row made in the previous SC frame — by
-//!   non-negative least squares over the recent steps, and the margin is the 90th percentile of
-//!   the recent measured-over-predicted ratios. When not even a small step (
-//!   [`MIN_TRIANGLES`] triangles, [`MIN_ROWS`] rows) fits, the period's SC work ends — unless
-//!   the period before did no SC work either: then one small step runs, so an FC frame longer
-//!   than its period slows the SC down but cannot starve it.
+//!   The model ([`estimate`]) is a fixed cost per step, measured before the run, plus costs per
+//!   triangle (per row) and per fragment — the fragments each object and each row made in the
+//!   previous SC frame — fitted by non-negative least squares over the recent steps; the margin
+//!   is the 90th percentile of the recent measured-over-predicted ratios. When not even a small
+//!   step ([`MIN_TRIANGLES`] triangles, [`MIN_ROWS`] rows) fits, the period's SC work ends —
+//!   unless the period before did no SC work either: then one small step runs, so an FC frame
+//!   longer than its period slows the SC down but cannot starve it.
 //! - **fixed:N**: chunks of N triangles while the deadline has not passed — a chunk may run past
 //!   it — and the export in one step, when its last time fits in the time left or when it was
 //!   already put off once; one chunk at least every period. The seed's hand-set chunking, kept
 //!   as the baseline.
 //!
 //! Before the run the SC's first frame is rendered in one call, twice (the second is timed: the
-//! one-shot reference the chunking overhead is measured against, and the cost model's prior).
+//! one-shot reference the chunking overhead is measured against, and the cost model's prior);
+//! the SC keeps that client, whose store's pool has grown to the frame. One FC frame is rendered
+//! and dropped, so that neither client's first frame in the run grows its pool.
 //!
 //! # What each period held ([`periods`])
 //!

@@ -27,7 +27,7 @@
 //! The fixed cost per step is measured, not fitted: the adaptive steps are sized to fill the
 //! time left, so they all take about as long, and a fit with a free constant explains them best
 //! by the constant alone — then predicts a step ten times larger to cost the same (it did: a
-//! 598-row band predicted at 4 ms took 238). The proportional coefficients ([`LinearCost`]) are
+//! 598-row band predicted at 4 ms took 238). The proportional coefficients (`LinearCost`) are
 //! a weighted non-negative least-squares fit over the last [`FIT_WINDOW`] steps, a step `k`
 //! steps back weighing [`FORGETTING`]`^k`: every subset of the features is fitted by the normal
 //! equations and the best fit whose coefficients are all ≥ 0 is kept, so the model never trades
@@ -37,23 +37,23 @@
 //! step measured at more than [`OUTLIER_RATIO`] times its prediction (the thread preempted, the
 //! store's pool grown) enters the fit at that ratio.
 //!
-//! [`Margin`] keeps the ratio of measured to predicted time of the last [`MARGIN_WINDOW`] steps;
+//! `Margin` keeps the ratio of measured to predicted time of the last [`MARGIN_WINDOW`] steps;
 //! a step is sized so that its prediction times the ratios' 90th percentile fits in the time left.
 
 /// How fast old steps fade from the fit (the weight of a step `k` steps back is `FORGETTING^k`).
-pub(crate) const FORGETTING: f64 = 0.97;
+pub const FORGETTING: f64 = 0.97;
 
 /// Steps the fit remembers.
-pub(crate) const FIT_WINDOW: usize = 64;
+pub const FIT_WINDOW: usize = 64;
 
 /// Steps before the fit replaces the scaled prior.
-pub(crate) const FIT_MIN_STEPS: usize = 6;
+pub const FIT_MIN_STEPS: usize = 6;
 
 /// A step measured at more than this times its prediction enters the fit at this ratio.
-pub(crate) const OUTLIER_RATIO: f64 = 4.0;
+pub const OUTLIER_RATIO: f64 = 4.0;
 
 /// Steps whose prediction error sets the margin.
-pub(crate) const MARGIN_WINDOW: usize = 48;
+pub const MARGIN_WINDOW: usize = 48;
 
 /// The margin before [`MARGIN_MIN_SAMPLES`] steps were measured.
 const MARGIN_DEFAULT: f64 = 1.5;
