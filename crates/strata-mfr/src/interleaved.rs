@@ -30,8 +30,9 @@
 //!   previous SC frame — fitted by non-negative least squares over the recent steps; the margin
 //!   is the 90th percentile of the recent measured-over-predicted ratios. When not even a small
 //!   step ([`MIN_TRIANGLES`] triangles, [`MIN_ROWS`] rows) fits, the period's SC work ends —
-//!   unless the period before did no SC work either: then one small step runs, so an FC frame
-//!   longer than its period slows the SC down but cannot starve it.
+//!   unless the period before did no SC work either: then one step sized to
+//!   [`STARVED_SHARE`] of a period runs, so FC frames longer than their period slow the SC
+//!   down (to a quarter of a period every second FC frame) but cannot starve it.
 //! - **fixed:N**: chunks of N triangles while the deadline has not passed — a chunk may run past
 //!   it — and the export in one step, when its last time fits in the time left or when it was
 //!   already put off once; one chunk at least every period. The seed's hand-set chunking, kept
@@ -81,6 +82,10 @@ pub const MIN_TRIANGLES: u64 = 64;
 
 /// The fewest rows worth an adaptive band (fewer when fewer are left).
 pub const MIN_ROWS: u32 = 4;
+
+/// The share of a period an adaptive step is sized to when the SC would otherwise starve: the
+/// period before had no time left for it, and this one has none either.
+pub const STARVED_SHARE: f64 = 0.25;
 
 /// How the SC's frame is cut into chunks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -269,6 +274,8 @@ struct ScSide<'s> {
     estimates: Estimates,
     /// Whether the last period ran no SC step.
     idle_last_period: bool,
+    /// The FC's period (ms).
+    period_ms: f64,
     /// The last SC frame start's time (ms).
     start_ms: f64,
 }
@@ -351,8 +358,14 @@ impl<'s> ScSide<'s> {
         let Some(job) = self.job.as_ref() else {
             return Next::Stop;
         };
-        // A step that does not fit still runs when the SC would otherwise starve.
-        let must = !progressed && self.idle_last_period;
+        // When the SC would otherwise starve, a step of a share of the period runs, time left
+        // or not.
+        let starving = !progressed && self.idle_last_period;
+        let left_ms = if starving {
+            left_ms.max(self.period_ms * STARVED_SHARE)
+        } else {
+            left_ms
+        };
         let e = &self.estimates;
         match (&job.phase, self.chunking) {
             (Phase::Capture(next), Chunking::Fixed(n)) => {
@@ -373,7 +386,7 @@ impl<'s> ScSide<'s> {
                 let fit = largest_fitting(remaining, budget, cost);
                 let n = if fit >= MIN_TRIANGLES.min(remaining) {
                     fit
-                } else if must {
+                } else if starving {
                     MIN_TRIANGLES.min(remaining)
                 } else {
                     return Next::Stop;
@@ -402,7 +415,7 @@ impl<'s> ScSide<'s> {
                 let fit = largest_fitting(u64::from(left_rows), budget, cost) as u32;
                 let rows = if fit >= MIN_ROWS.min(left_rows) {
                     fit
-                } else if must {
+                } else if starving {
                     MIN_ROWS.min(left_rows)
                 } else {
                     return Next::Stop;
@@ -728,6 +741,7 @@ pub fn run_interleaved(
         sc_frames: 1,
         estimates,
         idle_last_period: false,
+        period_ms: period.as_secs_f64() * 1e3,
         start_ms: 0.0,
     };
     // One FC frame before the run, discarded: the FC's first frame would otherwise also grow
