@@ -242,6 +242,24 @@ fn interleaved_runs_are_exact_and_report_their_chunking() {
     assert!((0.0..=1.0).contains(&rate), "{i}");
     assert!(i["sc_frames"].as_u64().is_some(), "{i}");
     assert!(i["sc_one_shot_ms"].as_f64().is_some_and(|v| v > 0.0), "{i}");
+    // Every period recorded, every miss laid on a cause.
+    let periods = i["periods"].as_array().expect("periods");
+    assert_eq!(periods.len(), 24, "{i}");
+    let hit = periods.iter().filter(|p| p["hit"] == true).count() as f64;
+    assert!((hit / 24.0 - rate).abs() < 1e-9, "{i}");
+    let missed = &i["fc_deadlines_missed"];
+    let causes = ["fc_frame", "caller", "sc_start", "chunk", "export_band"];
+    let by_cause: u64 = causes
+        .iter()
+        .map(|c| missed[c].as_u64().expect("count"))
+        .sum();
+    assert_eq!(missed["total"].as_u64(), Some(by_cause), "{i}");
+    assert_eq!(by_cause as f64, 24.0 - hit, "{i}");
+    assert_mentions(&ran.stdout, &["deadlines missed after"]);
+    assert!(
+        i["chunk_estimate_ratio"].is_null(),
+        "the fixed mode predicts nothing: {i}"
+    );
     // Not with a slow client elsewhere.
     let mut cmd = strata();
     cmd.args([

@@ -95,6 +95,14 @@ pub enum DeepFrameError {
         /// Row-major pixel index.
         pixel: usize,
     },
+    /// Rows appended below a frame are not as wide as the frame.
+    #[error("cannot append rows {found} pixels wide below a frame {width} pixels wide")]
+    WidthMismatch {
+        /// The frame's width.
+        width: u32,
+        /// The appended rows' width.
+        found: u32,
+    },
 }
 
 /// One pixel's fragments, front to back.
@@ -348,6 +356,52 @@ impl DeepFrame {
         Ok(frame)
     }
 
+    /// Makes room for `fragments` more fragments and `pixels` more pixels, so that appending
+    /// bands ([`DeepFrame::append_rows`]) up to that size does not move the columns.
+    pub fn reserve(&mut self, fragments: usize, pixels: usize) {
+        self.offsets.reserve(pixels);
+        self.depth.reserve(fragments);
+        self.color.reserve(fragments);
+        self.object.reserve(fragments);
+    }
+
+    /// Appends `band`'s rows below this frame's (a frame exported in bands of rows, assembled
+    /// band by band): offsets are shifted by the fragments already held and the columns extended,
+    /// so the result equals the frame exported in one piece, and no run is sorted or checked
+    /// again (`band` holds the invariants already). Start from [`DeepFrame::empty`]`(width, 0)`.
+    ///
+    /// # Errors
+    /// `band` has another width, or the frame would hold more fragments than a `u32` offset
+    /// addresses; the frame is unchanged then.
+    pub fn append_rows(&mut self, band: &DeepFrame) -> Result<(), DeepFrameError> {
+        if band.width != self.width {
+            return Err(DeepFrameError::WidthMismatch {
+                width: self.width,
+                found: band.width,
+            });
+        }
+        let base = self.depth.len() as u64;
+        let total = base + band.depth.len() as u64;
+        let base = u32::try_from(base).map_err(|_| DeepFrameError::TooManyFragments(total))?;
+        u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
+        let height = self
+            .height
+            .checked_add(band.height)
+            .ok_or(DeepFrameError::PixelCount {
+                width: self.width,
+                height: self.height,
+                expected: u64::from(self.height) + u64::from(band.height),
+                found: u64::from(u32::MAX),
+            })?;
+        self.offsets
+            .extend(band.offsets[1..].iter().map(|&o| base + o));
+        self.depth.extend_from_slice(&band.depth);
+        self.color.extend_from_slice(&band.color);
+        self.object.extend_from_slice(&band.object);
+        self.height = height;
+        Ok(())
+    }
+
     /// Width in pixels.
     #[inline]
     pub fn width(&self) -> u32 {
@@ -515,6 +569,47 @@ mod tests {
                 frag(0.5, [3, 3, 3, 3], 0),
             ],
         ]
+    }
+
+    #[test]
+    fn frames_assembled_from_bands_of_rows_equal_the_whole() {
+        // A 2×3 frame: sample() and two more pixels.
+        let mut lists = sample();
+        lists.push(vec![frag(0.2, [9, 9, 9, 9], 4)]);
+        lists.push(vec![]);
+        let whole = DeepFrame::from_pixel_lists(2, 3, &lists).unwrap();
+        for cuts in [
+            vec![0, 3],
+            vec![0, 1, 3],
+            vec![0, 2, 3],
+            vec![0, 1, 2, 3],
+            vec![0, 0, 3],
+        ] {
+            let mut assembled = DeepFrame::empty(2, 0);
+            for w in cuts.windows(2) {
+                let rows = &lists[w[0] * 2..w[1] * 2];
+                let band = DeepFrame::from_pixel_lists(2, (w[1] - w[0]) as u32, rows).unwrap();
+                assembled.append_rows(&band).unwrap();
+            }
+            assert_eq!(assembled, whole, "{cuts:?}");
+            assert_eq!(assembled.resolve([1.0; 3]), whole.resolve([1.0; 3]));
+        }
+        let mut reserved = DeepFrame::empty(2, 0);
+        reserved.reserve(whole.fragment_count(), 6);
+        for y in 0..3 {
+            let band = DeepFrame::from_pixel_lists(2, 1, &lists[y * 2..y * 2 + 2]).unwrap();
+            reserved.append_rows(&band).unwrap();
+        }
+        assert_eq!(reserved, whole);
+        let mut narrow = DeepFrame::empty(2, 0);
+        let e = narrow.append_rows(&DeepFrame::empty(3, 1)).unwrap_err();
+        assert_eq!(e, DeepFrameError::WidthMismatch { width: 2, found: 3 });
+        assert!(
+            e.to_string()
+                .contains("3 pixels wide below a frame 2 pixels wide"),
+            "{e}"
+        );
+        assert_eq!(narrow, DeepFrame::empty(2, 0));
     }
 
     #[test]

@@ -111,6 +111,25 @@ impl Client {
         }
     }
 
+    /// The rows `rows` of what the store holds, as a DeepFrame of the band's size: one band of
+    /// an export in bands, which appended in order ([`DeepFrame::append_rows`]) give
+    /// [`Client::export`]'s frame.
+    pub fn export_rows(&self, rows: std::ops::Range<u32>) -> Result<DeepFrame, ClientError> {
+        let (start, end) = (rows.start, rows.end);
+        match self.store.deep_frame_rows(rows) {
+            Some(frame) => frame.map_err(|e| ClientError::DeepFrame(e.to_string())),
+            None => Err(ClientError::DeepFrame(format!(
+                "rows {start}..{end} are not inside the {}x{} frame",
+                self.width, self.height
+            ))),
+        }
+    }
+
+    /// The frame size, `(width, height)`.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
     /// Like [`Client::render`], keeping only the rectangle the objects' projected bounding boxes
     /// cover — what the fast client hands to composition, at a cost that follows its footprint.
     /// Exact: when a fragment falls outside the guessed rectangle (an object behind the eye, or

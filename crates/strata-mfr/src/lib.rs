@@ -41,7 +41,8 @@
 //!   triple buffers; the FC never waits for the SC.
 //!
 //! - [`interleaved`]: both clients on one thread — each FC frame first, then the SC's frame in
-//!   chunks of geometry in the time left before the FC's next deadline.
+//!   chunks of geometry and its export in bands of rows, sized by a fitted cost model to the time
+//!   left before the FC's next deadline.
 //!
 //! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
 //!   strata-wire messages; network threads feed the same triple buffers.

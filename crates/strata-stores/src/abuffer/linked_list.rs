@@ -161,6 +161,24 @@ impl LinkedListABuffer {
         Some(self.export(rect, &counts))
     }
 
+    /// The fragments of rows `rows` (full width), as a frame of the band's size, whatever the
+    /// store holds in other rows — one band of an export in bands: the bands of any split of
+    /// `0..height`, appended in order ([`DeepFrame::append_rows`]), equal [`Method::deep_frame`].
+    /// `None` when the rows are not inside the frame. Costs what the band holds.
+    pub fn deep_frame_rows(
+        &self,
+        rows: std::ops::Range<u32>,
+    ) -> Option<Result<DeepFrame, DeepFrameError>> {
+        let rect = PixelRect {
+            x: 0,
+            y: rows.start,
+            width: self.width,
+            height: rows.end.checked_sub(rows.start)?,
+        };
+        rect.fits(self.width, self.height)
+            .then(|| self.export(rect, &self.counts_in(rect)))
+    }
+
     /// Fragments per pixel of `rect` (row-major within it).
     fn counts_in(&self, rect: PixelRect) -> Vec<u32> {
         let width = self.width;
@@ -584,6 +602,42 @@ mod tests {
             ab.deep_frame_in(PixelRect::full(4, 4)).unwrap().unwrap(),
             ab.deep_frame().unwrap().unwrap()
         );
+    }
+
+    #[test]
+    fn bands_of_rows_export_what_the_whole_frame_does() {
+        let layout = StripLayout {
+            width: 4,
+            height: 4,
+            strip_height: 2,
+        };
+        let mut ab = LinkedListABuffer::new(PoolCapacity::Fragments(100));
+        ab.clear(4, 4).unwrap();
+        let frags = [
+            (1, frag(0.5, 1)),
+            (5, frag(0.2, 2)),
+            (5, frag(0.7, 3)),
+            (14, frag(0.9, 4)),
+        ];
+        capture(&mut ab, &layout, &frags);
+        let whole = ab.deep_frame().unwrap().unwrap();
+        for cuts in [
+            vec![0, 4],
+            vec![0, 1, 2, 3, 4],
+            vec![0, 3, 4],
+            vec![0, 2, 2, 4],
+        ] {
+            let mut assembled = DeepFrame::empty(4, 0);
+            for w in cuts.windows(2) {
+                let band = ab.deep_frame_rows(w[0]..w[1]).unwrap().unwrap();
+                assert_eq!((band.width(), band.height()), (4, w[1] - w[0]));
+                assembled.append_rows(&band).unwrap();
+            }
+            assert_eq!(assembled, whole, "{cuts:?}");
+        }
+        assert!(ab.deep_frame_rows(3..5).is_none());
+        let (hi, lo) = (3, 2);
+        assert!(ab.deep_frame_rows(hi..lo).is_none(), "a reversed range");
     }
 
     #[test]

@@ -96,9 +96,11 @@ pub(crate) struct Args {
     pub(crate) sc_priority: PriorityArg,
 
     /// Real clock only: both clients on one thread — each FC frame first, then the slow
-    /// client's frame in chunks of geometry in the time left before the FC's next deadline,
-    /// swapped in when complete. Chunk size `adaptive` (from the measured cost per triangle, the
-    /// default) or `fixed:N` (N triangles a chunk).
+    /// client's frame in chunks of geometry and its export in bands of rows, in the time left
+    /// before the FC's next deadline, swapped in when complete. `adaptive` (the default) sizes
+    /// each chunk and band from a cost model fitted as the run goes (per triangle or row, and
+    /// per fragment of the previous slow-client frame); `fixed:N` captures N triangles a chunk
+    /// and exports in one step.
     #[arg(long, value_name = "CHUNKING", num_args = 0..=1, default_missing_value = "adaptive")]
     pub(crate) interleaved: Option<String>,
 
