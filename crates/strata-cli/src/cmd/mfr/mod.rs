@@ -494,10 +494,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
         );
     }
     let mut summary = summary_json(&args, &scene, &trace, clock, size, &mut totals, real);
-    let navigates = trace
-        .events()
-        .iter()
-        .any(|e| matches!(e.event, strata_mfr::Event::View { .. }));
+    // A trace that only places the camera where the scene has it (as `grab:` does) does not
+    // navigate; one that moves it does.
+    let cam = &scene.camera;
+    let navigates = trace.events().iter().any(|e| {
+        matches!(e.event, strata_mfr::Event::View { eye, target, up }
+            if (eye, target, up) != (cam.eye, cam.target, cam.up))
+    });
     if args.warp || navigates {
         summary["view"] = views.json(&trace, args.warp);
     }
