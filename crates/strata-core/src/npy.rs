@@ -195,7 +195,7 @@ pub fn decode(bytes: &[u8]) -> Result<NpyArray, NpyError> {
     Ok(NpyArray { shape, values })
 }
 
-/// Reads a `.npy` file written by [`write`].
+/// Reads a `.npy` file written by [`write()`].
 pub fn read(path: impl AsRef<Path>) -> Result<NpyArray, NpyError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|source| NpyError::Io {

@@ -6,7 +6,7 @@
 //! Each view of a scene is rasterized twice, as the variable k-buffer's Optimal-K mode does: a
 //! counting pass that also gathers the feature sums ([`FeatureCapture`]), then an exact capture
 //! of every fragment, sorted per pixel. Then, for each budget share `b`, `M = ⌊b · N⌋`, the oracle
-//! gives k ([`optimal_k`]) and the features are finished for that `M` ([`FeatureMaps::compute`]):
+//! gives k ([`optimal_k()`]) and the features are finished for that `M` ([`FeatureMaps::compute`]):
 //! one labelled frame per (view, budget), all from one rasterization of the view.
 //!
 //! # Rows
