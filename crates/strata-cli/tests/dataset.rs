@@ -123,6 +123,14 @@ fn dataset_refuses_bad_input_before_rendering() {
             .arg(&file),
     );
     assert!(err.contains("not a directory"), "{err}");
+    // A folder that cannot be created (its parent is a file) is refused before rendering.
+    let err = run_err(
+        strata()
+            .args(["dataset", "--procedural", "1", "--out"])
+            .arg(file.join("sub")),
+    );
+    assert!(err.contains("cannot create the folder"), "{err}");
+    assert!(!err.contains("scene 1/1"), "it rendered first: {err}");
 }
 
 #[test]
