@@ -245,3 +245,30 @@ fn features_are_gathered_only_when_asked_and_change_nothing_else() {
         "the features' memory is counted"
     );
 }
+
+#[test]
+fn one_pixel_at_a_time_matches_the_maps() {
+    use strata_stores::count::FragmentCounts;
+    use strata_stores::kbuffer::features::{FeatureAccumulator, FeatureCapture, FrameFeatures};
+    let s = scene("spheres", 80, 45);
+    let input = FrameInput::from_scene(&s, 0);
+    let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
+    counts.clear(80, 45).unwrap();
+    sums.clear(80, 45).unwrap();
+    let mut raster = Rasterizer::default();
+    let total = raster
+        .prepare(&input)
+        .rasterize(&mut FeatureCapture {
+            counts: &mut counts,
+            sums: &mut sums,
+        })
+        .fragments;
+    let mut maps = FeatureMaps::new();
+    let frame = maps.compute(&sums, counts.counts(), total / 2);
+    assert_eq!(frame, FrameFeatures::of(&sums, counts.counts(), total / 2));
+    assert_eq!(frame.total, total);
+    for (x, y) in [(0, 0), (40, 22), (79, 44), (10, 30)] {
+        let one = sums.pixel_features(counts.counts(), &frame, x, y);
+        assert_eq!(one, maps.pixel(y * 80 + x), "pixel ({x}, {y})");
+    }
+}

@@ -443,7 +443,7 @@ impl FeatureMaps {
         (self.width, self.height) = (sums.width, sums.height);
         self.planes.clear();
         self.planes.resize(n * FEATURE_COUNT, 0.0);
-        let frame = frame_features(sums, counts, budget);
+        let frame = FrameFeatures::of(sums, counts, budget);
         let mut planes: Vec<&mut [f32]> = self.planes.chunks_mut(n.max(1)).collect();
         // Per task: ROWS_PER_TASK rows of every plane.
         let rows = ROWS_PER_TASK * w;
@@ -455,14 +455,15 @@ impl FeatureMaps {
             }
         }
         tasks.into_par_iter().enumerate().for_each(|(t, mut out)| {
-            let first = t * rows;
-            let len = out[0].len();
-            let mut row = [0.0f32; FEATURE_COUNT];
-            for i in 0..len {
-                let p = first + i;
-                pixel_features(sums, counts, &frame, p, &mut row);
-                for (plane, v) in out.iter_mut().zip(row) {
-                    plane[i] = v;
+            let first_row = t * ROWS_PER_TASK;
+            let mut i = 0;
+            for y in first_row..(first_row + ROWS_PER_TASK).min(h) {
+                for x in 0..w {
+                    let row = sums.pixel_features(counts, &frame, x, y);
+                    for (plane, v) in out.iter_mut().zip(row) {
+                        plane[i] = v;
+                    }
+                    i += 1;
                 }
             }
         });
@@ -471,42 +472,44 @@ impl FeatureMaps {
     }
 }
 
-/// `N`, `C` and the frame's depth range: sums over fixed chunks, the same for any thread count.
-fn frame_features(sums: &FeatureAccumulator, counts: &[u32], budget: u64) -> FrameFeatures {
-    let (total, covered, lo, hi) = counts
-        .par_chunks(8 * 1024)
-        .zip(sums.nearest.par_chunks(8 * 1024))
-        .zip(sums.depth_max.par_chunks(8 * 1024))
-        .map(|((c, near), far)| {
-            let (mut total, mut covered) = (0u64, 0u64);
-            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-            for ((&c, &near), &far) in c.iter().zip(near).zip(far) {
-                if c > 0 {
-                    total += u64::from(c);
-                    covered += 1;
-                    lo = lo.min(f32::from_bits((near >> 32) as u32));
-                    hi = hi.max(far);
+impl FrameFeatures {
+    /// `N`, `C` and the depth range of the frame whose feature `sums` and per-pixel `counts` are
+    /// given, with budget `M` = `budget`: sums over fixed chunks, the same for any thread count.
+    pub fn of(sums: &FeatureAccumulator, counts: &[u32], budget: u64) -> FrameFeatures {
+        let (total, covered, lo, hi) = counts
+            .par_chunks(8 * 1024)
+            .zip(sums.nearest.par_chunks(8 * 1024))
+            .zip(sums.depth_max.par_chunks(8 * 1024))
+            .map(|((c, near), far)| {
+                let (mut total, mut covered) = (0u64, 0u64);
+                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for ((&c, &near), &far) in c.iter().zip(near).zip(far) {
+                    if c > 0 {
+                        total += u64::from(c);
+                        covered += 1;
+                        lo = lo.min(f32::from_bits((near >> 32) as u32));
+                        hi = hi.max(far);
+                    }
                 }
-            }
-            (total, covered, lo, hi)
-        })
-        .reduce(
-            || (0, 0, f32::INFINITY, f32::NEG_INFINITY),
-            |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2), a.3.max(b.3)),
-        );
-    let empty = covered == 0;
-    FrameFeatures {
-        total,
-        covered,
-        budget,
-        depth_min: if empty { 0.0 } else { lo },
-        depth_max: if empty { 0.0 } else { hi },
+                (total, covered, lo, hi)
+            })
+            .reduce(
+                || (0, 0, f32::INFINITY, f32::NEG_INFINITY),
+                |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2), a.3.max(b.3)),
+            );
+        let empty = covered == 0;
+        FrameFeatures {
+            total,
+            covered,
+            budget,
+            depth_min: if empty { 0.0 } else { lo },
+            depth_max: if empty { 0.0 } else { hi },
+        }
     }
 }
 
-/// Mean and maximum count over the 3 × 3 pixels around `p` that lie inside the image.
-fn neighbourhood(counts: &[u32], width: usize, height: usize, p: usize) -> (f32, f32) {
-    let (x, y) = (p % width, p / width);
+/// Mean and maximum count over the 3 × 3 pixels around `(x, y)` that lie inside the image.
+fn neighbourhood(counts: &[u32], width: usize, height: usize, x: usize, y: usize) -> (f32, f32) {
     let (mut sum, mut max, mut n) = (0u32, 0u32, 0u32);
     for yy in y.saturating_sub(1)..(y + 2).min(height) {
         for xx in x.saturating_sub(1)..(x + 2).min(width) {
@@ -519,54 +522,63 @@ fn neighbourhood(counts: &[u32], width: usize, height: usize, p: usize) -> (f32,
     (sum as f32 / n as f32, max as f32)
 }
 
-/// Distance of pixel `p`'s centre from the image centre over half the diagonal.
-fn periphery(width: usize, height: usize, p: usize) -> f32 {
+/// Distance of pixel `(x, y)`'s centre from the image centre over half the diagonal.
+fn periphery(width: usize, height: usize, x: usize, y: usize) -> f32 {
     let (w, h) = (width as f32, height as f32);
-    let dx = (p % width) as f32 + 0.5 - 0.5 * w;
-    let dy = (p / width) as f32 + 0.5 - 0.5 * h;
+    let dx = x as f32 + 0.5 - 0.5 * w;
+    let dy = y as f32 + 0.5 - 0.5 * h;
     ((dx * dx + dy * dy) / (0.25 * (w * w + h * h))).sqrt()
 }
 
-/// Every feature of pixel `p` into `out`, in [`FEATURES`] order.
-fn pixel_features(
-    sums: &FeatureAccumulator,
-    counts: &[u32],
-    frame: &FrameFeatures,
-    p: usize,
-    out: &mut [f32; FEATURE_COUNT],
-) {
-    let (w, h) = (sums.width as usize, sums.height as usize);
-    let total = frame.total.max(1) as f32;
-    *out = [0.0; FEATURE_COUNT];
-    out[1] = frame.budget as f32 / total;
-    out[4] = frame.depth_min;
-    out[5] = frame.depth_max;
-    out[13] = frame.budget as f32 / frame.covered.max(1) as f32;
-    let (mean3, max3) = neighbourhood(counts, w, h, p);
-    out[20] = mean3;
-    out[21] = max3;
-    out[22] = periphery(w, h, p);
-    let count = counts[p];
-    if count == 0 {
-        return;
+impl FeatureAccumulator {
+    /// Every feature of pixel `(x, y)`, in [`FEATURES`] order, from these sums, the frame's
+    /// per-pixel `counts` and its `frame` values ([`FrameFeatures::of`]): what
+    /// [`FeatureMaps::compute`] stores, for a pass that wants one pixel at a time.
+    ///
+    /// # Panics
+    /// If `(x, y)` is outside the frame or `counts` does not cover it.
+    pub fn pixel_features(
+        &self,
+        counts: &[u32],
+        frame: &FrameFeatures,
+        x: usize,
+        y: usize,
+    ) -> [f32; FEATURE_COUNT] {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let total = frame.total.max(1) as f32;
+        let mut out = [0.0; FEATURE_COUNT];
+        out[1] = frame.budget as f32 / total;
+        out[4] = frame.depth_min;
+        out[5] = frame.depth_max;
+        out[13] = frame.budget as f32 / frame.covered.max(1) as f32;
+        let (mean3, max3) = neighbourhood(counts, w, h, x, y);
+        out[20] = mean3;
+        out[21] = max3;
+        out[22] = periphery(w, h, x, y);
+        let p = y * w + x;
+        let count = counts[p];
+        if count == 0 {
+            return out;
+        }
+        let c = count as f32;
+        let near = self.nearest[p];
+        let [nr, ng, nb, na] = Rgba8::from_bits(near as u32).to_unorm();
+        let mean = [self.sum_r[p] / c, self.sum_g[p] / c, self.sum_b[p] / c];
+        out[0] = c / total;
+        out[2] = f32::from_bits((near >> 32) as u32);
+        out[3] = self.depth_max[p];
+        out[6..9].copy_from_slice(&mean);
+        out[9..12].copy_from_slice(&[nr, ng, nb]);
+        out[12] = c;
+        out[14] = self.alpha_sum[p];
+        out[15] = self.alpha_max[p];
+        out[16] = self.transmittance[p];
+        out[17] = na;
+        out[18] = self.opaque[p] as f32;
+        let mean_sq = mean.iter().map(|m| m * m).sum::<f32>();
+        out[19] = ((self.sum_sq[p] / c - mean_sq) / 3.0).max(0.0);
+        out
     }
-    let c = count as f32;
-    let near = sums.nearest[p];
-    let [nr, ng, nb, na] = Rgba8::from_bits(near as u32).to_unorm();
-    let mean = [sums.sum_r[p] / c, sums.sum_g[p] / c, sums.sum_b[p] / c];
-    out[0] = c / total;
-    out[2] = f32::from_bits((near >> 32) as u32);
-    out[3] = sums.depth_max[p];
-    out[6..9].copy_from_slice(&mean);
-    out[9..12].copy_from_slice(&[nr, ng, nb]);
-    out[12] = c;
-    out[14] = sums.alpha_sum[p];
-    out[15] = sums.alpha_max[p];
-    out[16] = sums.transmittance[p];
-    out[17] = na;
-    out[18] = sums.opaque[p] as f32;
-    let mean_sq = mean.iter().map(|m| m * m).sum::<f32>();
-    out[19] = ((sums.sum_sq[p] / c - mean_sq) / 3.0).max(0.0);
 }
 
 #[cfg(test)]
@@ -587,11 +599,11 @@ mod tests {
     fn periphery_and_neighbourhood_by_hand() {
         // 4 × 2: centre (2, 1), half diagonal √(16 + 4)/2 = √5. Pixel 0's centre (0.5, 0.5):
         // distance √(2.25 + 0.25) = √2.5 → √2.5/√5 = √0.5.
-        assert!((periphery(4, 2, 0) - 0.5f32.sqrt()).abs() < 1e-6);
+        assert!((periphery(4, 2, 0, 0) - 0.5f32.sqrt()).abs() < 1e-6);
         let counts = [1, 2, 3, 4, 5, 6, 7, 8];
         // Pixel 0: neighbours 1, 2, 5, 6 → mean 3.5, max 6.
-        assert_eq!(neighbourhood(&counts, 4, 2, 0), (3.5, 6.0));
+        assert_eq!(neighbourhood(&counts, 4, 2, 0, 0), (3.5, 6.0));
         // Pixel 5 (x 1, y 1): 1, 2, 3, 5, 6, 7 → mean 4, max 7.
-        assert_eq!(neighbourhood(&counts, 4, 2, 5), (4.0, 7.0));
+        assert_eq!(neighbourhood(&counts, 4, 2, 1, 1), (4.0, 7.0));
     }
 }
