@@ -51,6 +51,8 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Time each pass of a method on a scene over repeated runs: median, min, max.
     Bench(cmd::bench::Args),
+    // About: `cmd::dataset::Args`'s doc comment.
+    Dataset(cmd::dataset::Args),
     /// Compare methods on a scene: per-pass times, memory, RMSE, FLIP, bad pixels, heat maps.
     Compare(cmd::compare::Args),
     /// List the built-in scenes, or print one as a scene file.
@@ -165,6 +167,7 @@ fn main() -> ExitCode {
             Command::Demo(a) => cmd::demo::run(a),
             Command::Bench(a) => cmd::bench::run(a),
             Command::Compare(a) => cmd::compare::run(a),
+            Command::Dataset(a) => cmd::dataset::run(a),
             Command::Scenes(a) => cmd::scenes::run(a),
             Command::Methods(a) => cmd::methods::run(a),
             Command::TfssSim(a) => cmd::tfss_sim::run(a),

@@ -127,6 +127,7 @@ impl MethodParams {
             l_num: self.l_num,
             leading_zeros: self.leading_zeros,
             max_layers: self.max_layers,
+            features: false,
         }
     }
 

@@ -46,6 +46,12 @@ impl FragmentCounts {
         &self.counts
     }
 
+    /// The counts, row-major, for a capture target that counts alongside other work
+    /// ([`crate::kbuffer::features::FeatureCapture`]).
+    pub(crate) fn counts_mut(&mut self) -> &mut [u32] {
+        &mut self.counts
+    }
+
     /// Total fragments counted.
     pub fn total(&self) -> u64 {
         self.counts.par_iter().map(|&c| u64::from(c)).sum()

@@ -128,6 +128,12 @@ pub trait Method: Send {
         Vec::new()
     }
 
+    /// The per-pixel learning features of the last frame, if the method gathered them (the
+    /// variable k-buffer with [`crate::MethodOptions::features`]); none by default.
+    fn feature_maps(&self) -> Option<&crate::kbuffer::FeatureMaps> {
+        None
+    }
+
     /// The captured fragments as a DeepFrame; `None` for methods that do not keep fragments.
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>>;
 

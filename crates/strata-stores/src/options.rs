@@ -357,6 +357,9 @@ pub struct MethodOptions {
     pub leading_zeros: bool,
     /// Depth peeling: most layers to peel; 0 peels until a pass finds nothing.
     pub max_layers: u32,
+    /// Variable k-buffer: also gather the per-pixel features of a learned k in the counting pass
+    /// ([`crate::kbuffer::features`]); off by default, so the importance-map path pays nothing.
+    pub features: bool,
 }
 
 impl Default for MethodOptions {
@@ -372,6 +375,7 @@ impl Default for MethodOptions {
             l_num: 2,
             leading_zeros: false,
             max_layers: 0,
+            features: false,
         }
     }
 }

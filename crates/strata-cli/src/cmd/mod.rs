@@ -4,6 +4,7 @@ pub(crate) mod bench;
 pub(crate) mod codecs;
 pub(crate) mod compare;
 pub(crate) mod composite;
+pub(crate) mod dataset;
 pub(crate) mod demo;
 pub(crate) mod display;
 pub(crate) mod inspect;

@@ -41,7 +41,9 @@ pub(crate) struct Args {
 
     /// Also write the per-pixel maps the method computes (vkbuffer: `k` and `importance`) into
     /// this folder, each as a heat map PNG and a NumPy `.npy` (float32, height × width), and
-    /// maps.html showing them with their colour scales.
+    /// maps.html showing them with their colour scales. vkbuffer also writes the per-pixel
+    /// features a learned k reads: features.npy (float32, height × width × features) and
+    /// features.json (the feature names, units and definitions, in column order).
     #[arg(long, value_name = "DIR")]
     pub(crate) maps: Option<PathBuf>,
 
@@ -145,6 +147,9 @@ fn write_maps(dir: &std::path::Path, method: &dyn strata_stores::Method) -> Resu
         let max = m.values.iter().copied().fold(0.0f32, f32::max);
         legends.push((m.name, max));
     }
+    if let Some(features) = method.feature_maps() {
+        write_features(dir, features)?;
+    }
     let page = maps_page(method.name(), &legends);
     let path = dir.join("maps.html");
     std::fs::write(&path, page).with_context(|| format!("cannot write {}", path.display()))?;
@@ -155,14 +160,45 @@ fn write_maps(dir: &std::path::Path, method: &dyn strata_stores::Method) -> Resu
     Ok(())
 }
 
+/// Writes `features.npy` ([height, width, features] float32) and `features.json` (the list).
+fn write_features(
+    dir: &std::path::Path,
+    features: &strata_stores::kbuffer::FeatureMaps,
+) -> Result<()> {
+    use strata_stores::kbuffer::features::{FEATURE_COUNT, FEATURE_SET, FEATURES};
+    let (w, h) = features.size();
+    strata_core::npy::write(
+        dir.join("features.npy"),
+        &[h as usize, w as usize, FEATURE_COUNT],
+        strata_core::npy::NpyData::F32(&features.interleaved()),
+    )?;
+    let list: Vec<serde_json::Value> = FEATURES
+        .iter()
+        .map(|f| serde_json::json!({"name": f.name, "unit": f.unit, "definition": f.definition}))
+        .collect();
+    let frame = features.frame().map(|f| {
+        serde_json::json!({"fragments": f.total, "covered_pixels": f.covered, "budget": f.budget})
+    });
+    let json = serde_json::json!({
+        "feature_set": FEATURE_SET,
+        "shape": [h, w, FEATURE_COUNT],
+        "features": list,
+        "frame": frame,
+    });
+    let path = dir.join("features.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n")
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// Runs `strata render`: validate everything, then render, then write.
 pub(crate) fn run(args: Args) -> Result<()> {
     let out = args
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("{}.png", scene_stem(&args.scene))));
-    let options = args.render.checked_method_options()?;
+    let mut options = args.render.checked_method_options()?;
     check_outputs(&args, &out, &options)?;
+    options.features = args.maps.is_some();
     let scene = open_scene(&args.scene, &args.render.search_path())?;
     scene.check_frame(args.frame)?;
     let mut method = strata_stores::create(&args.render.method, &options)?;

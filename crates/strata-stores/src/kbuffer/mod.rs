@@ -7,9 +7,11 @@
 //! | [`importance`] | the periphery and depth-complexity heuristics with noise | 001 §3.2.2 |
 //! | [`allocate`] | k(p) from the importance map under the budget | 001 Alg. 17 |
 //! | [`optimal_k`](mod@optimal_k) | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
+//! | [`features`] | per-pixel features for a learned k, gathered in the counting pass | 001 §4.2 |
 //! | [`maps`] | k and importance maps as heat-map images | 001 Fig. 3.9 |
 
 pub mod allocate;
+pub mod features;
 pub mod fixed;
 pub mod importance;
 pub mod maps;
@@ -17,6 +19,7 @@ pub mod optimal_k;
 pub mod variable;
 
 pub use allocate::{Allocation, allocate_k};
+pub use features::{FEATURE_SET, FEATURES, FeatureMaps};
 pub use fixed::KBuffer;
 pub use optimal_k::{SortedRuns, optimal_k};
 pub use variable::VariableKBuffer;

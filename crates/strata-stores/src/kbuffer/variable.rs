@@ -48,6 +48,13 @@
 //! is what the oracle really needs: the memory of the exact store; the fragments it truncates
 //! count as lost. It shows the quality reachable at budget M, not a method that runs in M.
 //!
+//! # Features for a learned k
+//!
+//! With [`MethodOptions::features`] the counting pass also accumulates the per-pixel sums of
+//! [`super::features`] (same geometry pass, more work per fragment), and the features are
+//! finished for the frame's budget right after it (timed as `capture.features`). They are
+//! exposed through [`Method::feature_maps`]. Without the option nothing is allocated or gathered.
+//!
 //! Both modes expose the per-pixel k map ([`VariableKBuffer::k_map`]) and importance map
 //! ([`VariableKBuffer::importance_map`]); [`super::maps`] renders them as heat maps.
 
@@ -64,6 +71,7 @@ use crate::options::{Budget, ImportanceParams, KFrom, MethodOptions};
 use crate::regions::{Policy, RegionCapture, Regions};
 
 use super::allocate::{Allocation, allocate_k};
+use super::features::{FeatureAccumulator, FeatureCapture, FeatureMaps};
 use super::importance::importance_map;
 use super::optimal_k::optimal_k_into;
 
@@ -84,6 +92,8 @@ pub struct VariableKBuffer {
     regions: Regions,
     allocation: Allocation,
     depth: Option<DepthStats>,
+    /// The feature sums and maps, when [`MethodOptions::features`] asks for them.
+    features: Option<Box<(FeatureAccumulator, FeatureMaps)>>,
 }
 
 impl VariableKBuffer {
@@ -101,6 +111,9 @@ impl VariableKBuffer {
             regions: Regions::new(),
             allocation: Allocation::default(),
             depth: None,
+            features: options
+                .features
+                .then(|| Box::new((FeatureAccumulator::new(), FeatureMaps::new()))),
         }
     }
 
@@ -137,7 +150,28 @@ impl VariableKBuffer {
     }
 
     fn map_bytes(&self) -> u64 {
-        ((self.importance.len() + self.k.len()) * 4) as u64 + self.counts.memory_bytes()
+        let features = self
+            .features
+            .as_ref()
+            .map_or(0, |f| f.0.memory_bytes() + f.1.memory_bytes());
+        ((self.importance.len() + self.k.len()) * 4) as u64 + self.counts.memory_bytes() + features
+    }
+
+    /// The counting pass: counts, and the feature sums when they are asked for.
+    fn count(
+        &mut self,
+        prepared: &strata_raster::Prepared<'_, '_>,
+        timings: &mut PassTimings,
+    ) -> u64 {
+        timings
+            .time("capture.count", || match self.features.as_deref_mut() {
+                Some((sums, _)) => prepared.rasterize(&mut FeatureCapture {
+                    counts: &mut self.counts,
+                    sums,
+                }),
+                None => prepared.rasterize(&mut self.counts),
+            })
+            .fragments
     }
 }
 
@@ -149,6 +183,9 @@ impl Method for VariableKBuffer {
     fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         (self.width, self.height) = (width, height);
         self.counts.clear(width, height)?;
+        if let Some(f) = self.features.as_deref_mut() {
+            f.0.clear(width, height)?;
+        }
         self.depth = None;
         Ok(())
     }
@@ -164,9 +201,12 @@ impl Method for VariableKBuffer {
         let (width, height) = (self.width, self.height);
         let pixels = width as usize * height as usize;
 
-        let counted = timings.time("capture.count", || prepared.rasterize(&mut self.counts));
-        let total = counted.fragments;
+        let total = self.count(&prepared, timings);
         let budget = self.budget.fragments(pixels as u64, total);
+        if let Some((sums, maps)) = self.features.as_deref_mut() {
+            let counts = self.counts.counts();
+            timings.time("capture.features", || maps.compute(sums, counts, budget));
+        }
         self.importance.resize(pixels, 0.0);
 
         let captured = match self.k_from {
@@ -267,6 +307,10 @@ impl Method for VariableKBuffer {
             map("k", self.k.iter().map(|&k| k as f32).collect()),
             map("importance", self.importance.clone()),
         ]
+    }
+
+    fn feature_maps(&self) -> Option<&FeatureMaps> {
+        self.features.as_deref().map(|f| &f.1)
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
