@@ -60,13 +60,15 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             "2 frame(s) [0, 36]",
             "every decode round-tripped bit-exactly",
             "% of 16N",
+            "enc MB/s",
+            "dec MB/s",
             "for scale: LZ4 on the plain layout",
         ],
     );
     let names = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd"];
     for name in names {
         let cols = row(&stdout, name);
-        assert!(cols.len() >= 6, "{name}: {cols:?}");
+        assert!(cols.len() >= 8, "{name}: {cols:?}");
     }
     // The deep rows break their bytes down by section.
     for name in ["deep-lz4", "deep-zstd"] {
@@ -126,6 +128,22 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             "{name}"
         );
         assert!(f(&c["encode_ms_median"]) >= 0.0 && f(&c["decode_ms_median"]) >= 0.0);
+        // Throughput is the DeepFrame's 16 bytes a fragment over the median time.
+        let raw_mb = 16.0 * total_fragments as f64 / 2.0 / 1e6;
+        for (mb_s, ms) in [
+            ("encode_mb_per_s", "encode_ms_median"),
+            ("decode_mb_per_s", "decode_ms_median"),
+        ] {
+            let expected = if f(&c[ms]) > 0.0 {
+                raw_mb / (f(&c[ms]) / 1e3)
+            } else {
+                0.0
+            };
+            assert!(
+                (f(&c[mb_s]) - expected).abs() <= 1e-6 * expected.max(1.0),
+                "{name} {mb_s}"
+            );
+        }
         // Sections plus header and table are the message.
         let sections = c["section_bytes_per_frame"].as_object().expect("sections");
         let keys: Vec<&str> = sections.keys().map(String::as_str).collect();

@@ -189,14 +189,25 @@ pub(crate) fn run(args: Args) -> Result<()> {
     )?;
     outln!()?;
     outln!(
-        "{:<12} {:>12} {:>9} {:>9} {:>11} {:>11}  sections (bytes per frame)",
+        "{:<12} {:>12} {:>9} {:>9} {:>11} {:>11} {:>10} {:>10}  sections (bytes per frame)",
         "codec",
         "bytes/frame",
         "% of 16N",
         "% of lz4",
         "encode ms",
-        "decode ms"
+        "decode ms",
+        "enc MB/s",
+        "dec MB/s"
     )?;
+    // Throughput in bytes of the DeepFrame itself (16 a fragment), per median frame time.
+    let raw_bytes = 16.0 * total_fragments as f64 / n;
+    let mb_per_s = |ms: f64| {
+        if ms > 0.0 {
+            raw_bytes / 1e6 / (ms / 1e3)
+        } else {
+            0.0
+        }
+    };
     let mut rows = Vec::new();
     for t in &tallies {
         let total: u64 = t.bytes.iter().sum();
@@ -212,13 +223,15 @@ pub(crate) fn run(args: Args) -> Result<()> {
             Vec::new()
         };
         outln!(
-            "{:<12} {:>12.0} {:>8.1}% {:>8.1}% {:>11.2} {:>11.2}  {}",
+            "{:<12} {:>12.0} {:>8.1}% {:>8.1}% {:>11.2} {:>11.2} {:>10.0} {:>10.0}  {}",
             t.codec.to_string(),
             total as f64 / n,
             of_16n,
             of_lz4,
             enc,
             dec,
+            mb_per_s(enc),
+            mb_per_s(dec),
             sections.join(", ")
         )?;
         rows.push(json!({
@@ -229,6 +242,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "percent_of_list_lz4": of_lz4,
             "encode_ms_median": enc,
             "decode_ms_median": dec,
+            "encode_mb_per_s": mb_per_s(enc),
+            "decode_mb_per_s": mb_per_s(dec),
             "section_bytes_per_frame": t.sections.iter().map(|(name, b)| (name.to_string(), json!(*b as f64 / n))).collect::<serde_json::Map<String, Value>>(),
         }));
     }

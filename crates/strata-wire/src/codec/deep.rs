@@ -50,6 +50,7 @@
 //! exactly; the result goes through `DeepFrame::from_parts`, which re-checks sortedness and depth
 //! range, so a well-formed message with nonsense residuals is an error, not a frame.
 
+use rayon::prelude::*;
 use strata_core::{DeepFrame, ObjectId, Rgba8};
 
 use crate::bytes::{Reader, put_varint, unzigzag, zigzag};
@@ -186,8 +187,30 @@ impl ZeroRuns {
     }
 }
 
+/// Rows of pixels one encoding task predicts.
+const BAND_ROWS: usize = 16;
+
 /// The four uncompressed sections, in wire order.
 pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
+    encode_in_bands(frame, BAND_ROWS)
+}
+
+/// One band's outputs: its fragments' residuals, plane by plane, and its object residuals.
+struct BandOut<'a> {
+    depth: [&'a mut [u8]; 4],
+    color: [&'a mut [u8]; 4],
+    object: &'a mut [u32],
+}
+
+/// [`encode`] with the prediction cut into tasks of `band_rows` rows, run in parallel.
+///
+/// A residual depends only on the *original* values of the fragment's neighbours, which the
+/// encoder has for the whole frame, so bands can be predicted in any order: each task writes
+/// its own fragments' residuals (a contiguous range of every plane) and starts with the "last
+/// non-empty run" of the pixels before it, found beforehand. The output is the same bytes for
+/// any band height and thread count (tested). The object residuals are zero-run coded after,
+/// in one pass; the counts' varints are one pass too.
+fn encode_in_bands(frame: &DeepFrame, band_rows: usize) -> Vec<(SectionTag, Vec<u8>)> {
     let offsets = frame.offsets();
     let width = frame.width() as usize;
     let pixels = offsets.len() - 1;
@@ -198,47 +221,50 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
         put_varint(&mut counts, c);
     }
 
-    // Plain views of the columns: bits for depth, byte arrays for colour, u32 for ids.
-    let bits: Vec<u32> = frame.depths().iter().map(|d| d.to_bits()).collect();
-    let colors: Vec<[u8; 4]> = frame.colors().iter().map(|c| c.0).collect();
-    let objects: Vec<u32> = frame.objects().iter().map(|o| o.0).collect();
+    let band_pixels = band_rows.max(1).saturating_mul(width).max(1);
+    let bands: Vec<std::ops::Range<usize>> = (0..pixels)
+        .step_by(band_pixels)
+        .map(|p0| p0..(p0 + band_pixels).min(pixels))
+        .collect();
+    // The first fragment of the last non-empty run before each band (`None`: there is none).
+    let mut last_before = Vec::with_capacity(bands.len());
+    let mut last: Option<usize> = None;
+    for band in &bands {
+        last_before.push(last);
+        if let Some(q) = band.clone().rev().find(|&q| offsets[q + 1] > offsets[q]) {
+            last = Some(offsets[q] as usize);
+        }
+    }
 
     let mut depth = vec![0u8; 4 * n];
     let mut color = vec![0u8; 4 * n];
+    let mut object = vec![0u32; n];
+    {
+        let (mut d, mut c, mut o) = (
+            planes(&mut depth, n),
+            planes(&mut color, n),
+            &mut object[..],
+        );
+        let mut tasks = Vec::with_capacity(bands.len());
+        for (band, last) in bands.iter().zip(&last_before) {
+            let len = (offsets[band.end] - offsets[band.start]) as usize;
+            let out = BandOut {
+                depth: d.each_mut().map(|plane| take_front(plane, len)),
+                color: c.each_mut().map(|plane| take_front(plane, len)),
+                object: take_front(&mut o, len),
+            };
+            tasks.push((band.clone(), *last, out));
+        }
+        tasks
+            .into_par_iter()
+            .for_each(|(band, last, mut out)| predict_band(frame, band, last, &mut out));
+    }
     let mut zero_runs = ZeroRuns {
         out: Vec::new(),
         run: 0,
     };
-    {
-        let (d0, rest) = depth.split_at_mut(n);
-        let (d1, rest) = rest.split_at_mut(n);
-        let (d2, d3) = rest.split_at_mut(n);
-        let (c0, rest) = color.split_at_mut(n);
-        let (c1, rest) = rest.split_at_mut(n);
-        let (c2, c3) = rest.split_at_mut(n);
-        let (mut last_depth, mut last_color, mut last_object) = (0u32, [0u8; 4], 0u32);
-        for p in 0..pixels {
-            let start = offsets[p] as usize;
-            let len = offsets[p + 1] as usize - start;
-            if len == 0 {
-                continue;
-            }
-            let (l, u, ul) = neighbours(offsets, width, p);
-            for k in 0..len {
-                let i = start + k;
-                let s = source(k, start, l, u, ul);
-                let r = zigzag(bits[i].wrapping_sub(predict_depth(&bits, s, last_depth)) as i32);
-                [d0[i], d1[i], d2[i], d3[i]] = r.to_le_bytes();
-                let pc = predict_color(&colors, s, last_color);
-                let c = colors[i];
-                c0[i] = c[0].wrapping_sub(pc[0]);
-                c1[i] = c[1].wrapping_sub(pc[1]);
-                c2[i] = c[2].wrapping_sub(pc[2]);
-                c3[i] = c[3].wrapping_sub(pc[3]);
-                zero_runs.push(objects[i] ^ predict_object(&objects, s, last_object));
-            }
-            (last_depth, last_color, last_object) = (bits[start], colors[start], objects[start]);
-        }
+    for &r in &object {
+        zero_runs.push(r);
     }
     vec![
         (SectionTag::Counts, counts),
@@ -246,6 +272,96 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
         (SectionTag::Color, color),
         (SectionTag::Object, zero_runs.finish()),
     ]
+}
+
+/// The four planes of `n` bytes of `v`.
+fn planes(v: &mut [u8], n: usize) -> [&mut [u8]; 4] {
+    let (a, rest) = v.split_at_mut(n);
+    let (b, rest) = rest.split_at_mut(n);
+    let (c, d) = rest.split_at_mut(n);
+    [a, b, c, d]
+}
+
+/// The first `len` items of `slice`, which keeps the rest.
+fn take_front<'a, T>(slice: &mut &'a mut [T], len: usize) -> &'a mut [T] {
+    let (head, tail) = std::mem::take(slice).split_at_mut(len);
+    *slice = tail;
+    head
+}
+
+/// The residuals of the fragments of the pixels in `band` into `out` (indexed from the band's
+/// first fragment); `last` is the first fragment of the last non-empty run before the band.
+fn predict_band(
+    frame: &DeepFrame,
+    band: std::ops::Range<usize>,
+    last: Option<usize>,
+    out: &mut BandOut<'_>,
+) {
+    let offsets = frame.offsets();
+    let width = frame.width() as usize;
+    // Plain views of the columns: bits for depth, byte arrays for colour, u32 for ids.
+    let bits: &[f32] = frame.depths();
+    let colors: &[Rgba8] = frame.colors();
+    let objects: &[ObjectId] = frame.objects();
+    let bit = |i: usize| bits[i].to_bits();
+    let (mut last_depth, mut last_color, mut last_object) = match last {
+        Some(i) => (bit(i), colors[i].0, objects[i].0),
+        None => (0u32, [0u8; 4], 0u32),
+    };
+    let base = offsets[band.start] as usize;
+    for p in band {
+        let start = offsets[p] as usize;
+        let len = offsets[p + 1] as usize - start;
+        if len == 0 {
+            continue;
+        }
+        let (l, u, ul) = neighbours(offsets, width, p);
+        for k in 0..len {
+            let i = start + k;
+            let j = i - base;
+            let s = source(k, start, l, u, ul);
+            let predicted = match s {
+                Source::Plane(l, u, ul) => bit(l).wrapping_add(bit(u)).wrapping_sub(bit(ul)),
+                Source::One(q) => bit(q),
+                Source::Last => last_depth,
+            };
+            let r = zigzag(bit(i).wrapping_sub(predicted) as i32);
+            let [b0, b1, b2, b3] = r.to_le_bytes();
+            out.depth[0][j] = b0;
+            out.depth[1][j] = b1;
+            out.depth[2][j] = b2;
+            out.depth[3][j] = b3;
+            let pc = predict_color_of(colors, s, last_color);
+            let c = colors[i].0;
+            for (plane, (value, guess)) in out.color.iter_mut().zip(c.into_iter().zip(pc)) {
+                plane[j] = value.wrapping_sub(guess);
+            }
+            let po = match s {
+                Source::Plane(l, _, _) | Source::One(l) => objects[l].0,
+                Source::Last => last_object,
+            };
+            out.object[j] = objects[i].0 ^ po;
+        }
+        (last_depth, last_color, last_object) = (bit(start), colors[start].0, objects[start].0);
+    }
+}
+
+/// [`predict_color`] over the frame's own colour column.
+#[inline]
+fn predict_color_of(colors: &[Rgba8], s: Source, last: [u8; 4]) -> [u8; 4] {
+    match s {
+        Source::Plane(l, u, ul) => {
+            let (a, b, c) = (colors[l].0, colors[u].0, colors[ul].0);
+            [
+                med(a[0], b[0], c[0]),
+                med(a[1], b[1], c[1]),
+                med(a[2], b[2], c[2]),
+                med(a[3], b[3], c[3]),
+            ]
+        }
+        Source::One(i) => colors[i].0,
+        Source::Last => last,
+    }
 }
 
 /// Rebuilds the frame from the four decompressed sections (`section_offsets`: where each payload
@@ -398,6 +514,53 @@ mod tests {
         assert_eq!(med(10, 20, 12), 18); // in between: the plane
         assert_eq!(med(255, 255, 0), 255);
         assert_eq!(med(0, 255, 254), 1);
+    }
+
+    /// A frame with empty rows, empty pixels inside bands, deep runs and several objects.
+    fn patchy_frame(width: u32, height: u32) -> DeepFrame {
+        let lists: Vec<Vec<strata_core::Fragment>> = (0..width * height)
+            .map(|p| {
+                let (x, y) = (p % width, p / width);
+                let count = if y % 5 == 2 || (x + y) % 7 == 0 {
+                    0
+                } else {
+                    (x * 3 + y) % 4
+                };
+                (0..count)
+                    .map(|k| strata_core::Fragment {
+                        depth: 0.1 + 0.2 * k as f32 + 0.001 * x as f32 + 0.0007 * y as f32,
+                        color: Rgba8([(x * 7) as u8, (y * 5) as u8, (k * 60) as u8, 128]),
+                        object: ObjectId(1 + (x / 9 + k) % 3),
+                    })
+                    .collect()
+            })
+            .collect();
+        DeepFrame::from_pixel_lists(width, height, &lists).expect("a valid frame")
+    }
+
+    #[test]
+    fn any_band_height_and_thread_count_give_the_same_bytes() {
+        let frame = patchy_frame(37, 29);
+        let one = encode_in_bands(&frame, 1000);
+        for rows in [1, 2, 3, 16, 29, 30] {
+            assert_eq!(encode_in_bands(&frame, rows), one, "{rows} rows a band");
+        }
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool");
+            assert_eq!(
+                pool.install(|| encode_in_bands(&frame, 1)),
+                one,
+                "{threads} threads"
+            );
+        }
+        // And it decodes to the frame.
+        let sections: Vec<Vec<u8>> = one.into_iter().map(|(_, bytes)| bytes).collect();
+        let decoded =
+            decode(37, 29, frame.fragment_count() as u32, &sections, &[0; 4]).expect("decodes");
+        assert_eq!(decoded, frame);
     }
 
     #[test]
