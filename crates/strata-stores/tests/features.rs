@@ -272,3 +272,29 @@ fn one_pixel_at_a_time_matches_the_maps() {
         assert_eq!(one, maps.pixel(y * 80 + x), "pixel ({x}, {y})");
     }
 }
+
+/// The features are the same whatever order the layers are drawn in: sums are integer sums of
+/// the 8-bit channels and of a fixed-point −ln(1 − α), which float sums and products are not.
+#[test]
+fn draw_order_changes_no_feature() {
+    let scene = layers([128, 64, 204]);
+    let (_, drawn) = features(&scene, Budget::SceneShare(0.5), 2);
+    let mut objects = scene.objects.clone();
+    for order in [[2, 1, 0], [1, 2, 0], [0, 2, 1]] {
+        let reordered = Scene {
+            objects: order.iter().map(|&i| objects[i].clone()).collect(),
+            ..scene.clone()
+        };
+        let (_, maps) = features(&reordered, Budget::SceneShare(0.5), 2);
+        assert_eq!(maps, drawn, "drawn in order {order:?}");
+    }
+    // And with one layer opaque, the transmittance is 0 in any order.
+    objects[1].material.color[3] = 1.0;
+    let opaque = Scene {
+        objects: objects.clone(),
+        ..scene.clone()
+    };
+    let (_, maps) = features(&opaque, Budget::SceneShare(0.5), 1);
+    assert_eq!(feature(&maps, 3, "transmittance"), 0.0);
+    assert_eq!(feature(&maps, 3, "opaque_count"), 1.0);
+}

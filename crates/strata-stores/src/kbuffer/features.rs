@@ -11,11 +11,11 @@
 //!    nearest:       [u64]  (depth bits << 32) | rgba8 bits of the nearest fragment; the minimum
 //!                          key wins, so ties between equal depths break on the colour bits
 //!    depth_max:     [f32]  farthest window depth
-//!    sum_r/g/b:     [f32]  Σ straight-alpha colour, channels in [0, 1]
-//!    sum_sq:        [f32]  Σ (r² + g² + b²)
-//!    alpha_sum:     [f32]  Σ α
+//!    sum_r/g/b:     [u32]  Σ straight-alpha colour, 8-bit channels
+//!    sum_sq:        [u64]  Σ (r² + g² + b²), 8-bit channels
+//!    alpha_sum:     [u32]  Σ α, 8 bits
 //!    alpha_max:     [f32]  max α
-//!    transmittance: [f32]  Π (1 − α)
+//!    log_t:         [u64]  Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
 //!    opaque:        [u32]  fragments with α = 1 (255)
 //!    ```
 //!
@@ -188,14 +188,33 @@ pub struct FeatureAccumulator {
     height: u32,
     nearest: Vec<u64>,
     depth_max: Vec<f32>,
-    sum_r: Vec<f32>,
-    sum_g: Vec<f32>,
-    sum_b: Vec<f32>,
-    sum_sq: Vec<f32>,
-    alpha_sum: Vec<f32>,
+    sum_r: Vec<u32>,
+    sum_g: Vec<u32>,
+    sum_b: Vec<u32>,
+    sum_sq: Vec<u64>,
+    alpha_sum: Vec<u32>,
     alpha_max: Vec<f32>,
-    transmittance: Vec<f32>,
+    log_t: Vec<u64>,
     opaque: Vec<u32>,
+}
+
+/// Fixed-point scale of [`FeatureAccumulator`]'s `log_t`.
+const LOG_T_SCALE: f64 = (1u64 << 20) as f64;
+
+/// `round(−ln(1 − a/255) · 2²⁰)` for every 8-bit alpha `a` below 255 (0 for 255: an opaque
+/// fragment is counted, not summed). Integer sums are the same in any order, which float sums
+/// and products are not: the features must not depend on the order the triangles are drawn in.
+fn log_t_table() -> &'static [u64; 256] {
+    static TABLE: std::sync::OnceLock<[u64; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        std::array::from_fn(|a| {
+            if a == 255 {
+                0
+            } else {
+                (-(1.0 - a as f64 / 255.0).ln() * LOG_T_SCALE).round() as u64
+            }
+        })
+    })
 }
 
 /// The `nearest` key of an empty pixel.
@@ -230,19 +249,19 @@ impl FeatureAccumulator {
         let n = width as usize * height as usize;
         (self.width, self.height) = (width, height);
         reset(&mut self.nearest, n, NO_FRAGMENT)?;
+        reset(&mut self.depth_max, n, 0.0)?;
+        reset(&mut self.alpha_max, n, 0.0)?;
         for v in [
-            &mut self.depth_max,
             &mut self.sum_r,
             &mut self.sum_g,
             &mut self.sum_b,
-            &mut self.sum_sq,
             &mut self.alpha_sum,
-            &mut self.alpha_max,
+            &mut self.opaque,
         ] {
-            reset(v, n, 0.0)?;
+            reset(v, n, 0)?;
         }
-        reset(&mut self.transmittance, n, 1.0)?;
-        reset(&mut self.opaque, n, 0)
+        reset(&mut self.sum_sq, n, 0)?;
+        reset(&mut self.log_t, n, 0)
     }
 
     /// Width and height of the frame the sums are for.
@@ -252,7 +271,7 @@ impl FeatureAccumulator {
 
     /// Bytes of the sums.
     pub fn memory_bytes(&self) -> u64 {
-        (self.nearest.len() * 8 + self.depth_max.len() * 4 * 9) as u64
+        (self.nearest.len() * (8 * 3 + 4 * 7)) as u64
     }
 }
 
@@ -284,13 +303,13 @@ pub struct FeatureSink<'a> {
     counts: &'a mut [u32],
     nearest: &'a mut [u64],
     depth_max: &'a mut [f32],
-    sum_r: &'a mut [f32],
-    sum_g: &'a mut [f32],
-    sum_b: &'a mut [f32],
-    sum_sq: &'a mut [f32],
-    alpha_sum: &'a mut [f32],
+    sum_r: &'a mut [u32],
+    sum_g: &'a mut [u32],
+    sum_b: &'a mut [u32],
+    sum_sq: &'a mut [u64],
+    alpha_sum: &'a mut [u32],
     alpha_max: &'a mut [f32],
-    transmittance: &'a mut [f32],
+    log_t: &'a mut [u64],
     opaque: &'a mut [u32],
 }
 
@@ -298,18 +317,18 @@ impl FragmentSink for FeatureSink<'_> {
     #[inline]
     fn push(&mut self, pixel: u32, fragment: Fragment) {
         let i = pixel as usize - self.first_pixel;
-        let [r, g, b, a] = fragment.color.to_unorm();
+        let [r, g, b, a] = fragment.color.0.map(u32::from);
         self.counts[i] += 1;
         self.nearest[i] = self.nearest[i].min(nearest_key(&fragment));
         self.depth_max[i] = self.depth_max[i].max(fragment.depth);
         self.sum_r[i] += r;
         self.sum_g[i] += g;
         self.sum_b[i] += b;
-        self.sum_sq[i] += r * r + g * g + b * b;
+        self.sum_sq[i] += u64::from(r * r + g * g + b * b);
         self.alpha_sum[i] += a;
-        self.alpha_max[i] = self.alpha_max[i].max(a);
-        self.transmittance[i] *= 1.0 - a;
-        self.opaque[i] += u32::from(fragment.color.0[3] == 255);
+        self.alpha_max[i] = self.alpha_max[i].max(a as f32 / 255.0);
+        self.log_t[i] += log_t_table()[a as usize];
+        self.opaque[i] += u32::from(a == 255);
     }
 }
 
@@ -335,7 +354,7 @@ impl CaptureTarget for FeatureCapture<'_> {
         let mut sum_sq = layout.split_mut(&mut s.sum_sq);
         let mut alpha_sum = layout.split_mut(&mut s.alpha_sum);
         let mut alpha_max = layout.split_mut(&mut s.alpha_max);
-        let mut transmittance = layout.split_mut(&mut s.transmittance);
+        let mut log_t = layout.split_mut(&mut s.log_t);
         let mut opaque = layout.split_mut(&mut s.opaque);
         (0..layout.count())
             .filter_map(|strip| {
@@ -350,7 +369,7 @@ impl CaptureTarget for FeatureCapture<'_> {
                     sum_sq: sum_sq.next()?,
                     alpha_sum: alpha_sum.next()?,
                     alpha_max: alpha_max.next()?,
-                    transmittance: transmittance.next()?,
+                    log_t: log_t.next()?,
                     opaque: opaque.next()?,
                 })
             })
@@ -571,20 +590,33 @@ impl FeatureAccumulator {
         let c = count as f32;
         let near = self.nearest[p];
         let [nr, ng, nb, na] = Rgba8::from_bits(near as u32).to_unorm();
-        let mean = [self.sum_r[p] / c, self.sum_g[p] / c, self.sum_b[p] / c];
+        let unit = |sum: u32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
+        let mean = [
+            unit(self.sum_r[p]),
+            unit(self.sum_g[p]),
+            unit(self.sum_b[p]),
+        ];
         out[0] = c / total;
         out[2] = f32::from_bits((near >> 32) as u32);
         out[3] = self.depth_max[p];
         out[6..9].copy_from_slice(&mean);
         out[9..12].copy_from_slice(&[nr, ng, nb]);
         out[12] = c;
-        out[14] = self.alpha_sum[p];
+        out[14] = (f64::from(self.alpha_sum[p]) / 255.0) as f32;
         out[15] = self.alpha_max[p];
-        out[16] = self.transmittance[p];
+        out[16] = if self.opaque[p] > 0 {
+            0.0
+        } else {
+            (-(self.log_t[p] as f64) / LOG_T_SCALE).exp() as f32
+        };
         out[17] = na;
         out[18] = self.opaque[p] as f32;
-        let mean_sq = mean.iter().map(|m| m * m).sum::<f32>();
-        out[19] = ((self.sum_sq[p] / c - mean_sq) / 3.0).max(0.0);
+        let mean_sq: f64 = [self.sum_r[p], self.sum_g[p], self.sum_b[p]]
+            .iter()
+            .map(|&s| (f64::from(s) / 255.0 / f64::from(count)).powi(2))
+            .sum();
+        let sq = self.sum_sq[p] as f64 / (255.0 * 255.0) / f64::from(count);
+        out[19] = ((sq - mean_sq) / 3.0).max(0.0) as f32;
         out
     }
 }
