@@ -45,7 +45,9 @@ pub(crate) struct MethodParams {
     #[arg(long, default_value = "50%", value_parser = |s: &str| s.parse::<Budget>())]
     pub(crate) budget: Budget,
 
-    /// vkbuffer: where k(p) comes from — `importance` maps or the `optimal` (Optimal-K) oracle.
+    /// vkbuffer: where k(p) comes from — `importance` maps, the `optimal` (Optimal-K) oracle, or
+    /// `analytic` (water-filling an error model of each pixel's layers from their mean colour and
+    /// opacity, gathered in the counting pass: no learning).
     #[arg(long, default_value = "importance", value_parser = |s: &str| s.parse::<KFrom>())]
     pub(crate) k_from: KFrom,
 

@@ -284,6 +284,9 @@ pub enum KFrom {
     Importance,
     /// The Optimal-K greedy oracle (Tsopouridis 2021 §4.2.2, Algorithm 23).
     Optimal,
+    /// Water-filling an analytic error model of each pixel's layers, from sums gathered in the
+    /// counting pass ([`crate::kbuffer::analytic`]): no learning, the baseline a learned k must beat.
+    Analytic,
 }
 
 impl std::str::FromStr for KFrom {
@@ -293,8 +296,9 @@ impl std::str::FromStr for KFrom {
         match s.trim() {
             "importance" => Ok(KFrom::Importance),
             "optimal" => Ok(KFrom::Optimal),
+            "analytic" => Ok(KFrom::Analytic),
             _ => Err(BadValue {
-                expected: "importance or optimal",
+                expected: "importance, optimal or analytic",
             }),
         }
     }

@@ -69,12 +69,13 @@ impl MethodInfo {
     pub fn reads(&self, option: &str, options: &MethodOptions) -> bool {
         self.options.contains(&option)
             && !(self.name == variable::NAME
-                && options.k_from == KFrom::Optimal
+                && options.k_from != KFrom::Importance
                 && IMPORTANCE_OPTIONS.contains(&option))
     }
 }
 
-/// The options of the variable k-buffer's importance maps (unused with `k-from optimal`).
+/// The options of the variable k-buffer's importance maps (unused with `k-from optimal` and
+/// `k-from analytic`).
 const IMPORTANCE_OPTIONS: &[&str] = &[
     "periphery-exponent",
     "range-bias",

@@ -269,6 +269,22 @@ impl FeatureAccumulator {
         (self.width, self.height)
     }
 
+    /// The mean colour and mean alpha of pixel `p`'s `count` fragments (zeros when it has none).
+    pub fn means(&self, p: usize, count: u32) -> ([f32; 3], f32) {
+        if count == 0 {
+            return ([0.0; 3], 0.0);
+        }
+        let unit = |sum: u32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
+        (
+            [
+                unit(self.sum_r[p]),
+                unit(self.sum_g[p]),
+                unit(self.sum_b[p]),
+            ],
+            unit(self.alpha_sum[p]),
+        )
+    }
+
     /// Bytes of the sums.
     pub fn memory_bytes(&self) -> u64 {
         (self.nearest.len() * (8 * 3 + 4 * 7)) as u64

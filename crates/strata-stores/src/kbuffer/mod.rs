@@ -6,11 +6,13 @@
 //! | [`variable`] | `vkbuffer`: k(p) under a budget, from importance maps or Optimal-K | 001 §3.2.2, Alg. 16–21; §4.2.2, Alg. 23 |
 //! | [`importance`] | the periphery and depth-complexity heuristics with noise | 001 §3.2.2 |
 //! | [`allocate`] | k(p) from the importance map under the budget | 001 Alg. 17 |
+//! | [`analytic`] | k(p) by water-filling an analytic error model (no learning) | — |
 //! | [`optimal_k`](mod@optimal_k) | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
 //! | [`features`] | per-pixel features for a learned k, gathered in the counting pass | 001 §4.2 |
 //! | [`maps`] | k and importance maps as heat-map images | 001 Fig. 3.9 |
 
 pub mod allocate;
+pub mod analytic;
 pub mod features;
 pub mod fixed;
 pub mod importance;

@@ -71,6 +71,7 @@ use crate::options::{Budget, ImportanceParams, KFrom, MethodOptions};
 use crate::regions::{Policy, RegionCapture, Regions};
 
 use super::allocate::{Allocation, allocate_k};
+use super::analytic::{Worth, analytic_k};
 use super::features::{FeatureAccumulator, FeatureCapture, FeatureMaps};
 use super::importance::importance_map;
 use super::optimal_k::optimal_k_into;
@@ -92,8 +93,13 @@ pub struct VariableKBuffer {
     regions: Regions,
     allocation: Allocation,
     depth: Option<DepthStats>,
-    /// The feature sums and maps, when [`MethodOptions::features`] asks for them.
+    /// The feature sums and maps, when [`MethodOptions::features`] asks for them (the sums also
+    /// with `--k-from analytic`, which models each pixel from them).
     features: Option<Box<(FeatureAccumulator, FeatureMaps)>>,
+    /// Whether the feature maps are to be finished (`MethodOptions::features`).
+    want_maps: bool,
+    /// Each pixel's model (`--k-from analytic`).
+    worth: Vec<Worth>,
 }
 
 impl VariableKBuffer {
@@ -111,9 +117,10 @@ impl VariableKBuffer {
             regions: Regions::new(),
             allocation: Allocation::default(),
             depth: None,
-            features: options
-                .features
+            features: (options.features || options.k_from == KFrom::Analytic)
                 .then(|| Box::new((FeatureAccumulator::new(), FeatureMaps::new()))),
+            want_maps: options.features,
+            worth: Vec::new(),
         }
     }
 
@@ -154,7 +161,10 @@ impl VariableKBuffer {
             .features
             .as_ref()
             .map_or(0, |f| f.0.memory_bytes() + f.1.memory_bytes());
-        ((self.importance.len() + self.k.len()) * 4) as u64 + self.counts.memory_bytes() + features
+        ((self.importance.len() + self.k.len()) * 4) as u64
+            + (self.worth.len() * std::mem::size_of::<Worth>()) as u64
+            + self.counts.memory_bytes()
+            + features
     }
 
     /// The counting pass: counts, and the feature sums when they are asked for.
@@ -203,7 +213,9 @@ impl Method for VariableKBuffer {
 
         let total = self.count(&prepared, timings);
         let budget = self.budget.fragments(pixels as u64, total);
-        if let Some((sums, maps)) = self.features.as_deref_mut() {
+        if let Some((sums, maps)) = self.features.as_deref_mut()
+            && self.want_maps
+        {
             let counts = self.counts.counts();
             timings.time("capture.features", || maps.compute(sums, counts, budget));
         }
@@ -222,6 +234,44 @@ impl Method for VariableKBuffer {
                 });
                 self.allocation = timings.time("capture.k", || {
                     allocate_k(self.counts.counts(), &self.importance, budget, &mut self.k)
+                });
+                let start = Instant::now();
+                self.regions.with_capacities(width, height, &self.k)?;
+                timings.add("capture.prefix_sum", start.elapsed());
+                timings.time("capture.capture", || {
+                    prepared.rasterize(&mut RegionCapture {
+                        regions: &mut self.regions,
+                        policy: Policy::KeepNearest,
+                        evicted: None,
+                    })
+                })
+            }
+            KFrom::Analytic => {
+                let Some((sums, _)) = self.features.as_deref() else {
+                    unreachable!("the sums are allocated for --k-from analytic");
+                };
+                let counts = self.counts.counts();
+                let background = input.background;
+                timings.time("capture.importance", || {
+                    self.worth
+                        .resize(pixels, Worth::new([0.0; 3], 0.0, background));
+                    self.worth
+                        .par_iter_mut()
+                        .zip(self.importance.par_iter_mut())
+                        .enumerate()
+                        .for_each(|(p, (w, i))| {
+                            let (mean, alpha) = sums.means(p, counts[p]);
+                            *w = Worth::new(mean, alpha, background);
+                            // What keeping only the nearest fragment would lose: ê(1) = d·t.
+                            *i = if counts[p] > 1 {
+                                (w.contrast * (1.0 - f64::from(alpha.clamp(0.0, 1.0)))) as f32
+                            } else {
+                                0.0
+                            };
+                        });
+                });
+                self.allocation = timings.time("capture.k", || {
+                    analytic_k(counts, &self.worth, budget, &mut self.k)
                 });
                 let start = Instant::now();
                 self.regions.with_capacities(width, height, &self.k)?;
@@ -310,7 +360,10 @@ impl Method for VariableKBuffer {
     }
 
     fn feature_maps(&self) -> Option<&FeatureMaps> {
-        self.features.as_deref().map(|f| &f.1)
+        self.features
+            .as_deref()
+            .filter(|_| self.want_maps)
+            .map(|f| &f.1)
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {

@@ -1,0 +1,352 @@
+//! k(p) from an analytic error model, without learning: the bar a learned k has to clear.
+//!
+//! # Model
+//!
+//! A pixel of `c` fragments with mean colour `m` (over its fragments, not composited) and mean
+//! opacity `ᾱ` is modelled as `c` layers of colour `m`, each letting `t = 1 − ᾱ` through. Keeping
+//! its `k` nearest fragments leaves out what the layers behind them add, at most their weight
+//! against the background:
+//!
+//! ```text
+//! ê(k) = d · t^k,   d = ‖m − background‖ (RGB, Euclidean)
+//! g(j) = ê(j − 1) − ê(j) = d · (1 − t) · t^(j − 1)       what the j-th fragment is worth
+//! ```
+//!
+//! The worth of the next fragment falls geometrically, so the best way to spend `M` slots on the
+//! model is to give them to the largest `g` over all pixels (water-filling): one threshold `λ`,
+//! and every pixel keeps the fragments worth more than it. The mean opacity is used rather than
+//! the product `Π(1 − α)`: one opaque layer at the back makes the product 0, which would say that
+//! only the nearest fragment counts.
+//!
+//! # Allocation
+//!
+//! The same rules as the importance allocation ([`super::allocate`]): `M' = min(M, N)`; below one
+//! fragment per covered pixel (`M' < C`) the `M'` pixels with the largest `ê(0) = d` get one
+//! (ties to the lower pixel index); otherwise every covered pixel gets one and the `R = M' − C`
+//! others go by worth:
+//!
+//! 1. in log space, `ln g(j) = ln(d (1 − t)) + (j − 1) ln t`; for a level `Λ` a pixel keeps
+//!    `1 + n(Λ)` fragments, `n(Λ)` = the `j ≥ 2` with `ln g(j) > Λ`, at most `c − 1`;
+//! 2. bisect `Λ` (64 rounds, sums over fixed chunks of pixels added in order) for the highest
+//!    level at which `Σ n ≤ R`;
+//! 3. the units left go to the pixels whose next fragment is worth most (ties to the lower pixel
+//!    index), one each;
+//! 4. pixels whose fragments are worth nothing (`d = 0`, `t = 0` or `t = 1`) take what is still
+//!    left, in pixel order, up to their counts, so `Σ k = M'` whenever fragments remain.
+//!
+//! The result depends only on the counts, the sums and `M`: the same for any thread count.
+
+use rayon::prelude::*;
+
+use super::allocate::Allocation;
+
+/// Pixels per parallel work item.
+const PIXELS_PER_TASK: usize = 8 * 1024;
+
+/// Bisection rounds on the level.
+const ROUNDS: u32 = 64;
+
+/// One pixel's model: `ln g(2) = ln(d (1 − t) t)` and `ln t` (`-inf` where a fragment beyond
+/// the first is worth nothing).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Worth {
+    /// `ln(d · (1 − t) · t)`: the worth of the second fragment.
+    pub log_first: f64,
+    /// `ln t`, the worth's fall per fragment (≤ 0).
+    pub log_fall: f64,
+    /// `d`: what the pixel shows against the background (the worth of its first fragment).
+    pub contrast: f64,
+}
+
+impl Worth {
+    /// The model of a pixel of mean colour `mean`, mean opacity `mean_alpha`, on `background`.
+    pub fn new(mean: [f32; 3], mean_alpha: f32, background: [f32; 3]) -> Worth {
+        let d = (0..3)
+            .map(|c| f64::from(mean[c] - background[c]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let t = f64::from(1.0 - mean_alpha.clamp(0.0, 1.0));
+        Worth {
+            log_first: (d * (1.0 - t)).ln() + t.ln(),
+            log_fall: t.ln(),
+            contrast: d,
+        }
+    }
+
+    /// Whether fragments beyond the first are worth anything.
+    fn worthwhile(&self) -> bool {
+        self.log_first.is_finite() && self.log_fall.is_finite() && self.log_fall < 0.0
+    }
+
+    /// `ln g(j)` of the `(extra + 2)`-th fragment.
+    fn log_worth(&self, extra: u32) -> f64 {
+        self.log_first + f64::from(extra) * self.log_fall
+    }
+
+    /// Fragments beyond the first worth more than `level` (`ln`), at most `room`.
+    fn extra_above(&self, level: f64, room: u32) -> u32 {
+        if room == 0 || !self.worthwhile() || self.log_first <= level {
+            return 0;
+        }
+        // j − 1 = 1 + i for i = 0, 1, …: ln g = log_first + i·log_fall > level.
+        let i = ((level - self.log_first) / self.log_fall).ceil();
+        // `i` fragments (0 … i − 1) are above the level.
+        let n = if i.is_finite() { i.max(0.0) } else { 0.0 };
+        (n.min(f64::from(room))) as u32
+    }
+}
+
+/// Computes `k` (resized to `counts.len()`) from the fragment `counts`, each pixel's [`Worth`]
+/// and a `budget` of fragments; see the module docs.
+pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>) -> Allocation {
+    assert_eq!(counts.len(), worth.len(), "one worth per pixel");
+    let pixels = counts.len();
+    k.clear();
+    k.resize(pixels, 0);
+    let total: u64 = counts
+        .par_chunks(PIXELS_PER_TASK)
+        .map(|c| c.iter().map(|&n| u64::from(n)).sum::<u64>())
+        .collect::<Vec<u64>>()
+        .iter()
+        .sum();
+    let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
+    let target = budget.min(total);
+    let mut allocation = Allocation {
+        budget,
+        total,
+        covered,
+        sum: target,
+        rounds: 0,
+    };
+    if target == total {
+        k.copy_from_slice(counts);
+        return allocation;
+    }
+    if target < covered {
+        // The pixels that show most against the background get one.
+        let mut order: Vec<usize> = (0..pixels).filter(|&p| counts[p] > 0).collect();
+        let key = |&p: &usize| (std::cmp::Reverse(OrderedWorth(worth[p].contrast)), p);
+        let n = target as usize;
+        if n > 0 && n < order.len() {
+            order.select_nth_unstable_by_key(n - 1, key);
+        }
+        for &p in order.iter().take(n) {
+            k[p] = 1;
+        }
+        return allocation;
+    }
+    for (kp, &c) in k.iter_mut().zip(counts) {
+        *kp = u32::from(c > 0);
+    }
+    let mut rest = target - covered;
+    let extra_at = |level: f64| -> u64 {
+        counts
+            .par_chunks(PIXELS_PER_TASK)
+            .zip(worth.par_chunks(PIXELS_PER_TASK))
+            .map(|(c, w)| {
+                c.iter()
+                    .zip(w)
+                    .map(|(&c, w)| u64::from(w.extra_above(level, c.saturating_sub(1))))
+                    .sum::<u64>()
+            })
+            .collect::<Vec<u64>>()
+            .iter()
+            .sum()
+    };
+    // The level's range: the worth of every second fragment lies below `hi`; `lo` lets every
+    // worthwhile fragment in.
+    let deepest = counts.iter().copied().max().unwrap_or(0);
+    let finite = worth.iter().filter(|w| w.worthwhile());
+    let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| {
+        let last = w.log_worth(deepest);
+        (lo.min(last), hi.max(w.log_first))
+    });
+    if hi.is_finite() {
+        lo -= 1.0;
+        if extra_at(lo) <= rest {
+            hi = lo;
+        } else {
+            // Invariant: extra_at(hi) ≤ rest < extra_at(lo).
+            for _ in 0..ROUNDS {
+                let mid = 0.5 * (lo + hi);
+                if mid <= lo || mid >= hi {
+                    break;
+                }
+                allocation.rounds += 1;
+                if extra_at(mid) <= rest {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+        }
+        let level = hi;
+        let given: Vec<u64> = k
+            .par_chunks_mut(PIXELS_PER_TASK)
+            .zip(counts.par_chunks(PIXELS_PER_TASK))
+            .zip(worth.par_chunks(PIXELS_PER_TASK))
+            .map(|((k, c), w)| {
+                let mut sum = 0;
+                for ((k, &c), w) in k.iter_mut().zip(c).zip(w) {
+                    let n = w.extra_above(level, c.saturating_sub(1));
+                    *k += n;
+                    sum += u64::from(n);
+                }
+                sum
+            })
+            .collect();
+        rest -= given.iter().sum::<u64>();
+        // The units left: to the pixels whose next fragment is worth most.
+        if rest > 0 {
+            let mut next: Vec<(OrderedWorth, usize)> = (0..pixels)
+                .filter(|&p| k[p] > 0 && k[p] < counts[p] && worth[p].worthwhile())
+                .map(|p| (OrderedWorth(worth[p].log_worth(k[p] - 1)), p))
+                .collect();
+            let n = (rest as usize).min(next.len());
+            let key = |e: &(OrderedWorth, usize)| (std::cmp::Reverse(e.0), e.1);
+            if n > 0 && n < next.len() {
+                next.select_nth_unstable_by_key(n - 1, key);
+            }
+            for &(_, p) in next.iter().take(n) {
+                k[p] += 1;
+            }
+            rest -= n as u64;
+        }
+    }
+    // Fragments worth nothing on the model fill what is left, in pixel order.
+    for p in 0..pixels {
+        if rest == 0 {
+            break;
+        }
+        let room = u64::from(counts[p] - k[p]);
+        let n = room.min(rest);
+        k[p] += n as u32;
+        rest -= n;
+    }
+    allocation
+}
+
+/// An `f64` ordered by `total_cmp` (the worths are never NaN: logs of non-negative numbers).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct OrderedWorth(f64);
+
+impl Eq for OrderedWorth {}
+
+impl PartialOrd for OrderedWorth {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for OrderedWorth {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn worth(d: f64, t: f64) -> Worth {
+        Worth {
+            log_first: (d * (1.0 - t)).ln() + t.ln(),
+            log_fall: t.ln(),
+            contrast: d,
+        }
+    }
+
+    /// The greedy answer by brute force: hand out the slots one at a time to the largest worth.
+    fn greedy(counts: &[u32], w: &[Worth], rest: u64) -> Vec<u32> {
+        let mut k: Vec<u32> = counts.iter().map(|&c| u32::from(c > 0)).collect();
+        for _ in 0..rest {
+            let best = (0..counts.len())
+                .filter(|&p| k[p] > 0 && k[p] < counts[p] && w[p].worthwhile())
+                .max_by(|&a, &b| {
+                    w[a].log_worth(k[a] - 1)
+                        .total_cmp(&w[b].log_worth(k[b] - 1))
+                        .then(b.cmp(&a))
+                });
+            match best {
+                Some(p) => k[p] += 1,
+                None => {
+                    if let Some(p) = (0..counts.len()).find(|&p| k[p] < counts[p]) {
+                        k[p] += 1;
+                    }
+                }
+            }
+        }
+        k
+    }
+
+    #[test]
+    fn fragments_go_where_they_are_worth_most() {
+        // Pixel 0: faint glass (t = 0.9), pixel 1: dense layers (t = 0.2), same contrast.
+        let counts = [6, 6];
+        let w = [worth(1.0, 0.9), worth(1.0, 0.2)];
+        let mut k = Vec::new();
+        let a = analytic_k(&counts, &w, 6, &mut k);
+        assert_eq!(a.sum, 6);
+        assert_eq!(k.iter().sum::<u32>(), 6);
+        // g(2), g(3), … for t = 0.2: 0.16, 0.032, …; for t = 0.9: 0.09, 0.081, 0.0729, … — the
+        // dense pixel takes its second (0.16), the faint one the next three before the dense
+        // pixel's third (0.032).
+        assert_eq!(k, vec![4, 2]);
+        assert_eq!(k, greedy(&counts, &w, 4));
+    }
+
+    #[test]
+    fn below_one_per_covered_pixel_the_most_visible_pixels_win() {
+        let counts = [3, 0, 2, 5];
+        let w = [
+            worth(0.2, 0.5),
+            worth(0.0, 0.5),
+            worth(0.9, 0.5),
+            worth(0.5, 0.5),
+        ];
+        let mut k = Vec::new();
+        analytic_k(&counts, &w, 2, &mut k);
+        assert_eq!(k, vec![0, 0, 1, 1]);
+    }
+
+    #[test]
+    fn worthless_fragments_still_use_the_budget() {
+        // Opaque layers (t = 0) and an empty-contrast pixel: nothing beyond the first is worth
+        // anything, but Σk must reach min(M, N).
+        let counts = [3, 4];
+        let w = [worth(1.0, 0.0), worth(0.0, 0.5)];
+        let mut k = Vec::new();
+        let a = analytic_k(&counts, &w, 5, &mut k);
+        assert_eq!((a.sum, k.iter().sum::<u32>()), (5, 5));
+        assert_eq!(k, vec![3, 2]);
+    }
+
+    proptest! {
+        #[test]
+        fn the_rules_hold_and_the_result_is_the_greedy_one(
+            pixels in prop::collection::vec((0u32..7, 0.0f64..1.5, 0.0f64..1.0), 1..40),
+            share in 0.0f64..1.2,
+        ) {
+            let counts: Vec<u32> = pixels.iter().map(|p| p.0).collect();
+            let w: Vec<Worth> = pixels.iter().map(|p| worth(p.1, p.2)).collect();
+            let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+            let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
+            let budget = (share * total as f64) as u64;
+            let mut k = Vec::new();
+            let a = analytic_k(&counts, &w, budget, &mut k);
+            let sum: u64 = k.iter().map(|&x| u64::from(x)).sum();
+            prop_assert_eq!(sum, budget.min(total));
+            prop_assert_eq!(a.sum, budget.min(total));
+            for p in 0..counts.len() {
+                prop_assert!(k[p] <= counts[p]);
+                if budget.min(total) >= covered && counts[p] > 0 {
+                    prop_assert!(k[p] >= 1);
+                }
+            }
+            if budget.min(total) >= covered && budget < total {
+                prop_assert_eq!(&k, &greedy(&counts, &w, budget - covered));
+            }
+        }
+    }
+}
