@@ -25,6 +25,55 @@ impl PixelRect {
         }
     }
 
+    /// The pixels of a `width × height` frame that clip-space points `[x, y, z, w]` project to,
+    /// grown by `margin` pixels on every side (rounding, and the rasterizer's fill rule) and
+    /// clipped to the frame; an empty rectangle for no points; `None` when a point lies at or
+    /// behind the eye (`w ≤ 10⁻⁶` or NaN), whose projection is unbounded. Row 0 is on top.
+    ///
+    /// ```
+    /// use strata_core::PixelRect;
+    /// // The centre of a 10 × 10 frame, one pixel of margin.
+    /// let r = PixelRect::around_clip_points([[0.0, 0.0, 0.5, 1.0]], 10, 10, 1.0);
+    /// assert_eq!(r, Some(PixelRect { x: 4, y: 4, width: 2, height: 2 }));
+    /// assert_eq!(PixelRect::around_clip_points([[0.0, 0.0, 0.5, -1.0]], 10, 10, 1.0), None);
+    /// ```
+    pub fn around_clip_points(
+        points: impl IntoIterator<Item = [f32; 4]>,
+        width: u32,
+        height: u32,
+        margin: f32,
+    ) -> Option<PixelRect> {
+        let (w, h) = (width as f32, height as f32);
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for [cx, cy, _, cw] in points {
+            if cw.is_nan() || cw <= 1e-6 {
+                return None;
+            }
+            let (x, y) = ((cx / cw + 1.0) * 0.5 * w, (1.0 - cy / cw) * 0.5 * h);
+            lo = [lo[0].min(x), lo[1].min(y)];
+            hi = [hi[0].max(x), hi[1].max(y)];
+        }
+        if !(lo[0] <= hi[0] && lo[1] <= hi[1]) {
+            // No points (or NaN positions): nothing is drawn.
+            return Some(PixelRect::default());
+        }
+        let clamp = |v: f32, max: f32| v.clamp(0.0, max) as u32;
+        let (x0, y0) = (
+            clamp((lo[0] - margin).floor(), w),
+            clamp((lo[1] - margin).floor(), h),
+        );
+        let (x1, y1) = (
+            clamp((hi[0] + margin).ceil(), w),
+            clamp((hi[1] + margin).ceil(), h),
+        );
+        Some(PixelRect {
+            x: x0,
+            y: y0,
+            width: x1 - x0,
+            height: y1 - y0,
+        })
+    }
+
     /// Pixels in the rectangle.
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize

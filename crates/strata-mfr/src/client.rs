@@ -6,7 +6,7 @@
 //! with, so that the two DeepFrames' depths and shading agree to the bit (the headlight depends on
 //! the eye) and merging their runs is exact.
 
-use glam::{Mat4, Vec3, Vec4};
+use glam::{Mat4, Vec3};
 use strata_core::{DeepFrame, PixelRect};
 use strata_raster::{DrawObject, FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
@@ -170,49 +170,23 @@ impl Client {
         indices: &[usize],
     ) -> Option<PixelRect> {
         let clip = self.projection(scene) * view.matrix();
-        let (w, h) = (self.width as f32, self.height as f32);
-        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        let mut corners = Vec::with_capacity(8 * indices.len());
         for &i in indices {
             let b = scene.objects.get(i)?.mesh.bounds();
             if b.is_empty() {
                 continue;
             }
             let to_clip = clip * snapshot.model(scene, i);
-            for k in 0..8 {
+            corners.extend((0..8).map(|k| {
                 let corner = Vec3::new(
                     if k & 1 == 0 { b.min.x } else { b.max.x },
                     if k & 2 == 0 { b.min.y } else { b.max.y },
                     if k & 4 == 0 { b.min.z } else { b.max.z },
                 );
-                let c: Vec4 = to_clip * corner.extend(1.0);
-                if c.w.is_nan() || c.w <= 1e-6 {
-                    return None;
-                }
-                // Row 0 on top.
-                let (x, y) = ((c.x / c.w + 1.0) * 0.5 * w, (1.0 - c.y / c.w) * 0.5 * h);
-                lo = [lo[0].min(x), lo[1].min(y)];
-                hi = [hi[0].max(x), hi[1].max(y)];
-            }
+                (to_clip * corner.extend(1.0)).to_array()
+            }));
         }
-        if lo[0] > hi[0] {
-            // Nothing to draw: an empty rectangle holds every (no) fragment.
-            return Some(PixelRect::default());
-        }
-        let clamp = |v: f32, max: f32| (v.clamp(0.0, max)) as u32;
-        let (x0, y0) = (
-            clamp((lo[0] - FOOTPRINT_MARGIN).floor(), w),
-            clamp((lo[1] - FOOTPRINT_MARGIN).floor(), h),
-        );
-        let (x1, y1) = (
-            clamp((hi[0] + FOOTPRINT_MARGIN).ceil(), w),
-            clamp((hi[1] + FOOTPRINT_MARGIN).ceil(), h),
-        );
-        Some(PixelRect {
-            x: x0,
-            y: y0,
-            width: x1 - x0,
-            height: y1 - y0,
-        })
+        PixelRect::around_clip_points(corners, self.width, self.height, FOOTPRINT_MARGIN)
     }
 
     /// Rasterises the objects at `indices` into the store.

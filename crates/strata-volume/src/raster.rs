@@ -289,35 +289,11 @@ fn footprint(
     width: u32,
     height: u32,
 ) -> Option<PixelRect> {
-    let (w, h) = (width as f32, height as f32);
-    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
-    for p in meshes.iter().flat_map(|m| &m.positions) {
-        let c = *view_proj * Vec3::from(*p).extend(1.0);
-        if c.w.is_nan() || c.w <= 1e-6 {
-            return None;
-        }
-        let (x, y) = ((c.x / c.w + 1.0) * 0.5 * w, (1.0 - c.y / c.w) * 0.5 * h);
-        lo = [lo[0].min(x), lo[1].min(y)];
-        hi = [hi[0].max(x), hi[1].max(y)];
-    }
-    if lo[0] > hi[0] {
-        return Some(PixelRect::default());
-    }
-    let clamp = |v: f32, max: f32| v.clamp(0.0, max) as u32;
-    let (x0, y0) = (
-        clamp((lo[0] - FOOTPRINT_MARGIN).floor(), w),
-        clamp((lo[1] - FOOTPRINT_MARGIN).floor(), h),
-    );
-    let (x1, y1) = (
-        clamp((hi[0] + FOOTPRINT_MARGIN).ceil(), w),
-        clamp((hi[1] + FOOTPRINT_MARGIN).ceil(), h),
-    );
-    Some(PixelRect {
-        x: x0,
-        y: y0,
-        width: x1 - x0,
-        height: y1 - y0,
-    })
+    let points = meshes
+        .iter()
+        .flat_map(|m| &m.positions)
+        .map(|p| (*view_proj * Vec3::from(*p).extend(1.0)).to_array());
+    PixelRect::around_clip_points(points, width, height, FOOTPRINT_MARGIN)
 }
 
 #[cfg(test)]
