@@ -1,6 +1,10 @@
 //! The ray caster against the analytic slab, and the FC's stencil re-cast against the single
 //! renderer.
 
+mod common;
+
+use common::ramp;
+
 use glam::{Mat4, Vec3};
 use strata_volume::cast::{CastParams, Caster, Ray, VolumeBox};
 use strata_volume::geometry::{Shape, Solid, well_path};
@@ -126,30 +130,6 @@ fn a_shortened_ray_takes_exactly_the_first_samples_of_the_full_ray() {
     }
     assert_eq!(t.to_bits(), full.transmittance.to_bits());
     assert_eq!(c.map(f32::to_bits), full.color.map(f32::to_bits));
-}
-
-fn ramp() -> TransferFunction {
-    TransferFunction::new(
-        vec![
-            TfPoint {
-                value: 0.1,
-                color: [0.2, 0.3, 0.8],
-                alpha: 0.0,
-            },
-            TfPoint {
-                value: 0.5,
-                color: [0.9, 0.6, 0.4],
-                alpha: 0.5,
-            },
-            TfPoint {
-                value: 0.9,
-                color: [1.0, 1.0, 0.9],
-                alpha: 0.95,
-            },
-        ],
-        0.2,
-    )
-    .expect("valid")
 }
 
 fn scene() -> VolumeScene {

@@ -2,6 +2,10 @@
 //! sorted fragments, against the analytic slab and against the opaque-only cast, and the FC's
 //! stencil re-cast with translucent objects on both clients against the single renderer.
 
+mod common;
+
+use common::ramp;
+
 use glam::{Mat4, Vec3};
 use strata_volume::cast::{CastParams, Caster, Ray, VolumeBox, camera_rays, over_geometry};
 use strata_volume::fragments::{FragmentLayer, RayFragment};
@@ -146,30 +150,6 @@ fn fragments_given_in_any_order_give_the_same_pixel_bit_for_bit() {
     let opaque = FragmentLayer::from_lists(vec![vec![frag(3.3, [1.0; 3], 1.0)]]);
     let without = over_geometry(&caster.cast_through(&ray, opaque.run(0)), BACKGROUND);
     assert_ne!(without, reference);
-}
-
-fn ramp() -> TransferFunction {
-    TransferFunction::new(
-        vec![
-            TfPoint {
-                value: 0.1,
-                color: [0.2, 0.3, 0.8],
-                alpha: 0.0,
-            },
-            TfPoint {
-                value: 0.5,
-                color: [0.9, 0.6, 0.4],
-                alpha: 0.5,
-            },
-            TfPoint {
-                value: 0.9,
-                color: [1.0, 1.0, 0.9],
-                alpha: 0.95,
-            },
-        ],
-        0.2,
-    )
-    .expect("valid")
 }
 
 fn floor() -> Solid {

@@ -2,12 +2,15 @@
 //! analytic surfaces, and the FC's stencil re-cast over rasterized fragments — a translucent static
 //! sheet, a translucent interactive tube and the opaque path — against the single renderer.
 
+mod common;
+
+use common::ramp;
+
 use glam::{Mat4, Vec3};
 use strata_volume::cast::{CastParams, VolumeBox};
 use strata_volume::geometry::{Glass, Shape, Solid, fragment_layer, well_path};
 use strata_volume::raster::{FragmentRaster, meshes};
 use strata_volume::stencil::{Renderer, VolumeScene};
-use strata_volume::transfer::{TfPoint, TransferFunction};
 use strata_volume::volume::Volume;
 
 const W: u32 = 64;
@@ -19,30 +22,6 @@ fn view() -> Mat4 {
 
 fn projection() -> Mat4 {
     Mat4::perspective_rh_gl(0.9, W as f32 / H as f32, 0.1, 20.0)
-}
-
-fn ramp() -> TransferFunction {
-    TransferFunction::new(
-        vec![
-            TfPoint {
-                value: 0.1,
-                color: [0.2, 0.3, 0.8],
-                alpha: 0.0,
-            },
-            TfPoint {
-                value: 0.5,
-                color: [0.9, 0.6, 0.4],
-                alpha: 0.5,
-            },
-            TfPoint {
-                value: 0.9,
-                color: [1.0, 1.0, 0.9],
-                alpha: 0.95,
-            },
-        ],
-        0.2,
-    )
-    .expect("valid")
 }
 
 fn sheet() -> Glass {
