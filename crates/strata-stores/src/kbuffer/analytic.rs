@@ -98,6 +98,9 @@ impl Worth {
 
 /// Computes `k` (resized to `counts.len()`) from the fragment `counts`, each pixel's [`Worth`]
 /// and a `budget` of fragments; see the module docs.
+///
+/// # Panics
+/// If `worth` does not hold one model per pixel of `counts` (a caller's bug, not an input).
 pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>) -> Allocation {
     assert_eq!(counts.len(), worth.len(), "one worth per pixel");
     let pixels = counts.len();
