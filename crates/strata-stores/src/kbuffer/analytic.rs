@@ -27,10 +27,12 @@
 //!
 //! 1. in log space, `ln g(j) = ln(d (1 − t)) + (j − 1) ln t`; for a level `Λ` a pixel keeps
 //!    `1 + n(Λ)` fragments, `n(Λ)` = the `j ≥ 2` with `ln g(j) > Λ`, at most `c − 1`;
-//! 2. bisect `Λ` (64 rounds, sums over fixed chunks of pixels added in order) for the highest
-//!    level at which `Σ n ≤ R`;
+//! 2. bisect `Λ` (sums over fixed chunks of the candidate pixels — those with room whose
+//!    fragments are worth something — added in order) for a level at which `Σ n ≤ R`: until
+//!    `Σ n = R` exactly, or the bracket is narrower than the smallest `|ln t|` (then no pixel has
+//!    two fragments worth between its ends), or 64 rounds;
 //! 3. the units left go to the pixels whose next fragment is worth most (ties to the lower pixel
-//!    index), one each;
+//!    index), one each — with the bracket of step 2, exactly the greedy choice;
 //! 4. pixels whose fragments are worth nothing (`d = 0`, `t = 0` or `t = 1`) take what is still
 //!    left, in pixel order, up to their counts, so `Σ k = M'` whenever fragments remain.
 //!
@@ -65,7 +67,12 @@ impl Worth {
             .map(|c| f64::from(mean[c] - background[c]).powi(2))
             .sum::<f64>()
             .sqrt();
-        let t = f64::from(1.0 - mean_alpha.clamp(0.0, 1.0));
+        Worth::from_curve(d, f64::from(1.0 - mean_alpha.clamp(0.0, 1.0)))
+    }
+
+    /// The model of a pixel whose error curve is `ê(k) = d · t^k` (`d ≥ 0`, `t` in `[0, 1]`).
+    pub fn from_curve(d: f64, t: f64) -> Worth {
+        let t = t.clamp(0.0, 1.0);
         Worth {
             log_first: (d * (1.0 - t)).ln() + t.ln(),
             log_fall: t.ln(),
@@ -142,67 +149,100 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
         *kp = u32::from(c > 0);
     }
     let mut rest = target - covered;
+    // The candidates: pixels with room for more whose fragments are worth something, in pixel
+    // order (gathered over fixed chunks, so the list is the same for any thread count).
+    let candidates: Vec<Candidate> = counts
+        .par_chunks(PIXELS_PER_TASK)
+        .zip(worth.par_chunks(PIXELS_PER_TASK))
+        .enumerate()
+        .map(|(chunk, (c, w))| {
+            let first = chunk * PIXELS_PER_TASK;
+            c.iter()
+                .zip(w)
+                .enumerate()
+                .filter(|(_, (c, w))| **c > 1 && w.worthwhile())
+                .map(|(i, (&c, &w))| Candidate {
+                    worth: w,
+                    room: c - 1,
+                    pixel: (first + i) as u32,
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect::<Vec<_>>()
+        .concat();
     let extra_at = |level: f64| -> u64 {
-        counts
+        candidates
             .par_chunks(PIXELS_PER_TASK)
-            .zip(worth.par_chunks(PIXELS_PER_TASK))
-            .map(|(c, w)| {
+            .map(|c| {
                 c.iter()
-                    .zip(w)
-                    .map(|(&c, w)| u64::from(w.extra_above(level, c.saturating_sub(1))))
+                    .map(|c| u64::from(c.extra_above(level)))
                     .sum::<u64>()
             })
             .collect::<Vec<u64>>()
             .iter()
             .sum()
     };
-    // The level's range: the worth of every second fragment lies below `hi`; `lo` lets every
-    // worthwhile fragment in.
-    let deepest = counts.iter().copied().max().unwrap_or(0);
-    let finite = worth.iter().filter(|w| w.worthwhile());
-    let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), w| {
-        let last = w.log_worth(deepest);
-        (lo.min(last), hi.max(w.log_first))
-    });
+    // The level's range: every candidate's second fragment is worth at most `hi`; below `lo`
+    // every fragment of every candidate is in.
+    let (mut lo, mut hi) =
+        candidates
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), c| {
+                (
+                    lo.min(c.worth.log_worth(c.room - 1)),
+                    hi.max(c.worth.log_first),
+                )
+            });
     if hi.is_finite() {
         lo -= 1.0;
         if extra_at(lo) <= rest {
             hi = lo;
         } else {
-            // Invariant: extra_at(hi) ≤ rest < extra_at(lo).
+            // Invariant: extra_at(hi) ≤ rest < extra_at(lo). A level with exactly `rest`
+            // fragments above it ends the search: those are the `rest` worth most. So does a
+            // bracket narrower than the smallest fall: then no pixel has two fragments worth
+            // between `lo` and `hi`, and giving the units left one each to the pixels whose
+            // next fragment is worth most (below) is the greedy choice.
+            let narrowest = candidates
+                .iter()
+                .map(|c| -c.worth.log_fall)
+                .fold(f64::INFINITY, f64::min);
             for _ in 0..ROUNDS {
+                if hi - lo < narrowest {
+                    break;
+                }
                 let mid = 0.5 * (lo + hi);
                 if mid <= lo || mid >= hi {
                     break;
                 }
                 allocation.rounds += 1;
-                if extra_at(mid) <= rest {
+                let above = extra_at(mid);
+                if above <= rest {
                     hi = mid;
+                    if above == rest {
+                        break;
+                    }
                 } else {
                     lo = mid;
                 }
             }
         }
         let level = hi;
-        let given: Vec<u64> = k
-            .par_chunks_mut(PIXELS_PER_TASK)
-            .zip(counts.par_chunks(PIXELS_PER_TASK))
-            .zip(worth.par_chunks(PIXELS_PER_TASK))
-            .map(|((k, c), w)| {
-                let mut sum = 0;
-                for ((k, &c), w) in k.iter_mut().zip(c).zip(w) {
-                    let n = w.extra_above(level, c.saturating_sub(1));
-                    *k += n;
-                    sum += u64::from(n);
-                }
-                sum
+        let given: u64 = candidates
+            .iter()
+            .map(|c| {
+                let n = c.extra_above(level);
+                k[c.pixel as usize] += n;
+                u64::from(n)
             })
-            .collect();
-        rest -= given.iter().sum::<u64>();
+            .sum();
+        rest -= given;
         // The units left: to the pixels whose next fragment is worth most.
         if rest > 0 {
-            let mut next: Vec<(OrderedWorth, usize)> = (0..pixels)
-                .filter(|&p| k[p] > 0 && k[p] < counts[p] && worth[p].worthwhile())
+            let mut next: Vec<(OrderedWorth, usize)> = candidates
+                .iter()
+                .map(|c| c.pixel as usize)
+                .filter(|&p| k[p] < counts[p])
                 .map(|p| (OrderedWorth(worth[p].log_worth(k[p] - 1)), p))
                 .collect();
             let n = (rest as usize).min(next.len());
@@ -227,6 +267,21 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
         rest -= n;
     }
     allocation
+}
+
+/// A pixel with room for fragments beyond its first that are worth something.
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    worth: Worth,
+    room: u32,
+    pixel: u32,
+}
+
+impl Candidate {
+    #[inline]
+    fn extra_above(&self, level: f64) -> u32 {
+        self.worth.extra_above(level, self.room)
+    }
 }
 
 /// An `f64` ordered by `total_cmp` (the worths are never NaN: logs of non-negative numbers).
@@ -326,6 +381,27 @@ mod tests {
     }
 
     proptest! {
+        /// Few distinct models, so many pixels tie (one material over a whole mesh).
+        #[test]
+        fn ties_give_the_greedy_result_too(
+            pixels in prop::collection::vec((0u32..9, 0usize..2, 0usize..3), 1..60),
+            share in 0.0f64..1.0,
+        ) {
+            let counts: Vec<u32> = pixels.iter().map(|p| p.0).collect();
+            let w: Vec<Worth> = pixels
+                .iter()
+                .map(|p| worth([0.5, 1.0][p.1], [0.3, 0.6, 0.95][p.2]))
+                .collect();
+            let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+            let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
+            let budget = (share * total as f64) as u64;
+            let mut k = Vec::new();
+            analytic_k(&counts, &w, budget, &mut k);
+            if budget >= covered && budget < total {
+                prop_assert_eq!(&k, &greedy(&counts, &w, budget - covered));
+            }
+        }
+
         #[test]
         fn the_rules_hold_and_the_result_is_the_greedy_one(
             pixels in prop::collection::vec((0u32..7, 0.0f64..1.5, 0.0f64..1.0), 1..40),
