@@ -53,6 +53,8 @@ enum Command {
     Bench(cmd::bench::Args),
     // About: `cmd::dataset::Args`'s doc comment.
     Dataset(cmd::dataset::Args),
+    // About: `cmd::learn::Args`'s doc comment.
+    Learn(cmd::learn::Args),
     /// Compare methods on a scene: per-pass times, memory, RMSE, FLIP, bad pixels, heat maps.
     Compare(cmd::compare::Args),
     /// List the built-in scenes, or print one as a scene file.
@@ -168,6 +170,7 @@ fn main() -> ExitCode {
             Command::Bench(a) => cmd::bench::run(a),
             Command::Compare(a) => cmd::compare::run(a),
             Command::Dataset(a) => cmd::dataset::run(a),
+            Command::Learn(a) => cmd::learn::run(a),
             Command::Scenes(a) => cmd::scenes::run(a),
             Command::Methods(a) => cmd::methods::run(a),
             Command::TfssSim(a) => cmd::tfss_sim::run(a),

@@ -45,11 +45,17 @@ pub(crate) struct MethodParams {
     #[arg(long, default_value = "50%", value_parser = |s: &str| s.parse::<Budget>())]
     pub(crate) budget: Budget,
 
-    /// vkbuffer: where k(p) comes from — `importance` maps, the `optimal` (Optimal-K) oracle, or
+    /// vkbuffer: where k(p) comes from — `importance` maps, the `optimal` (Optimal-K) oracle,
     /// `analytic` (water-filling an error model of each pixel's layers from their mean colour and
-    /// opacity, gathered in the counting pass: no learning).
+    /// opacity, gathered in the counting pass: no learning), or `learned` (a small network's
+    /// importance from per-pixel features of the counting pass; see --weights).
     #[arg(long, default_value = "importance", value_parser = |s: &str| s.parse::<KFrom>())]
     pub(crate) k_from: KFrom,
+
+    /// vkbuffer with `--k-from learned`: a weights file written by `strata learn train`
+    /// (default: the weights built into strata; `strata learn info` describes them).
+    #[arg(long, value_name = "FILE", value_parser = parse_weights)]
+    pub(crate) weights: Option<std::sync::Arc<strata_stores::kbuffer::LearnedModel>>,
 
     /// vkbuffer importance: periphery fall-off exponent d, greater than 0 and at most 64.
     #[arg(long, default_value_t = 2.0, value_parser = opt::parse_periphery_exponent)]
@@ -95,6 +101,13 @@ pub(crate) struct MethodParams {
     pub(crate) given: Vec<&'static str>,
 }
 
+/// Reads `--weights FILE`.
+fn parse_weights(s: &str) -> Result<std::sync::Arc<strata_stores::kbuffer::LearnedModel>, String> {
+    strata_stores::kbuffer::LearnedModel::read(std::path::Path::new(s))
+        .map(std::sync::Arc::new)
+        .map_err(|e| e.to_string())
+}
+
 /// The method options `matches` (one subcommand's) got from the command line, by name.
 pub(crate) fn given_method_options(matches: &clap::ArgMatches) -> Vec<&'static str> {
     opt::OPTION_NAMES
@@ -130,6 +143,7 @@ impl MethodParams {
             leading_zeros: self.leading_zeros,
             max_layers: self.max_layers,
             features: false,
+            weights: self.weights.clone(),
         }
     }
 

@@ -20,6 +20,7 @@
 //! | `k_opt` | the oracle's k, fragments |
 //! | `kept_fraction` | `(k_opt − 1)/(count − 1)` for count ≥ 2 (0 if `k_opt` = 0, possible only when `M` < covered pixels); `k_opt` for count = 1 |
 //! | `seed_label` | `k_opt / N`, the thesis's label (Tsopouridis 2021 Alg. 23 line 19) |
+//! | `error_1` … `error_8` | `e(k) = ‖C(k) − C(count)‖`: how far the pixel's colour with its `k` nearest fragments is from its full colour (RGB, Euclidean, over the background; 0 for `k ≥ count`): the truncation-error curve, the same at every budget |
 //!
 //! # Files ([`Dataset::write`])
 //!
@@ -38,6 +39,7 @@ use std::path::Path;
 
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
+use strata_core::composite;
 use strata_core::npy::{self, NpyData};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::{Camera, Scene};
@@ -51,10 +53,25 @@ use strata_stores::regions::{Policy, RegionCapture, Regions};
 use crate::procedural::mix;
 
 /// Name and version of the dataset layout.
-pub const DATASET_FORMAT: &str = "strata-dataset-1";
+pub const DATASET_FORMAT: &str = "strata-dataset-2";
 
 /// The label columns, in order; see the module docs.
-pub const LABELS: [&str; 3] = ["k_opt", "kept_fraction", "seed_label"];
+pub const LABELS: [&str; 3 + CURVE_LEN] = [
+    "k_opt",
+    "kept_fraction",
+    "seed_label",
+    "error_1",
+    "error_2",
+    "error_3",
+    "error_4",
+    "error_5",
+    "error_6",
+    "error_7",
+    "error_8",
+];
+
+/// Points of the truncation-error curve in the labels (`error_1` … `error_8`).
+pub const CURVE_LEN: usize = 8;
 
 /// Why a dataset could not be made or written.
 #[derive(Debug, thiserror::Error)]
@@ -219,13 +236,33 @@ fn sample(counts: &[u32], cap: Option<usize>, seed: u64, frame: u32) -> Vec<u32>
 }
 
 /// The label row of a pixel with `count` fragments and oracle `k` in a frame of `total`.
-fn labels(count: u32, k: u32, total: u64) -> [f32; 3] {
+fn labels(count: u32, k: u32, total: u64, curve: &[f32; CURVE_LEN]) -> [f32; LABELS.len()] {
     let kept = if count >= 2 {
         k.saturating_sub(1) as f32 / (count - 1) as f32
     } else {
         k as f32
     };
-    [k as f32, kept, k as f32 / total.max(1) as f32]
+    let mut out = [0.0; LABELS.len()];
+    out[..3].copy_from_slice(&[k as f32, kept, k as f32 / total.max(1) as f32]);
+    out[3..].copy_from_slice(curve);
+    out
+}
+
+/// The truncation-error curve of pixel `p` of the sorted `regions` on `background`:
+/// `e(k) = ‖C(k) − C(all)‖` for `k = 1 … CURVE_LEN` (0 once `k` reaches the pixel's count).
+fn error_curve(regions: &Regions, p: usize, background: [f32; 3]) -> [f32; CURVE_LEN] {
+    let run = regions.stored(p);
+    let colour =
+        |k: usize| composite::over_front_to_back(run[..k].iter().map(|f| f.color), background);
+    let full = colour(run.len());
+    std::array::from_fn(|i| {
+        let k = i + 1;
+        if k >= run.len() {
+            return 0.0;
+        }
+        let c = colour(k);
+        ((c[0] - full[0]).powi(2) + (c[1] - full[1]).powi(2) + (c[2] - full[2]).powi(2)).sqrt()
+    })
 }
 
 /// Reused buffers of the labelling passes.
@@ -313,14 +350,17 @@ impl Dataset {
             let budget = (total as f64 * b).floor() as u64;
             let frame = self.frames.len() as u32;
             buf.k = optimal_k(&buf.regions, input.background, budget);
-            let stats = buf.maps.compute(&buf.sums, buf.counts.counts(), budget);
+            let stats = buf
+                .maps
+                .compute(&buf.sums, buf.counts.counts(), budget, input.background);
             let counts = buf.counts.counts();
             let kept = sample(counts, self.spec.pixels_per_frame, self.spec.seed, frame);
             for &p in &kept {
                 let i = p as usize;
                 self.features.extend_from_slice(&buf.maps.pixel(i));
+                let curve = error_curve(&buf.regions, i, input.background);
                 self.labels
-                    .extend_from_slice(&labels(counts[i], buf.k[i], total));
+                    .extend_from_slice(&labels(counts[i], buf.k[i], total, &curve));
             }
             self.frame.extend(std::iter::repeat_n(frame, kept.len()));
             self.scene.extend(std::iter::repeat_n(scene, kept.len()));
@@ -452,9 +492,11 @@ mod tests {
         assert_eq!(family_of("dragon-res2"), "dragon");
         assert_eq!(family_of("dragon"), "dragon");
         assert_eq!(family_of("procedural-7"), "procedural");
-        assert_eq!(labels(5, 3, 100), [3.0, 0.5, 0.03]);
-        assert_eq!(labels(1, 1, 10), [1.0, 1.0, 0.1]);
-        assert_eq!(labels(4, 0, 10)[1], 0.0);
+        let curve = [0.5, 0.25, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(labels(5, 3, 100, &curve)[..3], [3.0, 0.5, 0.03]);
+        assert_eq!(labels(5, 3, 100, &curve)[3..], curve);
+        assert_eq!(labels(1, 1, 10, &curve)[..3], [1.0, 1.0, 0.1]);
+        assert_eq!(labels(4, 0, 10, &curve)[1], 0.0);
     }
 
     #[test]

@@ -115,6 +115,14 @@ fn labels_keep_the_oracles_guarantees() {
         assert!((0.0..=1.0).contains(&l[1]), "kept fraction {}", l[1]);
         assert_eq!(l[2], k / frame.fragments as f32);
         assert_eq!(f[share], frame.budget as f32 / frame.fragments as f32);
+        // The truncation-error curve: a colour distance, 0 once every fragment is kept.
+        for (i, &e) in l[3..].iter().enumerate() {
+            let kept = (i + 1) as f32;
+            assert!((0.0..=3f32.sqrt() + 1e-5).contains(&e), "e({kept}) = {e}");
+            if kept >= c {
+                assert_eq!(e, 0.0, "e({kept}) of a pixel of {c} fragments");
+            }
+        }
         sum_k[frame.id as usize] += k as u64;
     }
     for f in &data.frames {

@@ -97,7 +97,7 @@ fn main() {
                     }
                     KFrom::Optimal => times.1 = ms(&r.timings, "capture.k"),
                     // Not in this table (see docs/learned-k.md).
-                    KFrom::Analytic => {}
+                    KFrom::Analytic | KFrom::Learned => {}
                 }
             }
             println!(

@@ -42,6 +42,14 @@ pub enum OptionError {
         /// What it accepts.
         reason: BadValue,
     },
+    /// A weights file that cannot be read or used.
+    #[error("weights={path}: {reason}")]
+    Weights {
+        /// The file.
+        path: String,
+        /// Why it was refused.
+        reason: String,
+    },
 }
 
 /// Every option's name, as `--name` on the command line and `name=value` in a method spec.
@@ -61,6 +69,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "l-num",
     "leading-zeros",
     "max-layers",
+    "weights",
 ];
 
 /// The largest `k` and array size a store accepts: more than any pixel of the built-in scenes or
@@ -287,6 +296,9 @@ pub enum KFrom {
     /// Water-filling an analytic error model of each pixel's layers, from sums gathered in the
     /// counting pass ([`crate::kbuffer::analytic`]): no learning, the baseline a learned k must beat.
     Analytic,
+    /// A small network's importance from per-pixel features gathered in the counting pass
+    /// ([`crate::kbuffer::learned`]): the built-in weights, or [`MethodOptions::weights`].
+    Learned,
 }
 
 impl std::str::FromStr for KFrom {
@@ -297,8 +309,9 @@ impl std::str::FromStr for KFrom {
             "importance" => Ok(KFrom::Importance),
             "optimal" => Ok(KFrom::Optimal),
             "analytic" => Ok(KFrom::Analytic),
+            "learned" => Ok(KFrom::Learned),
             _ => Err(BadValue {
-                expected: "importance, optimal or analytic",
+                expected: "importance, optimal, analytic or learned",
             }),
         }
     }
@@ -364,6 +377,9 @@ pub struct MethodOptions {
     /// Variable k-buffer: also gather the per-pixel features of a learned k in the counting pass
     /// ([`crate::kbuffer::features`]); off by default, so the importance-map path pays nothing.
     pub features: bool,
+    /// Variable k-buffer with `--k-from learned`: the model; `None` uses the built-in weights
+    /// ([`crate::kbuffer::LearnedModel::builtin`]).
+    pub weights: Option<std::sync::Arc<crate::kbuffer::LearnedModel>>,
 }
 
 impl Default for MethodOptions {
@@ -380,6 +396,7 @@ impl Default for MethodOptions {
             leading_zeros: false,
             max_layers: 0,
             features: false,
+            weights: None,
         }
     }
 }
@@ -408,6 +425,15 @@ impl MethodOptions {
             return Ok(option);
         }
         let v = value.ok_or(OptionError::MissingValue { option })?;
+        if option == "weights" {
+            let model = crate::kbuffer::learned::LearnedModel::read(std::path::Path::new(v))
+                .map_err(|e| OptionError::Weights {
+                    path: v.to_owned(),
+                    reason: e.to_string(),
+                })?;
+            self.weights = Some(std::sync::Arc::new(model));
+            return Ok(option);
+        }
         let i = &mut self.importance;
         match option {
             "pool" => self.pool = v.parse().map_err(bad)?,

@@ -71,6 +71,9 @@ impl MethodInfo {
             && !(self.name == variable::NAME
                 && options.k_from != KFrom::Importance
                 && IMPORTANCE_OPTIONS.contains(&option))
+            && !(self.name == variable::NAME
+                && options.k_from != KFrom::Learned
+                && option == "weights")
     }
 }
 
@@ -145,10 +148,11 @@ pub const METHODS: &[MethodInfo] = &[
     },
     MethodInfo {
         name: variable::NAME,
-        summary: "variable k-buffer: k(p) under a --budget from importance maps or --k-from optimal (Tsopouridis 2021, Alg. 16-21, 23)",
+        summary: "variable k-buffer: k(p) under a --budget from importance maps, --k-from optimal, analytic or learned (Tsopouridis 2021, Alg. 16-21, 23; ch. 4)",
         options: &[
             "budget",
             "k-from",
+            "weights",
             "periphery-exponent",
             "range-bias",
             "n-limit",

@@ -127,6 +127,9 @@ fn features_of_known_layers_by_hand() {
             ("color_variance", 2.0 / 9.0),
             ("count_mean_3x3", 3.0),
             ("count_max_3x3", 3.0),
+            // On black: the mean (1/3, 1/3, 1/3) is √3/3 away, the red nearest 1.
+            ("contrast", 3f32.sqrt() / 3.0),
+            ("nearest_contrast", 1.0),
         ];
         for (name, value) in want {
             let got = feature(&maps, p, name);
@@ -264,8 +267,11 @@ fn one_pixel_at_a_time_matches_the_maps() {
         })
         .fragments;
     let mut maps = FeatureMaps::new();
-    let frame = maps.compute(&sums, counts.counts(), total / 2);
-    assert_eq!(frame, FrameFeatures::of(&sums, counts.counts(), total / 2));
+    let frame = maps.compute(&sums, counts.counts(), total / 2, s.background);
+    assert_eq!(
+        frame,
+        FrameFeatures::of(&sums, counts.counts(), total / 2, s.background)
+    );
     assert_eq!(frame.total, total);
     for (x, y) in [(0, 0), (40, 22), (79, 44), (10, 30)] {
         let one = sums.pixel_features(counts.counts(), &frame, x, y);

@@ -197,7 +197,12 @@ fn vkbuffer_honours_its_budget() {
         let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
         for budget in budgets(total) {
             let m = budget.fragments(160 * 90, total);
-            for k_from in [KFrom::Importance, KFrom::Optimal, KFrom::Analytic] {
+            for k_from in [
+                KFrom::Importance,
+                KFrom::Optimal,
+                KFrom::Analytic,
+                KFrom::Learned,
+            ] {
                 let what = format!("{name} {budget:?} {k_from:?}");
                 let (r, deep, v) = vkbuffer(&s, budget, k_from, 2);
                 let k = v.k_map();
@@ -229,9 +234,9 @@ fn vkbuffer_honours_its_budget() {
                             assert_eq!(i == 0.0, c == 0, "{what}");
                         }
                     }
-                    KFrom::Analytic => {
+                    KFrom::Analytic | KFrom::Learned => {
                         assert_eq!(r.capture.fragments_rasterized, 2 * total);
-                        // ê(1): nothing to lose where a pixel holds one fragment or none.
+                        // Nothing to choose where a pixel holds one fragment or none.
                         for (&i, &c) in v.importance_map().iter().zip(&counts) {
                             assert!(i >= 0.0, "{what}");
                             if c <= 1 {
@@ -312,7 +317,12 @@ fn budget_below_the_covered_pixels_keeps_one_fragment_on_the_most_important() {
     let counts: Vec<u32> = deep_a.counts().collect();
     let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
     let m = covered / 2;
-    for k_from in [KFrom::Importance, KFrom::Optimal, KFrom::Analytic] {
+    for k_from in [
+        KFrom::Importance,
+        KFrom::Optimal,
+        KFrom::Analytic,
+        KFrom::Learned,
+    ] {
         let (_, deep, v) = vkbuffer(&s, Budget::Fragments(m), k_from, 2);
         assert_eq!(deep.fragment_count() as u64, m);
         assert!(v.k_map().iter().all(|&k| k <= 1));
@@ -338,7 +348,12 @@ fn budget_below_the_covered_pixels_keeps_one_fragment_on_the_most_important() {
 fn threads_and_triangle_order_change_nothing() {
     for name in ["spheres", "mixed"] {
         let s = scene(name, 160, 90);
-        for k_from in [KFrom::Importance, KFrom::Optimal, KFrom::Analytic] {
+        for k_from in [
+            KFrom::Importance,
+            KFrom::Optimal,
+            KFrom::Analytic,
+            KFrom::Learned,
+        ] {
             let (one, deep_one, v_one) = vkbuffer(&s, Budget::SceneShare(0.4), k_from, 1);
             let runs = [
                 vkbuffer(&s, Budget::SceneShare(0.4), k_from, 2),

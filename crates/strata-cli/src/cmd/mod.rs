@@ -8,6 +8,8 @@ pub(crate) mod dataset;
 pub(crate) mod demo;
 pub(crate) mod display;
 pub(crate) mod inspect;
+pub(crate) mod learn;
+pub(crate) mod learn_eval;
 pub(crate) mod methods;
 pub(crate) mod mfr;
 pub(crate) mod mfr_slow;

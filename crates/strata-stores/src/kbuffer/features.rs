@@ -34,8 +34,9 @@
 //! change of order, meaning or scaling must bump the version. Features 0–11 are the seed's twelve
 //! (Tsopouridis 2021 §4.2, L810–819: count ratio, budget ratio, local and scene min/max depth,
 //! mean and nearest colour); 12–22 are additions the seed lacks (alpha and transmittance, colour
-//! spread, neighbourhood counts, periphery, budget per covered pixel). Uncovered pixels have 0 in
-//! every per-pixel feature; the frame features (1, 4, 5, 13) are the same in every pixel.
+//! spread, neighbourhood counts, periphery, budget per covered pixel, contrast against the
+//! background). Uncovered pixels have 0 in every per-pixel feature; the frame features (1, 4, 5,
+//! 13) are the same in every pixel.
 
 use rayon::prelude::*;
 use strata_core::{Fragment, Rgba8};
@@ -45,7 +46,7 @@ use crate::count::FragmentCounts;
 use crate::method::{StoreError, try_alloc};
 
 /// Name and version of the feature list ([`FEATURES`]); bump it whenever the list changes.
-pub const FEATURE_SET: &str = "strata-vk-features-1";
+pub const FEATURE_SET: &str = "strata-vk-features-2";
 
 /// One feature: what a column of the feature maps holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -163,10 +164,20 @@ pub const FEATURES: [FeatureInfo; FEATURE_COUNT] = [
         "[0, 1]",
         "distance of the pixel centre from the image centre / half the diagonal",
     ),
+    info(
+        "contrast",
+        "[0, √3]",
+        "‖mean colour − background‖ (RGB, Euclidean): what the layers show against the background",
+    ),
+    info(
+        "nearest_contrast",
+        "[0, √3]",
+        "‖nearest fragment's colour − background‖",
+    ),
 ];
 
 /// Number of features ([`FEATURES`]`.len()`).
-pub const FEATURE_COUNT: usize = 23;
+pub const FEATURE_COUNT: usize = 25;
 
 /// The names of [`FEATURES`], in order.
 pub fn feature_names() -> Vec<&'static str> {
@@ -406,6 +417,8 @@ pub struct FrameFeatures {
     pub depth_min: f32,
     /// Farthest fragment depth of the frame (0 if the frame is empty).
     pub depth_max: f32,
+    /// The background the frame is composited over (linear RGB in [0, 1]).
+    pub background: [f32; 3],
 }
 
 /// The features of one frame as a struct of arrays: plane `f` holds feature [`FEATURES`]`[f]`
@@ -470,7 +483,8 @@ impl FeatureMaps {
     }
 
     /// Computes every feature from the accumulated `sums`, the per-pixel fragment `counts` of the
-    /// same frame and the `budget` `M` in fragments; returns the frame-level values.
+    /// same frame, the `budget` `M` in fragments and the `background`; returns the frame-level
+    /// values.
     ///
     /// # Panics
     /// If `counts` does not have one entry per pixel of `sums`' frame.
@@ -479,6 +493,7 @@ impl FeatureMaps {
         sums: &FeatureAccumulator,
         counts: &[u32],
         budget: u64,
+        background: [f32; 3],
     ) -> FrameFeatures {
         let (w, h) = (sums.width as usize, sums.height as usize);
         let n = w * h;
@@ -486,7 +501,7 @@ impl FeatureMaps {
         (self.width, self.height) = (sums.width, sums.height);
         self.planes.clear();
         self.planes.resize(n * FEATURE_COUNT, 0.0);
-        let frame = FrameFeatures::of(sums, counts, budget);
+        let frame = FrameFeatures::of(sums, counts, budget, background);
         let mut planes: Vec<&mut [f32]> = self.planes.chunks_mut(n.max(1)).collect();
         // Per task: ROWS_PER_TASK rows of every plane.
         let rows = ROWS_PER_TASK * w;
@@ -517,8 +532,14 @@ impl FeatureMaps {
 
 impl FrameFeatures {
     /// `N`, `C` and the depth range of the frame whose feature `sums` and per-pixel `counts` are
-    /// given, with budget `M` = `budget`: sums over fixed chunks, the same for any thread count.
-    pub fn of(sums: &FeatureAccumulator, counts: &[u32], budget: u64) -> FrameFeatures {
+    /// given, with budget `M` = `budget` and its `background`: sums over fixed chunks, the same
+    /// for any thread count.
+    pub fn of(
+        sums: &FeatureAccumulator,
+        counts: &[u32],
+        budget: u64,
+        background: [f32; 3],
+    ) -> FrameFeatures {
         let (total, covered, lo, hi) = counts
             .par_chunks(8 * 1024)
             .zip(sums.nearest.par_chunks(8 * 1024))
@@ -547,6 +568,7 @@ impl FrameFeatures {
             budget,
             depth_min: if empty { 0.0 } else { lo },
             depth_max: if empty { 0.0 } else { hi },
+            background,
         }
     }
 }
@@ -633,6 +655,12 @@ impl FeatureAccumulator {
             .sum();
         let sq = self.sum_sq[p] as f64 / (255.0 * 255.0) / f64::from(count);
         out[19] = ((sq - mean_sq) / 3.0).max(0.0) as f32;
+        let bg = frame.background;
+        let dist = |c: [f32; 3]| {
+            ((c[0] - bg[0]).powi(2) + (c[1] - bg[1]).powi(2) + (c[2] - bg[2]).powi(2)).sqrt()
+        };
+        out[23] = dist(mean);
+        out[24] = dist([nr, ng, nb]);
         out
     }
 }

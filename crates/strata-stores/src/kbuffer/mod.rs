@@ -9,6 +9,7 @@
 //! | [`analytic`] | k(p) by water-filling an analytic error model (no learning) | — |
 //! | [`optimal_k`](mod@optimal_k) | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
 //! | [`features`] | per-pixel features for a learned k, gathered in the counting pass | 001 §4.2 |
+//! | [`learned`] | a small network's importance from those features (`--k-from learned`) | 001 ch. 4 |
 //! | [`maps`] | k and importance maps as heat-map images | 001 Fig. 3.9 |
 
 pub mod allocate;
@@ -16,6 +17,7 @@ pub mod analytic;
 pub mod features;
 pub mod fixed;
 pub mod importance;
+pub mod learned;
 pub mod maps;
 pub mod optimal_k;
 pub mod variable;
@@ -23,5 +25,6 @@ pub mod variable;
 pub use allocate::{Allocation, allocate_k};
 pub use features::{FEATURE_SET, FEATURES, FeatureMaps};
 pub use fixed::KBuffer;
+pub use learned::{LearnedModel, WeightsError};
 pub use optimal_k::{SortedRuns, optimal_k};
 pub use variable::VariableKBuffer;

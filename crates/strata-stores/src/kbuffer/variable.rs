@@ -72,8 +72,9 @@ use crate::regions::{Policy, RegionCapture, Regions};
 
 use super::allocate::{Allocation, allocate_k};
 use super::analytic::{Worth, analytic_k};
-use super::features::{FeatureAccumulator, FeatureCapture, FeatureMaps};
+use super::features::{FeatureAccumulator, FeatureCapture, FeatureMaps, FrameFeatures};
 use super::importance::importance_map;
+use super::learned::{LearnedModel, Target};
 use super::optimal_k::optimal_k_into;
 
 /// The name it is selected by.
@@ -100,6 +101,8 @@ pub struct VariableKBuffer {
     want_maps: bool,
     /// Each pixel's model (`--k-from analytic`).
     worth: Vec<Worth>,
+    /// The network (`--k-from learned` only).
+    model: Option<std::sync::Arc<LearnedModel>>,
 }
 
 impl VariableKBuffer {
@@ -117,11 +120,23 @@ impl VariableKBuffer {
             regions: Regions::new(),
             allocation: Allocation::default(),
             depth: None,
-            features: (options.features || options.k_from == KFrom::Analytic)
-                .then(|| Box::new((FeatureAccumulator::new(), FeatureMaps::new()))),
+            features: (options.features
+                || matches!(options.k_from, KFrom::Analytic | KFrom::Learned))
+            .then(|| Box::new((FeatureAccumulator::new(), FeatureMaps::new()))),
             want_maps: options.features,
             worth: Vec::new(),
+            model: (options.k_from == KFrom::Learned).then(|| {
+                options
+                    .weights
+                    .clone()
+                    .unwrap_or_else(LearnedModel::builtin)
+            }),
         }
+    }
+
+    /// The network of `--k-from learned` (`None` in the other modes).
+    pub fn model(&self) -> Option<&LearnedModel> {
+        self.model.as_deref()
     }
 
     /// Where k comes from.
@@ -217,7 +232,9 @@ impl Method for VariableKBuffer {
             && self.want_maps
         {
             let counts = self.counts.counts();
-            timings.time("capture.features", || maps.compute(sums, counts, budget));
+            timings.time("capture.features", || {
+                maps.compute(sums, counts, budget, input.background)
+            });
         }
         self.importance.resize(pixels, 0.0);
 
@@ -246,33 +263,49 @@ impl Method for VariableKBuffer {
                     })
                 })
             }
-            KFrom::Analytic => {
+            KFrom::Analytic | KFrom::Learned => {
                 let Some((sums, _)) = self.features.as_deref() else {
-                    unreachable!("the sums are allocated for --k-from analytic");
+                    unreachable!("VariableKBuffer::new allocates the sums for these modes");
                 };
                 let counts = self.counts.counts();
                 let background = input.background;
-                timings.time("capture.importance", || {
-                    self.worth
-                        .resize(pixels, Worth::new([0.0; 3], 0.0, background));
-                    self.worth
-                        .par_iter_mut()
-                        .zip(self.importance.par_iter_mut())
-                        .enumerate()
-                        .for_each(|(p, (w, i))| {
-                            let (mean, alpha) = sums.means(p, counts[p]);
-                            *w = Worth::new(mean, alpha, background);
-                            // What keeping only the nearest fragment would lose: ê(1) = d·t.
-                            *i = if counts[p] > 1 {
-                                (w.contrast * (1.0 - f64::from(alpha.clamp(0.0, 1.0)))) as f32
-                            } else {
-                                0.0
-                            };
-                        });
-                });
-                self.allocation = timings.time("capture.k", || {
-                    analytic_k(counts, &self.worth, budget, &mut self.k)
-                });
+                if let Some(model) = self.model.as_deref() {
+                    timings.time("capture.importance", || {
+                        let frame = FrameFeatures::of(sums, counts, budget, background);
+                        self.worth
+                            .resize(pixels, Worth::new([0.0; 3], 0.0, background));
+                        model.infer(sums, counts, &frame, &mut self.importance, &mut self.worth);
+                    });
+                    self.allocation = timings.time("capture.k", || {
+                        if model.target == Target::ErrorCurve {
+                            analytic_k(counts, &self.worth, budget, &mut self.k)
+                        } else {
+                            allocate_k(counts, &self.importance, budget, &mut self.k)
+                        }
+                    });
+                } else {
+                    timings.time("capture.importance", || {
+                        self.worth
+                            .resize(pixels, Worth::new([0.0; 3], 0.0, background));
+                        self.worth
+                            .par_iter_mut()
+                            .zip(self.importance.par_iter_mut())
+                            .enumerate()
+                            .for_each(|(p, (w, i))| {
+                                let (mean, alpha) = sums.means(p, counts[p]);
+                                *w = Worth::new(mean, alpha, background);
+                                // What keeping only the nearest fragment would lose: ê(1) = d·t.
+                                *i = if counts[p] > 1 {
+                                    (w.contrast * (1.0 - f64::from(alpha.clamp(0.0, 1.0)))) as f32
+                                } else {
+                                    0.0
+                                };
+                            });
+                    });
+                    self.allocation = timings.time("capture.k", || {
+                        analytic_k(counts, &self.worth, budget, &mut self.k)
+                    });
+                }
                 let start = Instant::now();
                 self.regions.with_capacities(width, height, &self.k)?;
                 timings.add("capture.prefix_sum", start.elapsed());
