@@ -238,8 +238,9 @@ pub struct ModelSpec {
 pub const PRESETS: [&str; 4] = ["curve", "fraction", "seed", "seed-literal"];
 
 impl ModelSpec {
-    /// A preset: `curve` (strata's: 22 inputs, 16-8 ReLU, corrections of the analytic error
-    /// curve), `fraction` (the same inputs and layers on the kept fraction), `seed` (the thesis's
+    /// A preset: `curve` (strata's: 20 inputs, 8 ReLU, corrections of the analytic error curve;
+    /// the budget is no input), `fraction` (22 inputs with the budget, 16-8 ReLU, on the kept
+    /// fraction), `seed` (the thesis's
     /// 12 features and 12-128-64-1 ReLU network, on the kept fraction) or `seed-literal` (the
     /// same network on the thesis's own label, `k_opt / N`).
     pub fn preset(name: &str) -> Option<ModelSpec> {
@@ -268,7 +269,11 @@ impl ModelSpec {
                     .collect();
                 Some(ModelSpec {
                     inputs,
-                    hidden: vec![16, 8],
+                    hidden: if name == "curve" {
+                        vec![8]
+                    } else {
+                        vec![16, 8]
+                    },
                     activation: Activation::Relu,
                     target: if name == "curve" {
                         Target::ErrorCurve

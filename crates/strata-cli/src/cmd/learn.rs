@@ -48,9 +48,10 @@ struct TrainArgs {
     #[arg(long, short, value_name = "FILE")]
     out: PathBuf,
 
-    /// The network: `curve` (strata's: 22 features, 16-8 ReLU, correcting the analytic model's
-    /// per-pixel error curve, whose worths are water-filled to the budget), `fraction` (the same
-    /// network predicting the kept fraction (k − 1)/(count − 1)), `seed` (the thesis's 12
+    /// The network: `curve` (strata's: 20 features, 8 ReLU, correcting the analytic model's
+    /// per-pixel error curve, whose worths are water-filled to the budget), `fraction` (22
+    /// features with the budget, 16-8 ReLU, predicting the kept fraction (k − 1)/(count − 1)),
+    /// `seed` (the thesis's 12
     /// features and 12-128-64-1 network, on the kept fraction) or `seed-literal` (that network,
     /// trained as the thesis writes it: its label k/N, SGD 0.001, MSE, L1/L2).
     #[arg(long, default_value = "curve", value_parser = clap::builder::PossibleValuesParser::new(PRESETS))]
@@ -72,9 +73,38 @@ struct TrainArgs {
     #[arg(long)]
     max_rows: Option<usize>,
 
+    /// Hidden layer widths, comma-separated (`none`: no hidden layer); default: the model's.
+    #[arg(long, value_parser = parse_hidden)]
+    hidden: Option<Hidden>,
+
     /// Worker threads (default: every available core). The weights do not depend on it.
     #[arg(long, short = 'j')]
     threads: Option<usize>,
+}
+
+/// Hidden layer widths.
+#[derive(Clone, Debug)]
+pub(crate) struct Hidden(pub(crate) Vec<usize>);
+
+/// `16,8`, or `none` for no hidden layer; each width from 1 to 512, at most 5 layers.
+pub(crate) fn parse_hidden(s: &str) -> Result<Hidden, String> {
+    if s.trim() == "none" {
+        return Ok(Hidden(Vec::new()));
+    }
+    let widths = s
+        .split(',')
+        .map(|w| {
+            w.trim()
+                .parse::<usize>()
+                .ok()
+                .filter(|w| (1..=512).contains(w))
+        })
+        .collect::<Option<Vec<_>>>()
+        .filter(|v| v.len() <= 5)
+        .ok_or_else(|| {
+            format!("{s}: expected widths from 1 to 512, comma-separated (at most 5), or none")
+        })?;
+    Ok(Hidden(widths))
 }
 
 /// Describe a weights file (default: the built-in weights).
@@ -107,7 +137,10 @@ pub(crate) fn preset(name: &str, seed: u64) -> Result<(ModelSpec, TrainConfig)> 
 fn train(a: TrainArgs) -> Result<()> {
     let pool = thread_pool(a.threads)?;
     let data = TrainingData::load(&a.data)?;
-    let (spec, mut config) = preset(&a.model, a.seed)?;
+    let (mut spec, mut config) = preset(&a.model, a.seed)?;
+    if let Some(h) = &a.hidden {
+        spec.hidden = h.0.clone();
+    }
     if let Some(e) = a.epochs {
         anyhow::ensure!(e > 0, "--epochs must be at least 1");
         config.epochs = e;

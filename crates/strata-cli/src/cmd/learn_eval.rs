@@ -91,6 +91,11 @@ pub(crate) struct Args {
     #[arg(long)]
     no_seed_networks: bool,
 
+    /// Hidden layer widths of the learned (curve) network, comma-separated (`none`: a linear
+    /// correction of the analytic model).
+    #[arg(long, default_value = "8", value_parser = super::learn::parse_hidden)]
+    hidden: super::learn::Hidden,
+
     /// Folder for table.md, results.json and the sheets.
     #[arg(long, default_value = "strata-learn-eval")]
     out: PathBuf,
@@ -242,7 +247,10 @@ fn train_entries(a: &Args, data: &TrainingData, family: &str) -> Result<Vec<Entr
         jobs.push(("seed-literal", "seed-literal", a.seeds[0]));
     }
     for (name, preset, seed) in jobs {
-        let (spec, mut config) = super::learn::preset(preset, seed)?;
+        let (mut spec, mut config) = super::learn::preset(preset, seed)?;
+        if name == "learned" {
+            spec.hidden = a.hidden.0.clone();
+        }
         config.exclude_families = vec![family.to_owned()];
         if preset == "seed" {
             config.max_rows = Some(100_000);

@@ -56,6 +56,24 @@ use super::features::{
 /// Name and version of the weights layout; see the module docs.
 pub const WEIGHTS_FORMAT: &str = "strata-learned-k-1";
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_ln_is_close_to_ln() {
+        let mut worst = 0.0f32;
+        let mut y = 1.0f32;
+        while y < 1e6 {
+            worst = worst.max((fast_ln(y) - y.ln()).abs());
+            y *= 1.000_37;
+        }
+        assert!(worst < 1e-5, "worst error {worst}");
+        assert_eq!(fast_ln(1.0), 0.0);
+        assert!((fast_ln(0.25) - 0.25f32.ln()).abs() < 1e-5);
+    }
+}
+
 /// Pixels evaluated together.
 pub const LANES: usize = 8;
 
@@ -128,12 +146,13 @@ impl Transform {
         }
     }
 
-    /// Applies the transform.
+    /// Applies the transform (`log1p` through [`fast_ln`], so training and inference compute
+    /// the very same bits on every machine, without a library call per input).
     #[inline]
     pub fn apply(self, x: f32) -> f32 {
         match self {
             Transform::Identity => x,
-            Transform::Log1p => x.max(0.0).ln_1p(),
+            Transform::Log1p => fast_ln(1.0 + x.max(0.0)),
         }
     }
 }
@@ -164,6 +183,21 @@ impl Activation {
             Activation::Sigmoid => sigmoid(x),
         }
     }
+}
+
+/// `ln y` for a finite `y ≥ 1` (and any positive normal `y`), within 1e-5 absolute: the
+/// exponent from the bits, then `ln m = 2 atanh((m − 1)/(m + 1))` to five terms for the mantissa
+/// `m` in `[1, 2)`. Plain `f32` arithmetic in a fixed order: the same result on every machine.
+#[inline]
+pub fn fast_ln(y: f32) -> f32 {
+    let bits = y.to_bits();
+    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
+    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
+    let s = (m - 1.0) / (m + 1.0);
+    let s2 = s * s;
+    let series = 1.0 / 5.0 + s2 * (1.0 / 7.0 + s2 * (1.0 / 9.0));
+    let ln_m = 2.0 * s * (1.0 + s2 * (1.0 / 3.0 + s2 * series));
+    exponent as f32 * std::f32::consts::LN_2 + ln_m
 }
 
 /// The logistic function.
