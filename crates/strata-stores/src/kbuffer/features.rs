@@ -5,18 +5,18 @@
 //!
 //! 1. **Accumulate** ([`FeatureAccumulator`], filled through [`FeatureCapture`] together with the
 //!    fragment counts): order-independent per-pixel sums, strip-owned like the counters, so no
-//!    atomics. Layout, one entry per pixel, row-major, each a separate `Vec` (44 bytes a pixel):
+//!    atomics. Layout: one [`PixelSums`] per pixel, row-major (56 bytes with padding), so a
+//!    fragment updates one or two cache lines rather than one per sum:
 //!
 //!    ```text
-//!    nearest:       [u64]  (depth bits << 32) | rgba8 bits of the nearest fragment; the minimum
-//!                          key wins, so ties between equal depths break on the colour bits
-//!    depth_max:     [f32]  farthest window depth
-//!    sum_r/g/b:     [u32]  Σ straight-alpha colour, 8-bit channels
-//!    sum_sq:        [u64]  Σ (r² + g² + b²), 8-bit channels
-//!    alpha_sum:     [u32]  Σ α, 8 bits
-//!    alpha_max:     [f32]  max α
-//!    log_t:         [u64]  Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
-//!    opaque:        [u32]  fragments with α = 1 (255)
+//!    nearest:       u64   (depth bits << 32) | rgba8 bits of the nearest fragment; the minimum
+//!                         key wins, so ties between equal depths break on the colour bits
+//!    sum_sq:        u64   Σ (r² + g² + b²), 8-bit channels
+//!    log_t:         u64   Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
+//!    depth_max:     f32   farthest window depth
+//!    alpha_max:     f32   max α
+//!    sum:           [u32; 4]  Σ straight-alpha r, g, b and α, 8-bit channels
+//!    opaque:        u32   fragments with α = 1 (255)
 //!    ```
 //!
 //!    Fragments of a pixel arrive in primitive order from the one thread that owns the pixel's
@@ -192,21 +192,38 @@ pub fn feature_index(name: &str) -> Option<usize> {
 /// Rows per parallel work item of the finishing pass.
 const ROWS_PER_TASK: usize = 8;
 
+/// One pixel's order-independent sums; see the module docs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelSums {
+    nearest: u64,
+    sum_sq: u64,
+    log_t: u64,
+    depth_max: f32,
+    alpha_max: f32,
+    sum: [u32; 4],
+    opaque: u32,
+}
+
+impl Default for PixelSums {
+    fn default() -> Self {
+        PixelSums {
+            nearest: NO_FRAGMENT,
+            sum_sq: 0,
+            log_t: 0,
+            depth_max: 0.0,
+            alpha_max: 0.0,
+            sum: [0; 4],
+            opaque: 0,
+        }
+    }
+}
+
 /// Per-pixel order-independent sums of one frame's fragments; see the module docs.
 #[derive(Debug, Default)]
 pub struct FeatureAccumulator {
     width: u32,
     height: u32,
-    nearest: Vec<u64>,
-    depth_max: Vec<f32>,
-    sum_r: Vec<u32>,
-    sum_g: Vec<u32>,
-    sum_b: Vec<u32>,
-    sum_sq: Vec<u64>,
-    alpha_sum: Vec<u32>,
-    alpha_max: Vec<f32>,
-    log_t: Vec<u64>,
-    opaque: Vec<u32>,
+    sums: Vec<PixelSums>,
 }
 
 /// Fixed-point scale of [`FeatureAccumulator`]'s `log_t`.
@@ -259,20 +276,7 @@ impl FeatureAccumulator {
     pub fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         let n = width as usize * height as usize;
         (self.width, self.height) = (width, height);
-        reset(&mut self.nearest, n, NO_FRAGMENT)?;
-        reset(&mut self.depth_max, n, 0.0)?;
-        reset(&mut self.alpha_max, n, 0.0)?;
-        for v in [
-            &mut self.sum_r,
-            &mut self.sum_g,
-            &mut self.sum_b,
-            &mut self.alpha_sum,
-            &mut self.opaque,
-        ] {
-            reset(v, n, 0)?;
-        }
-        reset(&mut self.sum_sq, n, 0)?;
-        reset(&mut self.log_t, n, 0)
+        reset(&mut self.sums, n, PixelSums::default())
     }
 
     /// Width and height of the frame the sums are for.
@@ -286,19 +290,13 @@ impl FeatureAccumulator {
             return ([0.0; 3], 0.0);
         }
         let unit = |sum: u32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
-        (
-            [
-                unit(self.sum_r[p]),
-                unit(self.sum_g[p]),
-                unit(self.sum_b[p]),
-            ],
-            unit(self.alpha_sum[p]),
-        )
+        let [r, g, b, a] = self.sums[p].sum;
+        ([unit(r), unit(g), unit(b)], unit(a))
     }
 
     /// Bytes of the sums.
     pub fn memory_bytes(&self) -> u64 {
-        (self.nearest.len() * (8 * 3 + 4 * 7)) as u64
+        (self.sums.len() * std::mem::size_of::<PixelSums>()) as u64
     }
 }
 
@@ -328,16 +326,7 @@ pub struct FeatureCapture<'a> {
 pub struct FeatureSink<'a> {
     first_pixel: usize,
     counts: &'a mut [u32],
-    nearest: &'a mut [u64],
-    depth_max: &'a mut [f32],
-    sum_r: &'a mut [u32],
-    sum_g: &'a mut [u32],
-    sum_b: &'a mut [u32],
-    sum_sq: &'a mut [u64],
-    alpha_sum: &'a mut [u32],
-    alpha_max: &'a mut [f32],
-    log_t: &'a mut [u64],
-    opaque: &'a mut [u32],
+    sums: &'a mut [PixelSums],
 }
 
 impl FragmentSink for FeatureSink<'_> {
@@ -346,16 +335,17 @@ impl FragmentSink for FeatureSink<'_> {
         let i = pixel as usize - self.first_pixel;
         let [r, g, b, a] = fragment.color.0.map(u32::from);
         self.counts[i] += 1;
-        self.nearest[i] = self.nearest[i].min(nearest_key(&fragment));
-        self.depth_max[i] = self.depth_max[i].max(fragment.depth);
-        self.sum_r[i] += r;
-        self.sum_g[i] += g;
-        self.sum_b[i] += b;
-        self.sum_sq[i] += u64::from(r * r + g * g + b * b);
-        self.alpha_sum[i] += a;
-        self.alpha_max[i] = self.alpha_max[i].max(a as f32 / 255.0);
-        self.log_t[i] += log_t_table()[a as usize];
-        self.opaque[i] += u32::from(a == 255);
+        let s = &mut self.sums[i];
+        s.nearest = s.nearest.min(nearest_key(&fragment));
+        s.depth_max = s.depth_max.max(fragment.depth);
+        s.sum[0] += r;
+        s.sum[1] += g;
+        s.sum[2] += b;
+        s.sum[3] += a;
+        s.sum_sq += u64::from(r * r + g * g + b * b);
+        s.alpha_max = s.alpha_max.max(a as f32 / 255.0);
+        s.log_t += log_t_table()[a as usize];
+        s.opaque += u32::from(a == 255);
     }
 }
 
@@ -373,31 +363,13 @@ impl CaptureTarget for FeatureCapture<'_> {
             "clear the feature sums before counting"
         );
         let mut counts = layout.split_mut(self.counts.counts_mut());
-        let mut nearest = layout.split_mut(&mut s.nearest);
-        let mut depth_max = layout.split_mut(&mut s.depth_max);
-        let mut sum_r = layout.split_mut(&mut s.sum_r);
-        let mut sum_g = layout.split_mut(&mut s.sum_g);
-        let mut sum_b = layout.split_mut(&mut s.sum_b);
-        let mut sum_sq = layout.split_mut(&mut s.sum_sq);
-        let mut alpha_sum = layout.split_mut(&mut s.alpha_sum);
-        let mut alpha_max = layout.split_mut(&mut s.alpha_max);
-        let mut log_t = layout.split_mut(&mut s.log_t);
-        let mut opaque = layout.split_mut(&mut s.opaque);
+        let mut sums = layout.split_mut(&mut s.sums);
         (0..layout.count())
             .filter_map(|strip| {
                 Some(FeatureSink {
                     first_pixel: layout.pixels(strip).start,
                     counts: counts.next()?,
-                    nearest: nearest.next()?,
-                    depth_max: depth_max.next()?,
-                    sum_r: sum_r.next()?,
-                    sum_g: sum_g.next()?,
-                    sum_b: sum_b.next()?,
-                    sum_sq: sum_sq.next()?,
-                    alpha_sum: alpha_sum.next()?,
-                    alpha_max: alpha_max.next()?,
-                    log_t: log_t.next()?,
-                    opaque: opaque.next()?,
+                    sums: sums.next()?,
                 })
             })
             .collect()
@@ -542,17 +514,16 @@ impl FrameFeatures {
     ) -> FrameFeatures {
         let (total, covered, lo, hi) = counts
             .par_chunks(8 * 1024)
-            .zip(sums.nearest.par_chunks(8 * 1024))
-            .zip(sums.depth_max.par_chunks(8 * 1024))
-            .map(|((c, near), far)| {
+            .zip(sums.sums.par_chunks(8 * 1024))
+            .map(|(c, s)| {
                 let (mut total, mut covered) = (0u64, 0u64);
                 let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                for ((&c, &near), &far) in c.iter().zip(near).zip(far) {
+                for (&c, s) in c.iter().zip(s) {
                     if c > 0 {
                         total += u64::from(c);
                         covered += 1;
-                        lo = lo.min(f32::from_bits((near >> 32) as u32));
-                        hi = hi.max(far);
+                        lo = lo.min(f32::from_bits((s.nearest >> 32) as u32));
+                        hi = hi.max(s.depth_max);
                     }
                 }
                 (total, covered, lo, hi)
@@ -626,34 +597,32 @@ impl FeatureAccumulator {
             return out;
         }
         let c = count as f32;
-        let near = self.nearest[p];
+        let sums = &self.sums[p];
+        let near = sums.nearest;
         let [nr, ng, nb, na] = Rgba8::from_bits(near as u32).to_unorm();
         let unit = |sum: u32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
-        let mean = [
-            unit(self.sum_r[p]),
-            unit(self.sum_g[p]),
-            unit(self.sum_b[p]),
-        ];
+        let [sum_r, sum_g, sum_b, alpha_sum] = sums.sum;
+        let mean = [unit(sum_r), unit(sum_g), unit(sum_b)];
         out[0] = c / total;
         out[2] = f32::from_bits((near >> 32) as u32);
-        out[3] = self.depth_max[p];
+        out[3] = sums.depth_max;
         out[6..9].copy_from_slice(&mean);
         out[9..12].copy_from_slice(&[nr, ng, nb]);
         out[12] = c;
-        out[14] = (f64::from(self.alpha_sum[p]) / 255.0) as f32;
-        out[15] = self.alpha_max[p];
-        out[16] = if self.opaque[p] > 0 {
+        out[14] = (f64::from(alpha_sum) / 255.0) as f32;
+        out[15] = sums.alpha_max;
+        out[16] = if sums.opaque > 0 {
             0.0
         } else {
-            (-(self.log_t[p] as f64) / LOG_T_SCALE).exp() as f32
+            (-(sums.log_t as f64) / LOG_T_SCALE).exp() as f32
         };
         out[17] = na;
-        out[18] = self.opaque[p] as f32;
-        let mean_sq: f64 = [self.sum_r[p], self.sum_g[p], self.sum_b[p]]
+        out[18] = sums.opaque as f32;
+        let mean_sq: f64 = [sum_r, sum_g, sum_b]
             .iter()
             .map(|&s| (f64::from(s) / 255.0 / f64::from(count)).powi(2))
             .sum();
-        let sq = self.sum_sq[p] as f64 / (255.0 * 255.0) / f64::from(count);
+        let sq = sums.sum_sq as f64 / (255.0 * 255.0) / f64::from(count);
         out[19] = ((sq - mean_sq) / 3.0).max(0.0) as f32;
         let bg = frame.background;
         let dist = |c: [f32; 3]| {
