@@ -238,6 +238,21 @@ pub struct ModelSpec {
 pub const PRESETS: [&str; 4] = ["curve", "fraction", "seed", "seed-literal"];
 
 impl ModelSpec {
+    /// Replaces the inputs with the features called `names`, transformed as the presets do
+    /// (`log1p` for the counts and sums of many fragments).
+    pub fn with_inputs(mut self, names: &[&str]) -> Result<ModelSpec, TrainError> {
+        self.inputs = names
+            .iter()
+            .map(|n| {
+                let f = feature_index(n.trim()).ok_or_else(|| {
+                    TrainError::Option(format!("`{n}` is not a feature of {FEATURE_SET}"))
+                })?;
+                Ok((f, default_transform(f)))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(self)
+    }
+
     /// A preset: `curve` (strata's: 20 inputs, 8 ReLU, corrections of the analytic error curve;
     /// the budget is no input), `fraction` (22 inputs with the budget, 16-8 ReLU, on the kept
     /// fraction), `seed` (the thesis's
@@ -247,9 +262,6 @@ impl ModelSpec {
         let seed_inputs = || (0..12).map(|f| (f, Transform::Identity)).collect();
         match name {
             "curve" | "fraction" => {
-                let log = ["count", "budget_per_covered", "alpha_sum", "opaque_count"];
-                let log = log.iter().chain(&["count_mean_3x3", "count_max_3x3"]);
-                let log: Vec<usize> = log.filter_map(|n| feature_index(n)).collect();
                 // The error curve is the same at every budget: the budget is no input of it.
                 let mut skip = vec!["count_share", "scene_depth_min", "scene_depth_max"];
                 if name == "curve" {
@@ -258,14 +270,7 @@ impl ModelSpec {
                 let skip: Vec<usize> = skip.iter().filter_map(|n| feature_index(n)).collect();
                 let inputs = (0..FEATURE_COUNT)
                     .filter(|f| !skip.contains(f))
-                    .map(|f| {
-                        let t = if log.contains(&f) {
-                            Transform::Log1p
-                        } else {
-                            Transform::Identity
-                        };
-                        (f, t)
-                    })
+                    .map(|f| (f, default_transform(f)))
                     .collect();
                 Some(ModelSpec {
                     inputs,
@@ -296,6 +301,24 @@ impl ModelSpec {
             }),
             _ => None,
         }
+    }
+}
+
+/// `log1p` for the features that count fragments or sum over them (long tails), identity for
+/// the rest.
+pub fn default_transform(feature: usize) -> Transform {
+    const LOG: [&str; 6] = [
+        "count",
+        "budget_per_covered",
+        "alpha_sum",
+        "opaque_count",
+        "count_mean_3x3",
+        "count_max_3x3",
+    ];
+    if LOG.iter().any(|n| feature_index(n) == Some(feature)) {
+        Transform::Log1p
+    } else {
+        Transform::Identity
     }
 }
 

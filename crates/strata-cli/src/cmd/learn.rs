@@ -73,6 +73,11 @@ struct TrainArgs {
     #[arg(long)]
     max_rows: Option<usize>,
 
+    /// Input features, names comma-separated (`strata render --maps` lists them in
+    /// features.json); default: the model's.
+    #[arg(long, value_delimiter = ',', value_name = "FEATURES")]
+    inputs: Vec<String>,
+
     /// Hidden layer widths, comma-separated (`none`: no hidden layer); default: the model's.
     #[arg(long, value_parser = parse_hidden)]
     hidden: Option<Hidden>,
@@ -140,6 +145,10 @@ fn train(a: TrainArgs) -> Result<()> {
     let (mut spec, mut config) = preset(&a.model, a.seed)?;
     if let Some(h) = &a.hidden {
         spec.hidden = h.0.clone();
+    }
+    if !a.inputs.is_empty() {
+        let names: Vec<&str> = a.inputs.iter().map(String::as_str).collect();
+        spec = spec.with_inputs(&names)?;
     }
     if let Some(e) = a.epochs {
         anyhow::ensure!(e > 0, "--epochs must be at least 1");

@@ -32,7 +32,7 @@ use strata_learn::train::{TrainingData, train};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::Scene;
 use strata_stores::kbuffer::LearnedModel;
-use strata_stores::kbuffer::maps::k_heat_map;
+use strata_stores::kbuffer::maps::heat_map;
 use strata_stores::{Budget, KFrom, MethodOptions, render_frame};
 
 use crate::flip::{DEFAULT_PIXELS_PER_DEGREE, flip};
@@ -95,6 +95,11 @@ pub(crate) struct Args {
     /// correction of the analytic model).
     #[arg(long, default_value = "8", value_parser = super::learn::parse_hidden)]
     hidden: super::learn::Hidden,
+
+    /// Inputs of the learned (curve) network, feature names comma-separated (default: the
+    /// model's 20).
+    #[arg(long, value_delimiter = ',', value_name = "FEATURES")]
+    inputs: Vec<String>,
 
     /// Folder for table.md, results.json and the sheets.
     #[arg(long, default_value = "strata-learn-eval")]
@@ -250,6 +255,10 @@ fn train_entries(a: &Args, data: &TrainingData, family: &str) -> Result<Vec<Entr
         let (mut spec, mut config) = super::learn::preset(preset, seed)?;
         if name == "learned" {
             spec.hidden = a.hidden.0.clone();
+            if !a.inputs.is_empty() {
+                let names: Vec<&str> = a.inputs.iter().map(String::as_str).collect();
+                spec = spec.with_inputs(&names)?;
+            }
         }
         config.exclude_families = vec![family.to_owned()];
         if preset == "seed" {
@@ -434,6 +443,7 @@ fn sheet(a: &Args, scene: &Scene, family: &str, entries: &[Entry], budget: f64) 
         Rgb8Image::filled(w, h, [0; 3]),
     ]];
     let mut seen = Vec::new();
+    let mut k_maps: Vec<Vec<f32>> = Vec::new();
     for e in entries {
         if seen.contains(&e.name) {
             continue;
@@ -441,8 +451,13 @@ fn sheet(a: &Args, scene: &Scene, family: &str, entries: &[Entry], budget: f64) 
         seen.push(e.name);
         let (img, _, k, heat) =
             render(a, &mut raster, &input, scene.background, e, budget, &exact)?;
-        let k: Vec<u32> = k.iter().map(|&v| v as u32).collect();
-        columns.push([img, heat, k_heat_map(&k, w, h)]);
+        columns.push([img, heat, Rgb8Image::filled(w, h, [0; 3])]);
+        k_maps.push(k);
+    }
+    // One scale for every k map: 0 to the largest k of any method.
+    let top = k_maps.iter().flatten().copied().fold(0.0f32, f32::max);
+    for (column, k) in columns.iter_mut().skip(1).zip(&k_maps) {
+        column[2] = heat_map(k, w, h, Some(top.max(1.0)));
     }
     let gap = 4;
     let cols = columns.len() as u32;
@@ -462,7 +477,7 @@ fn sheet(a: &Args, scene: &Scene, family: &str, entries: &[Entry], budget: f64) 
     let path = a.out.join(format!("sheet-{family}.png"));
     out.write_png(&path)?;
     eprintln!(
-        "wrote {} (columns: exact, {}; rows: image, FLIP, k)",
+        "wrote {} (columns: exact, {}; rows: image, FLIP map, k map on one scale)",
         path.display(),
         seen.join(", ")
     );
