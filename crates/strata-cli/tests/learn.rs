@@ -73,7 +73,11 @@ fn train_info_render_and_eval() {
     // Stored Σk = M = ⌊40 % of every fragment⌋; the rest are counted as dropped.
     let kept = s["fragments"].as_u64().unwrap();
     let dropped = s["dropped_fragments"].as_u64().unwrap();
-    assert_eq!(kept, ((kept + dropped) as f64 * 0.4).floor() as u64, "Σk = M");
+    assert_eq!(
+        kept,
+        ((kept + dropped) as f64 * 0.4).floor() as u64,
+        "Σk = M"
+    );
     run_ok(
         strata()
             .args([

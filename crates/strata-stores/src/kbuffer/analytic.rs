@@ -63,11 +63,28 @@ pub struct Worth {
 impl Worth {
     /// The model of a pixel of mean colour `mean`, mean opacity `mean_alpha`, on `background`.
     pub fn new(mean: [f32; 3], mean_alpha: f32, background: [f32; 3]) -> Worth {
-        let d = (0..3)
+        let d = Worth::contrast_of(mean, background);
+        Worth::from_curve(d, f64::from(1.0 - mean_alpha.clamp(0.0, 1.0)))
+    }
+
+    /// `d = ‖mean − background‖`, as [`Worth::new`] computes it.
+    pub fn contrast_of(mean: [f32; 3], background: [f32; 3]) -> f64 {
+        (0..3)
             .map(|c| f64::from(mean[c] - background[c]).powi(2))
             .sum::<f64>()
-            .sqrt();
-        Worth::from_curve(d, f64::from(1.0 - mean_alpha.clamp(0.0, 1.0)))
+            .sqrt()
+    }
+
+    /// The model of a pixel with at most one fragment, of contrast `d`: nothing beyond its
+    /// first fragment to weigh, so only `d` is kept (it decides which pixels keep one when the
+    /// budget cannot give every covered pixel one). [`analytic_k`] gives such a pixel the same
+    /// `k` as [`Worth::new`]'s model, without its logarithms.
+    pub fn at_most_one(d: f64) -> Worth {
+        Worth {
+            log_first: f64::NEG_INFINITY,
+            log_fall: f64::NEG_INFINITY,
+            contrast: d,
+        }
     }
 
     /// The model of a pixel whose error curve is `ê(k) = d · t^k` (`d ≥ 0`, `t` in `[0, 1]`).

@@ -524,8 +524,9 @@ impl LearnedModel {
                         let count = counts[p];
                         if count < 2 {
                             if curve_target {
-                                let (mean, alpha) = sums.means(p, count);
-                                worth[i] = Worth::new(mean, alpha, frame.background);
+                                let (mean, _) = sums.means(p, count);
+                                let d = Worth::contrast_of(mean, frame.background);
+                                worth[i] = Worth::at_most_one(d);
                             }
                             continue;
                         }

@@ -293,7 +293,11 @@ impl Method for VariableKBuffer {
                             .enumerate()
                             .for_each(|(p, (w, i))| {
                                 let (mean, alpha) = sums.means(p, counts[p]);
-                                *w = Worth::new(mean, alpha, background);
+                                *w = if counts[p] > 1 {
+                                    Worth::new(mean, alpha, background)
+                                } else {
+                                    Worth::at_most_one(Worth::contrast_of(mean, background))
+                                };
                                 // What keeping only the nearest fragment would lose: ê(1) = d·t.
                                 *i = if counts[p] > 1 {
                                     (w.contrast * (1.0 - f64::from(alpha.clamp(0.0, 1.0)))) as f32
