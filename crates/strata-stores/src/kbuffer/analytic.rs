@@ -166,9 +166,9 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
         *kp = u32::from(c > 0);
     }
     let mut rest = target - covered;
-    // The candidates: pixels with room for more whose fragments are worth something, in pixel
-    // order (gathered over fixed chunks, so the list is the same for any thread count).
-    let candidates: Vec<Candidate> = counts
+    // The candidates: pixels with room for more whose fragments are worth something, one list
+    // per chunk of PIXELS_PER_TASK pixels, in pixel order (the same for any thread count).
+    let chunks: Vec<Vec<Candidate>> = counts
         .par_chunks(PIXELS_PER_TASK)
         .zip(worth.par_chunks(PIXELS_PER_TASK))
         .enumerate()
@@ -183,13 +183,12 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
                     room: c - 1,
                     pixel: (first + i) as u32,
                 })
-                .collect::<Vec<_>>()
+                .collect()
         })
-        .collect::<Vec<_>>()
-        .concat();
+        .collect();
     let extra_at = |level: f64| -> u64 {
-        candidates
-            .par_chunks(PIXELS_PER_TASK)
+        chunks
+            .par_iter()
             .map(|c| {
                 c.iter()
                     .map(|c| u64::from(c.extra_above(level)))
@@ -202,8 +201,9 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
     // The level's range: every candidate's second fragment is worth at most `hi`; below `lo`
     // every fragment of every candidate is in.
     let (mut lo, mut hi) =
-        candidates
+        chunks
             .iter()
+            .flatten()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), c| {
                 (
                     lo.min(c.worth.log_worth(c.room - 1)),
@@ -220,8 +220,9 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
             // bracket narrower than the smallest fall: then no pixel has two fragments worth
             // between `lo` and `hi`, and giving the units left one each to the pixels whose
             // next fragment is worth most (below) is the greedy choice.
-            let narrowest = candidates
+            let narrowest = chunks
                 .iter()
+                .flatten()
                 .map(|c| -c.worth.log_fall)
                 .fold(f64::INFINITY, f64::min);
             for _ in 0..ROUNDS {
@@ -245,23 +246,49 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
             }
         }
         let level = hi;
-        let given: u64 = candidates
-            .iter()
-            .map(|c| {
-                let n = c.extra_above(level);
-                k[c.pixel as usize] += n;
-                u64::from(n)
+        // Each chunk of candidates covers its own chunk of pixels, so k is written in parallel.
+        let given: u64 = k
+            .par_chunks_mut(PIXELS_PER_TASK)
+            .zip(&chunks)
+            .enumerate()
+            .map(|(chunk, (k, candidates))| {
+                let first = chunk * PIXELS_PER_TASK;
+                candidates
+                    .iter()
+                    .map(|c| {
+                        let n = c.extra_above(level);
+                        k[c.pixel as usize - first] += n;
+                        u64::from(n)
+                    })
+                    .sum::<u64>()
             })
+            .collect::<Vec<u64>>()
+            .iter()
             .sum();
         rest -= given;
-        // The units left: to the pixels whose next fragment is worth most.
+        // The units left: to the pixels whose next fragment is worth most. Those lie above `lo`
+        // (more fragments than `rest` do, at most one per pixel), so only they are sorted; the
+        // whole list serves if the rounds ran out first.
         if rest > 0 {
-            let mut next: Vec<(OrderedWorth, usize)> = candidates
-                .iter()
-                .map(|c| c.pixel as usize)
-                .filter(|&p| k[p] < counts[p])
-                .map(|p| (OrderedWorth(worth[p].log_worth(k[p] - 1)), p))
-                .collect();
+            let next_worths = |above: f64| -> Vec<(OrderedWorth, usize)> {
+                chunks
+                    .par_iter()
+                    .map(|candidates| {
+                        candidates
+                            .iter()
+                            .map(|c| c.pixel as usize)
+                            .filter(|&p| k[p] < counts[p])
+                            .map(|p| (OrderedWorth(worth[p].log_worth(k[p] - 1)), p))
+                            .filter(|(w, _)| w.0 > above)
+                            .collect::<Vec<_>>()
+                    })
+                    .collect::<Vec<_>>()
+                    .concat()
+            };
+            let mut next = next_worths(lo);
+            if (next.len() as u64) < rest {
+                next = next_worths(f64::NEG_INFINITY);
+            }
             let n = (rest as usize).min(next.len());
             let key = |e: &(OrderedWorth, usize)| (std::cmp::Reverse(e.0), e.1);
             if n > 0 && n < next.len() {
