@@ -1,22 +1,25 @@
-//! A learned importance for the variable k-buffer (Tsopouridis 2021 ch. 4): a small multilayer
-//! perceptron that maps each pixel's features ([`super::features`]) to a number in `[0, 1]`, which
-//! becomes the pixel's importance; the allocator ([`super::allocate`]) then turns importance into
-//! `k(p)` under the budget exactly as it does for importance maps, so `Σk = min(M, N)` and
-//! `k(p) ≤ count(p)` hold whatever the network says.
+//! A learned k for the variable k-buffer (Tsopouridis 2021 ch. 4): a small multilayer perceptron
+//! over each pixel's features ([`super::features`]). strata's model (target `error_curve`)
+//! corrects the analytic model's truncation-error curve, whose worths the analytic allocator
+//! ([`super::analytic`]) water-fills; the thesis's kind of model (targets `kept_fraction`,
+//! `seed_label`) gives an importance that the importance allocator ([`super::allocate`]) shares
+//! out. Either way `Σk = min(M, N)` and `k(p) ≤ count(p)` hold whatever the network says.
 //!
 //! # The model
 //!
 //! ```text
 //! x_i  = (t_i(feature[input_i]) − mean_i) · scale_i       t_i: identity or ln(1 + x)
 //! h_1  = act(W_1 x + b_1)   …   h_L−1 = act(W_L−1 h_L−2 + b_L−1)     act: ReLU or sigmoid
-//! y    = sigmoid(W_L h_L−1 + b_L)                         one output
-//! I(p) = y · (count − 1)   (target `kept_fraction`: y predicts (k_opt − 1)/(count − 1))
-//!      = y                 (target `seed_label`: the thesis's label, k_opt / N)
+//! error_curve:   (a, b) = W_L h_L−1 + b_L;  d = d₀ e^a,  t = σ(logit t₀ + b);  ê(k) = d t^k
+//!                (d₀ = contrast, t₀ = 1 − mean α: the analytic model; see [`curve`])
+//! kept_fraction: y = σ(W_L h_L−1 + b_L) predicts (k_opt − 1)/(count − 1);  I(p) = y (count − 1)
+//! seed_label:    y = σ(…) predicts k_opt / N (the thesis's label);  I(p) = y
 //! ```
 //!
 //! With the kept fraction, a perfect prediction gives back the Optimal-K oracle's `k` through the
-//! allocator (its water level is then 1). Only pixels with a choice to make are evaluated: a pixel
-//! with fewer than two fragments has no headroom, so its importance is 0 whatever the model says.
+//! allocator (its water level is then 1); with the error curve, a perfect curve gives back the
+//! oracle's greedy choice. Only pixels with a choice to make are evaluated: a pixel with fewer
+//! than two fragments has no headroom.
 //!
 //! # The weights file
 //!
@@ -36,7 +39,7 @@
 //!
 //! # Inference
 //!
-//! [`LearnedModel::importance`] is the frame's importance pass: one parallel task per
+//! [`LearnedModel::infer`] is the frame's importance pass: one parallel task per
 //! [`ROWS_PER_TASK`] rows; in each, the decision pixels (count ≥ 2) are gathered into blocks of
 //! [`LANES`], their features computed from the counting pass's sums, and the network evaluated a
 //! block at a time as a struct of arrays (each weight multiplies `LANES` pixels at once, which the
@@ -59,6 +62,13 @@ pub const WEIGHTS_FORMAT: &str = "strata-learned-k-1";
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_base_reads_the_features_it_names() {
+        assert_eq!(feature_index("count"), Some(COUNT));
+        assert_eq!(feature_index("alpha_sum"), Some(ALPHA_SUM));
+        assert_eq!(feature_index("contrast"), Some(CONTRAST));
+    }
 
     #[test]
     fn fast_ln_is_close_to_ln() {
@@ -255,7 +265,9 @@ impl Target {
     }
 }
 
-/// Column of the `contrast` feature.
+/// Columns of the features the error curve's base reads (checked against the names by a test).
+const COUNT: usize = 12;
+const ALPHA_SUM: usize = 14;
 const CONTRAST: usize = 23;
 
 /// Smallest `d₀` and distance of `t₀` from 0 and 1 in [`curve`] (the analytic model's `d` and
@@ -266,9 +278,9 @@ pub const CURVE_FLOOR: f32 = 1e-3;
 /// and `1 −` its mean opacity, kept [`CURVE_FLOOR`] away from 0 (and `t₀` from 1).
 #[inline]
 pub fn curve_base(f: &[f32; FEATURE_COUNT]) -> (f32, f32) {
-    let count = f[12].max(1.0);
+    let count = f[COUNT].max(1.0);
     let d0 = f[CONTRAST].max(CURVE_FLOOR);
-    let t0 = (1.0 - f[14] / count).clamp(CURVE_FLOOR, 1.0 - CURVE_FLOOR);
+    let t0 = (1.0 - f[ALPHA_SUM] / count).clamp(CURVE_FLOOR, 1.0 - CURVE_FLOOR);
     (d0, t0)
 }
 

@@ -1,5 +1,6 @@
 //! The variable k-buffer (Tsopouridis 2021 §3.2.2, Algorithms 16–21): a per-pixel k under a memory budget
-//! of M fragments, from importance maps or from the Optimal-K oracle (§4.2.2, Algorithm 23).
+//! of M fragments, from importance maps, the Optimal-K oracle (§4.2.2, Algorithm 23), an analytic
+//! error model or a learned one (ch. 4).
 //!
 //! # Layout
 //!
@@ -47,6 +48,18 @@
 //! regions of k(p) would keep (the k(p) nearest), without a third geometry pass. What is reported
 //! is what the oracle really needs: the memory of the exact store; the fragments it truncates
 //! count as lost. It shows the quality reachable at budget M, not a method that runs in M.
+//!
+//! # Passes, `--k-from analytic` and `--k-from learned`
+//!
+//! The same two geometry passes as importance maps; the counting pass also gathers the feature
+//! sums ([`super::features`]), and k comes from a model of each pixel's truncation error:
+//!
+//! | pass | timing |
+//! | --- | --- |
+//! | count fragments and feature sums (geometry) | `capture.count` |
+//! | each pixel's model: the analytic [`Worth`] from its mean colour and alpha, or the network's (screen) | `capture.importance` |
+//! | water-filling the worths to the budget ([`analytic_k`]), or the importance allocator for networks that predict an importance | `capture.k` |
+//! | prefix sum, keep the k(p) nearest, composite | as for importance maps |
 //!
 //! # Features for a learned k
 //!
