@@ -11,12 +11,13 @@ use crate::options::thread_pool;
 
 /// Train, describe and evaluate the network behind `--k-from learned`.
 ///
-/// The learned variable k-buffer predicts, for every pixel with two or more fragments, which
-/// share of its fragments is worth keeping, from features the counting pass gathers; the
-/// allocator turns that into k(p) under the memory budget. `strata dataset` writes the
-/// training data, `strata learn train` fits a network to it, `strata learn eval` measures
-/// it against importance maps, the analytic model and the Optimal-K oracle on families of
-/// scenes it was not trained on.
+/// The learned variable k-buffer predicts, for every pixel with two or more fragments, how much
+/// its colour would change if only its k nearest fragments were kept (a correction of the
+/// analytic model's error curve), from features the counting pass gathers; the budget is then
+/// shared out to the fragments worth most. `strata dataset` writes the training data,
+/// `strata learn train` fits a network to it, `strata learn eval` measures it against
+/// importance maps, the analytic model and the Optimal-K oracle on families of scenes it was
+/// not trained on.
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     #[command(subcommand)]
@@ -218,9 +219,14 @@ fn info(a: InfoArgs) -> Result<()> {
         .map(|w| w.to_string())
         .collect();
     println!(
-        "  network: {} ({} hidden, sigmoid output), {} parameters, {} multiply-adds a pixel",
+        "  network: {} ({} hidden, {} output), {} parameters, {} multiply-adds a pixel",
         widths.join("-"),
         model.activation.name(),
+        if model.target.sigmoid() {
+            "sigmoid"
+        } else {
+            "linear"
+        },
         model.parameters(),
         model.macs()
     );

@@ -4,12 +4,13 @@
 //!
 //! ```text
 //! for each held-out family F (its test scene is the scene of that name):
-//!   train, without F's rows: small × seeds, seed × seeds, seed-literal × seed 1
+//!   train, without F's rows: curve (learned), fraction and seed × seeds, seed-literal × 1
 //!   for each view v of --views (orbit around the scene's target, view 0 its own camera):
 //!     reference = abuffer (exact)
-//!     for each budget b: every method through the variable k-buffer (one allocator, so Σk is
-//!       identical): importance, analytic, learned (one per seed), seed (one per seed),
-//!       seed-literal, optimal → RMSE, mean FLIP, bad pixels, Σk, importance-pass ms, memory
+//!     for each budget b: every method through the variable k-buffer (each allocator keeps
+//!       Σk = min(M, N), so Σk is identical): importance, analytic, learned, fraction and
+//!       seed (one per seed), seed-literal, optimal → RMSE, mean FLIP, bad pixels, Σk,
+//!       importance-pass ms, memory
 //!   stability: --orbit frames around the scene at --orbit-budget: mean |k_t − k_{t−1}| and
 //!     mean FLIP(image_t, image_{t−1}) per method (the reference's own FLIP between frames is
 //!     the motion every method shows; the excess over it is flicker)
@@ -41,11 +42,13 @@ use crate::options::{open_scene, search_path, thread_pool};
 /// Measure the learned k on families of scenes it was not trained on.
 ///
 /// For each --families entry, networks are trained on the --data dataset without that family
-/// (strata's small network and the thesis's 12-128-64-1 network, once per --seeds entry, and
-/// the thesis's recipe taken literally once), then the family's scene is rendered from --views
-/// cameras at every --budgets share with each way of choosing k — importance maps, the analytic
-/// model, the networks, and the Optimal-K oracle — all through the same allocator, so every
-/// method keeps the same number of fragments (Σk is printed). Each image is compared with the
+/// (strata's error-curve network `learned`, the kept-fraction network `fraction` and the
+/// thesis's 12-128-64-1 network `seed`, once per --seeds entry, and the thesis's recipe taken
+/// literally, `seed-literal`, once), then the family's scene is rendered from --views cameras
+/// at every --budgets share with each way of choosing k — importance maps, the analytic model,
+/// the networks, and the Optimal-K oracle — all under the same budget, whose allocators all
+/// keep exactly min(budget, fragments), so every method keeps the same number of fragments
+/// (Σk is printed). Each image is compared with the
 /// exact one: RMSE, mean FLIP, bad pixels. A --orbit of frames measures how k and the image
 /// flicker from frame to frame. Writes table.md, results.json and one sheet-FAMILY.png of
 /// images, FLIP maps and k maps into --out.
