@@ -47,8 +47,8 @@ pub(crate) struct MethodParams {
 
     /// vkbuffer: where k(p) comes from — `importance` maps, the `optimal` (Optimal-K) oracle,
     /// `analytic` (water-filling an error model of each pixel's layers from their mean colour and
-    /// opacity, gathered in the counting pass: no learning), or `learned` (a small network's
-    /// importance from per-pixel features of the counting pass; see --weights).
+    /// opacity, gathered in the counting pass: no learning), or `learned` (a small network
+    /// corrects that model from per-pixel features of the counting pass; see --weights).
     #[arg(long, default_value = "importance", value_parser = |s: &str| s.parse::<KFrom>())]
     pub(crate) k_from: KFrom,
 

@@ -8,15 +8,15 @@
 //! anyway (it is the frame's hot path, [`strata_stores::kbuffer::learned`]). candle 0.11 would
 //! add about 4 min 21 s to a cold release build on 2 cores (measured 2026-12-01 for the reading
 //! notes), and its forward pass was 3–4× slower than a hand-written one on these shapes. The
-//! trainer is ~300 lines and shares the model type, and so the exact forward arithmetic, with
-//! inference.
+//! trainer shares the model type, and so the exact forward arithmetic, with inference.
 //!
 //! # Data flow
 //!
 //! ```text
 //! TrainingData::load(dir)      features [rows × F] f32, labels [rows × 3], frame, scene, families
 //!   → rows(): decision pixels (count ≥ 2), families held out, a seeded subsample
-//!   → split by frame: every frame whose hash(seed, frame) % 10 == 0 validates, the rest train
+//!   → split by view: every (scene, view) whose hash with the seed is 0 mod 10 validates (all
+//!     its budgets' frames), the rest train
 //!   → normalise: per-input mean and 1/std of the transformed feature over the training rows
 //!   → epochs: seeded shuffle, mini-batches; each batch's gradient is the sum of GRAD_PARTS fixed
 //!     parts, computed in parallel and added in order, so a run is bit-identical on any number of
@@ -81,6 +81,9 @@ pub struct TrainingData {
     pub scene_names: Vec<String>,
     /// Each scene's family.
     pub families: Vec<String>,
+    /// Each frame's view (its camera within its scene); frames of one view at several budgets
+    /// share it, so the split keeps them together.
+    pub frame_views: Vec<u32>,
     /// FNV-1a 64 of `manifest.json`, for the weights' metadata.
     pub manifest_hash: String,
 }
@@ -133,6 +136,25 @@ impl TrainingData {
                     .to_owned(),
             );
         }
+        let mut frame_views = Vec::new();
+        for (i, f) in manifest
+            .get("frames")
+            .and_then(|v| v.as_array())
+            .ok_or_else(|| bad("manifest.json has no `frames`".into()))?
+            .iter()
+            .enumerate()
+        {
+            let id = f.get("id").and_then(|v| v.as_u64());
+            let view = f.get("view").and_then(|v| v.as_u64());
+            match (id, view) {
+                (Some(id), Some(view)) if id == i as u64 => frame_views.push(view as u32),
+                _ => {
+                    return Err(bad(format!(
+                        "frame {i} of manifest.json has no id {i} or no view"
+                    )));
+                }
+            }
+        }
         let read = |name: &str| {
             let path = dir.join(name);
             npy::read(&path).map_err(|e| TrainError::Read {
@@ -174,6 +196,19 @@ impl TrainingData {
         if let Some(&s) = scene.iter().find(|&&s| s as usize >= families.len()) {
             return Err(bad(format!("scene id {s} is not in the manifest")));
         }
+        if let Some(&f) = frame.iter().find(|&&f| f as usize >= frame_views.len()) {
+            return Err(bad(format!("frame id {f} is not in the manifest")));
+        }
+        if let Some(i) = features.iter().chain(&labels).position(|v| !v.is_finite()) {
+            let (file, at) = if i < features.len() {
+                ("features.npy", i)
+            } else {
+                ("labels.npy", i - features.len())
+            };
+            return Err(bad(format!(
+                "{file} holds a non-finite value (element {at})"
+            )));
+        }
         Ok(TrainingData {
             features,
             labels,
@@ -181,6 +216,7 @@ impl TrainingData {
             scene,
             scene_names,
             families,
+            frame_views,
             manifest_hash: fnv1a64_hex(&text),
         })
     }
@@ -249,7 +285,19 @@ impl ModelSpec {
                 })?;
                 Ok((f, default_transform(f)))
             })
-            .collect::<Result<_, _>>()?;
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut seen = std::collections::HashSet::new();
+        if let Some((f, _)) = self.inputs.iter().find(|(f, _)| !seen.insert(*f)) {
+            return Err(TrainError::Option(format!(
+                "`{}` is named twice in the inputs",
+                strata_stores::kbuffer::features::FEATURES[*f].name
+            )));
+        }
+        if self.inputs.is_empty() {
+            return Err(TrainError::Option(
+                "a model needs at least one input".into(),
+            ));
+        }
         Ok(self)
     }
 
@@ -425,7 +473,8 @@ pub struct TrainReport {
 }
 
 /// The rows a run uses: decision pixels (count ≥ 2) of families not held out, a seeded sample
-/// of at most `max_rows`, split into (train, validation) by frame.
+/// of at most `max_rows`, split into (train, validation) by view: all the frames of one view of
+/// one scene (one per budget, holding the same pixels) fall on the same side.
 pub fn split_rows(data: &TrainingData, config: &TrainConfig) -> (Vec<usize>, Vec<usize>) {
     let count = feature_index("count").expect("count is a feature");
     let mut rows: Vec<usize> = (0..data.len())
@@ -441,7 +490,9 @@ pub fn split_rows(data: &TrainingData, config: &TrainConfig) -> (Vec<usize>, Vec
         rows.sort_unstable();
     }
     rows.into_iter().partition(|&r| {
-        !mix(config.seed.wrapping_mul(31) ^ mix(u64::from(data.frame[r]) ^ 0x7661_6c69))
+        let view = u64::from(data.frame_views[data.frame[r] as usize]);
+        let scene = u64::from(data.scene[r]);
+        !mix(config.seed.wrapping_mul(31) ^ mix((scene << 32 | view) ^ 0x7661_6c69))
             .is_multiple_of(10)
     })
 }
@@ -525,6 +576,11 @@ pub fn train(
         epochs.push(report);
     }
     let (_, model, best_epoch) = best;
+    if best_epoch == 0 {
+        return Err(TrainError::Option(
+            "the validation loss was never finite: lower the learning rate".into(),
+        ));
+    }
     Ok((
         model,
         TrainReport {

@@ -296,8 +296,9 @@ pub enum KFrom {
     /// Water-filling an analytic error model of each pixel's layers, from sums gathered in the
     /// counting pass ([`crate::kbuffer::analytic`]): no learning, the baseline a learned k must beat.
     Analytic,
-    /// A small network's importance from per-pixel features gathered in the counting pass
-    /// ([`crate::kbuffer::learned`]): the built-in weights, or [`MethodOptions::weights`].
+    /// A small network over per-pixel features gathered in the counting pass
+    /// ([`crate::kbuffer::learned`]): by default it corrects the analytic model's error curve,
+    /// which is then water-filled; the built-in weights, or [`MethodOptions::weights`].
     Learned,
 }
 

@@ -424,6 +424,69 @@ mod tests {
         assert_eq!(k, vec![3, 2]);
     }
 
+    /// The greedy answer with a heap: the same choice as [`greedy`] (largest worth first, ties
+    /// to the lower pixel), fast enough for frames of several parallel chunks.
+    fn heap_greedy(counts: &[u32], w: &[Worth], mut rest: u64) -> Vec<u32> {
+        use std::cmp::Reverse;
+        use std::collections::BinaryHeap;
+        let mut k: Vec<u32> = counts.iter().map(|&c| u32::from(c > 0)).collect();
+        let mut heap: BinaryHeap<(OrderedWorth, Reverse<usize>)> = (0..counts.len())
+            .filter(|&p| counts[p] > 1 && w[p].worthwhile())
+            .map(|p| (OrderedWorth(w[p].log_worth(0)), Reverse(p)))
+            .collect();
+        while rest > 0 {
+            let Some((_, Reverse(p))) = heap.pop() else {
+                break;
+            };
+            k[p] += 1;
+            rest -= 1;
+            if k[p] < counts[p] {
+                heap.push((OrderedWorth(w[p].log_worth(k[p] - 1)), Reverse(p)));
+            }
+        }
+        for p in 0..counts.len() {
+            let n = u64::from(counts[p] - k[p]).min(rest);
+            k[p] += n as u32;
+            rest -= n;
+        }
+        k
+    }
+
+    #[test]
+    fn frames_of_many_chunks_give_the_greedy_result() {
+        // 3.5 chunks of pixels, a handful of models (ties across chunks), depths up to 9.
+        let pixels = 3 * PIXELS_PER_TASK + PIXELS_PER_TASK / 2;
+        let mut x = 0x2545_f491u32;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        let counts: Vec<u32> = (0..pixels).map(|_| next() % 10).collect();
+        let w: Vec<Worth> = (0..pixels)
+            .map(|_| {
+                worth(
+                    [0.3, 0.8, 1.2][(next() % 3) as usize],
+                    [0.2, 0.5, 0.9, 0.99][(next() % 4) as usize],
+                )
+            })
+            .collect();
+        let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+        let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
+        for share in [0.35, 0.5, 0.7, 0.9] {
+            let budget = (share * total as f64) as u64;
+            assert!(budget > covered);
+            let mut k = Vec::new();
+            analytic_k(&counts, &w, budget, &mut k);
+            assert_eq!(
+                k,
+                heap_greedy(&counts, &w, budget - covered),
+                "share {share}"
+            );
+        }
+    }
+
     proptest! {
         /// Few distinct models, so many pixels tie (one material over a whole mesh).
         #[test]

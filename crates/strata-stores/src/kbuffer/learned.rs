@@ -34,7 +34,7 @@
 //! and string metadata: `format` ([`WEIGHTS_FORMAT`]), `feature_set` (must equal
 //! [`super::FEATURE_SET`]), `inputs` (feature names, comma-separated, in input order),
 //! `transforms` (`identity` or `log1p` per input), `activation` (`relu` or `sigmoid`), `target`
-//! (`kept_fraction` or `seed_label`), `layers` (how many). Anything else in the metadata (the
+//! (`error_curve`, `kept_fraction` or `seed_label`), `layers` (how many). Anything else in the metadata (the
 //! training command, the dataset's hash, the families trained on) is kept and shown, not checked.
 //!
 //! # Inference
@@ -65,6 +65,8 @@ mod tests {
 
     #[test]
     fn the_base_reads_the_features_it_names() {
+        assert_eq!(feature_index("mean_r"), Some(MEAN_R));
+        assert_eq!(feature_index("mean_b"), Some(MEAN_R + 2));
         assert_eq!(feature_index("count"), Some(COUNT));
         assert_eq!(feature_index("alpha_sum"), Some(ALPHA_SUM));
         assert_eq!(feature_index("contrast"), Some(CONTRAST));
@@ -266,6 +268,7 @@ impl Target {
 }
 
 /// Columns of the features the error curve's base reads (checked against the names by a test).
+const MEAN_R: usize = 6;
 const COUNT: usize = 12;
 const ALPHA_SUM: usize = 14;
 const CONTRAST: usize = 23;
@@ -343,9 +346,9 @@ impl Layer {
 pub struct LearnedModel {
     /// The inputs, in order.
     pub inputs: Vec<Input>,
-    /// Hidden layers then the output layer (one output).
+    /// Hidden layers then the output layer ([`Target::outputs`] outputs).
     pub layers: Vec<Layer>,
-    /// The hidden layers' activation (the output is always a sigmoid).
+    /// The hidden layers' activation (the output's is the target's: [`Target::sigmoid`]).
     pub activation: Activation,
     /// What the output predicts.
     pub target: Target,
@@ -391,7 +394,8 @@ impl LearnedModel {
             .unwrap_or(0)
     }
 
-    /// Checks that the layers chain from the inputs to one output and every value is finite.
+    /// Checks that the layers chain from the inputs to the target's outputs and every value is
+    /// finite.
     pub fn validate(&self) -> Result<(), WeightsError> {
         let bad = |name: String, reason: String| WeightsError::BadTensor { name, reason };
         if self.inputs.is_empty() || self.inputs.len() > FEATURE_COUNT {
@@ -543,7 +547,7 @@ impl LearnedModel {
                             continue;
                         }
                         let f = sums.pixel_features(counts, frame, p % w, p / w);
-                        block.push(self, &f, i, count);
+                        block.push(self, &f, i, count, frame.background);
                         if block.len == LANES {
                             block.run(self, imp, worth);
                         }
@@ -789,8 +793,8 @@ struct Block {
     at: [(usize, u32); LANES],
     /// Each lane's analytic `(d₀, t₀)` ([`Target::ErrorCurve`]).
     base: [(f32, f32); LANES],
-    /// Each lane's contrast against the background, unfloored.
-    contrast: [f32; LANES],
+    /// Each lane's contrast against the background, as the analytic model computes it.
+    contrast: [f64; LANES],
     a: Vec<f32>,
     b: Vec<f32>,
 }
@@ -809,14 +813,22 @@ impl Block {
     }
 
     #[inline]
-    fn push(&mut self, model: &LearnedModel, f: &[f32; FEATURE_COUNT], at: usize, count: u32) {
+    fn push(
+        &mut self,
+        model: &LearnedModel,
+        f: &[f32; FEATURE_COUNT],
+        at: usize,
+        count: u32,
+        background: [f32; 3],
+    ) {
         let lane = self.len;
         for (u, input) in model.inputs.iter().enumerate() {
             self.a[u * LANES + lane] = input.normalise(f[input.feature]);
         }
         self.at[lane] = (at, count);
         self.base[lane] = curve_base(f);
-        self.contrast[lane] = f[CONTRAST];
+        let mean = [f[MEAN_R], f[MEAN_R + 1], f[MEAN_R + 2]];
+        self.contrast[lane] = Worth::contrast_of(mean, background);
         self.len += 1;
     }
 
@@ -857,7 +869,7 @@ impl Block {
                 // Which pixels keep a fragment at all, when the budget cannot give every
                 // covered pixel one, stays the analytic model's choice: the curve is fitted to
                 // the errors of keeping 1, 2, … fragments, not of keeping none.
-                worth[at].contrast = f64::from(self.contrast[lane]);
+                worth[at].contrast = self.contrast[lane];
                 // What keeping only the nearest fragment would lose: ê(1) = d·t.
                 importance[at] = d * t;
             } else {
