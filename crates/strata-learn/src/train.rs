@@ -936,3 +936,94 @@ pub fn describe(
         model.info.insert(k.to_owned(), v);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two rows of made-up features and labels: a deep pixel and a shallow one.
+    fn data() -> TrainingData {
+        let mut features = vec![0.0f32; 2 * FEATURE_COUNT];
+        for (r, row) in features.chunks_mut(FEATURE_COUNT).enumerate() {
+            for (i, v) in row.iter_mut().enumerate() {
+                *v = 0.1 + 0.37 * ((i * 7 + r * 3) % 11) as f32 / 11.0;
+            }
+            row[12] = [9.0, 3.0][r]; // count
+            row[14] = [4.5, 1.2][r]; // alpha sum
+            row[23] = [0.6, 0.3][r]; // contrast
+        }
+        let mut labels = vec![0.0f32; 2 * LABELS.len()];
+        for (r, row) in labels.chunks_mut(LABELS.len()).enumerate() {
+            row[1] = [0.4, 1.0][r]; // kept fraction
+            for (k, e) in row[3..].iter_mut().enumerate() {
+                *e = [0.5, 0.2][r] * 0.6f32.powi(k as i32 + 1);
+            }
+        }
+        TrainingData {
+            features,
+            labels,
+            frame: vec![0, 0],
+            scene: vec![0, 0],
+            scene_names: vec!["test".into()],
+            families: vec!["test".into()],
+            frame_views: vec![0],
+            manifest_hash: String::new(),
+        }
+    }
+
+    /// Backpropagation's gradient equals central finite differences of the loss, for every
+    /// parameter of a small network, for the error curve and the kept fraction.
+    #[test]
+    fn gradients_match_finite_differences() {
+        let data = data();
+        for (preset, loss) in [("curve", Loss::Mse), ("fraction", Loss::CrossEntropy)] {
+            let mut spec = ModelSpec::preset(preset).unwrap();
+            spec.hidden = vec![5];
+            let mut model = init_model(&data, &[0, 1], &spec, 3);
+            // Non-zero output biases, so every path carries gradient; one hidden unit switched
+            // off (ReLU at 0), whose weights must then get no gradient.
+            for (i, b) in model.layers[1].bias.iter_mut().enumerate() {
+                *b = 0.1 * (i as f32 + 1.0);
+            }
+            model.layers[0].bias[0] = -50.0;
+            let loss_of = |m: &LearnedModel| -> f64 {
+                (0..2)
+                    .map(|r| output_loss(m.target, &data, r, m.predict(data.row(r)), loss).0)
+                    .sum()
+            };
+            let mut grads = Grads::zeros(&model);
+            let mut scratch = Scratch::new(&model);
+            for r in 0..2 {
+                backprop(&model, &data, r, loss, &mut scratch, &mut grads);
+            }
+            let h = 1e-3f32;
+            for li in 0..model.layers.len() {
+                let n = model.layers[li].weight.len() + model.layers[li].bias.len();
+                for j in 0..n {
+                    let mut plus = model.clone();
+                    let mut minus = model.clone();
+                    let set = |m: &mut LearnedModel, d: f32| {
+                        let l = &mut m.layers[li];
+                        let nw = l.weight.len();
+                        if j < nw {
+                            l.weight[j] += d;
+                        } else {
+                            l.bias[j - nw] += d;
+                        }
+                    };
+                    set(&mut plus, h);
+                    set(&mut minus, -h);
+                    let numeric = (loss_of(&plus) - loss_of(&minus)) / (2.0 * f64::from(h));
+                    let (gw, gb) = &grads.layers[li];
+                    let nw = gw.len();
+                    let analytic = f64::from(if j < nw { gw[j] } else { gb[j - nw] });
+                    let tolerance = 1e-2 * numeric.abs().max(analytic.abs()).max(1e-3);
+                    assert!(
+                        (numeric - analytic).abs() <= tolerance,
+                        "{preset}: layer {li} parameter {j}: backprop {analytic}, finite differences {numeric}"
+                    );
+                }
+            }
+        }
+    }
+}
