@@ -213,6 +213,82 @@ impl VariableKBuffer {
     }
 }
 
+impl VariableKBuffer {
+    /// The importance and k passes of every mode but Optimal-K: fills `importance`, `k` (and
+    /// `worth` for the error models) and `allocation` from the counting pass's results.
+    fn choose_k(&mut self, budget: u64, background: [f32; 3], timings: &mut PassTimings) {
+        let (width, height) = (self.width, self.height);
+        let pixels = width as usize * height as usize;
+        let counts = self.counts.counts();
+        if self.k_from == KFrom::Importance {
+            timings.time("capture.importance", || {
+                importance_map(counts, width, height, &self.params, &mut self.importance)
+            });
+            self.allocation = timings.time("capture.k", || {
+                allocate_k(counts, &self.importance, budget, &mut self.k)
+            });
+            return;
+        }
+        let Some((sums, _)) = self.features.as_deref() else {
+            unreachable!("VariableKBuffer::new allocates the sums for the error models");
+        };
+        self.worth.resize(pixels, Worth::at_most_one(0.0));
+        let use_curve = match self.model.as_deref() {
+            Some(model) => {
+                timings.time("capture.importance", || {
+                    let frame = FrameFeatures::of(sums, counts, budget, background);
+                    model.infer(sums, counts, &frame, &mut self.importance, &mut self.worth);
+                });
+                model.target == Target::ErrorCurve
+            }
+            None => {
+                timings.time("capture.importance", || {
+                    analytic_worths(
+                        sums,
+                        counts,
+                        background,
+                        &mut self.worth,
+                        &mut self.importance,
+                    )
+                });
+                true
+            }
+        };
+        self.allocation = timings.time("capture.k", || {
+            if use_curve {
+                analytic_k(counts, &self.worth, budget, &mut self.k)
+            } else {
+                allocate_k(counts, &self.importance, budget, &mut self.k)
+            }
+        });
+    }
+}
+
+/// The analytic model of every pixel from its sums ([`Worth`]), and as importance what keeping
+/// only its nearest fragment would lose, `ê(1) = d·t` (0 where there is no choice).
+fn analytic_worths(
+    sums: &FeatureAccumulator,
+    counts: &[u32],
+    background: [f32; 3],
+    worth: &mut [Worth],
+    importance: &mut [f32],
+) {
+    worth
+        .par_iter_mut()
+        .zip(importance.par_iter_mut())
+        .enumerate()
+        .for_each(|(p, (w, i))| {
+            let (mean, alpha) = sums.means(p, counts[p]);
+            if counts[p] > 1 {
+                *w = Worth::new(mean, alpha, background);
+                *i = (w.contrast * (1.0 - f64::from(alpha.clamp(0.0, 1.0)))) as f32;
+            } else {
+                *w = Worth::at_most_one(Worth::contrast_of(mean, background));
+                *i = 0.0;
+            }
+        });
+}
+
 impl Method for VariableKBuffer {
     fn name(&self) -> &'static str {
         NAME
@@ -252,77 +328,8 @@ impl Method for VariableKBuffer {
         self.importance.resize(pixels, 0.0);
 
         let captured = match self.k_from {
-            KFrom::Importance => {
-                timings.time("capture.importance", || {
-                    importance_map(
-                        self.counts.counts(),
-                        width,
-                        height,
-                        &self.params,
-                        &mut self.importance,
-                    )
-                });
-                self.allocation = timings.time("capture.k", || {
-                    allocate_k(self.counts.counts(), &self.importance, budget, &mut self.k)
-                });
-                let start = Instant::now();
-                self.regions.with_capacities(width, height, &self.k)?;
-                timings.add("capture.prefix_sum", start.elapsed());
-                timings.time("capture.capture", || {
-                    prepared.rasterize(&mut RegionCapture {
-                        regions: &mut self.regions,
-                        policy: Policy::KeepNearest,
-                        evicted: None,
-                    })
-                })
-            }
-            KFrom::Analytic | KFrom::Learned => {
-                let Some((sums, _)) = self.features.as_deref() else {
-                    unreachable!("VariableKBuffer::new allocates the sums for these modes");
-                };
-                let counts = self.counts.counts();
-                let background = input.background;
-                if let Some(model) = self.model.as_deref() {
-                    timings.time("capture.importance", || {
-                        let frame = FrameFeatures::of(sums, counts, budget, background);
-                        self.worth
-                            .resize(pixels, Worth::new([0.0; 3], 0.0, background));
-                        model.infer(sums, counts, &frame, &mut self.importance, &mut self.worth);
-                    });
-                    self.allocation = timings.time("capture.k", || {
-                        if model.target == Target::ErrorCurve {
-                            analytic_k(counts, &self.worth, budget, &mut self.k)
-                        } else {
-                            allocate_k(counts, &self.importance, budget, &mut self.k)
-                        }
-                    });
-                } else {
-                    timings.time("capture.importance", || {
-                        self.worth
-                            .resize(pixels, Worth::new([0.0; 3], 0.0, background));
-                        self.worth
-                            .par_iter_mut()
-                            .zip(self.importance.par_iter_mut())
-                            .enumerate()
-                            .for_each(|(p, (w, i))| {
-                                let (mean, alpha) = sums.means(p, counts[p]);
-                                *w = if counts[p] > 1 {
-                                    Worth::new(mean, alpha, background)
-                                } else {
-                                    Worth::at_most_one(Worth::contrast_of(mean, background))
-                                };
-                                // What keeping only the nearest fragment would lose: ê(1) = d·t.
-                                *i = if counts[p] > 1 {
-                                    (w.contrast * (1.0 - f64::from(alpha.clamp(0.0, 1.0)))) as f32
-                                } else {
-                                    0.0
-                                };
-                            });
-                    });
-                    self.allocation = timings.time("capture.k", || {
-                        analytic_k(counts, &self.worth, budget, &mut self.k)
-                    });
-                }
+            KFrom::Importance | KFrom::Analytic | KFrom::Learned => {
+                self.choose_k(budget, input.background, timings);
                 let start = Instant::now();
                 self.regions.with_capacities(width, height, &self.k)?;
                 timings.add("capture.prefix_sum", start.elapsed());
