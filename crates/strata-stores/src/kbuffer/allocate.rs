@@ -95,7 +95,7 @@ pub fn allocate_k(counts: &[u32], importance: &[f32], budget: u64, k: &mut Vec<u
     }
     if m < covered {
         k.par_iter_mut().for_each(|k| *k = 0);
-        most_important(counts, importance, m, k);
+        one_each_to_the_most(counts, m, k, |p| f64::from(importance[p].max(0.0)));
         return report;
     }
     let mut left = m - covered;
@@ -113,24 +113,49 @@ pub fn allocate_k(counts: &[u32], importance: &[f32], budget: u64, k: &mut Vec<u
     report
 }
 
-/// Step 3: `k = 1` for the `m` covered pixels of highest importance, ties to the lower index.
-fn most_important(counts: &[u32], importance: &[f32], m: u64, k: &mut [u32]) {
-    let mut keys: Vec<u64> = counts
+/// Below one fragment per covered pixel: gives 1 to the `m` covered pixels of largest `key`
+/// (ties to the lower pixel index) and leaves the others as they are (0). Shared by the importance
+/// allocator (key: importance) and the analytic one (key: contrast against the background).
+pub(super) fn one_each_to_the_most(
+    counts: &[u32],
+    m: u64,
+    k: &mut [u32],
+    key: impl Fn(usize) -> f64 + Sync,
+) {
+    let mut order: Vec<(std::cmp::Reverse<TotalF64>, usize)> = counts
         .par_iter()
-        .zip(importance)
         .enumerate()
-        .filter(|(_, (c, _))| **c > 0)
-        .map(|(p, (_, i))| (u64::from(!i.max(0.0).to_bits()) << 32) | p as u64)
+        .filter(|(_, c)| **c > 0)
+        .map(|(p, _)| (std::cmp::Reverse(TotalF64(key(p))), p))
         .collect();
     let m = m as usize;
     if m == 0 {
         return;
     }
-    if m < keys.len() {
-        keys.select_nth_unstable(m - 1);
+    if m < order.len() {
+        order.select_nth_unstable(m - 1);
     }
-    for &key in &keys[..m] {
-        k[(key & u64::from(u32::MAX)) as usize] = 1;
+    for &(_, p) in &order[..m.min(order.len())] {
+        k[p] = 1;
+    }
+}
+
+/// An `f64` ordered by `total_cmp` (keys are never NaN here: importance is clamped at 0, and
+/// contrasts and worths are distances and their logarithms).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct TotalF64(pub(super) f64);
+
+impl Eq for TotalF64 {}
+
+impl PartialOrd for TotalF64 {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for TotalF64 {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
     }
 }
 

@@ -40,7 +40,7 @@
 
 use rayon::prelude::*;
 
-use super::allocate::Allocation;
+use super::allocate::{Allocation, TotalF64, one_each_to_the_most};
 
 /// Pixels per parallel work item.
 const PIXELS_PER_TASK: usize = 8 * 1024;
@@ -151,15 +151,7 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
     }
     if target < covered {
         // The pixels that show most against the background get one.
-        let mut order: Vec<usize> = (0..pixels).filter(|&p| counts[p] > 0).collect();
-        let key = |&p: &usize| (std::cmp::Reverse(OrderedWorth(worth[p].contrast)), p);
-        let n = target as usize;
-        if n > 0 && n < order.len() {
-            order.select_nth_unstable_by_key(n - 1, key);
-        }
-        for &p in order.iter().take(n) {
-            k[p] = 1;
-        }
+        one_each_to_the_most(counts, target, k, |p| worth[p].contrast);
         return allocation;
     }
     for (kp, &c) in k.iter_mut().zip(counts) {
@@ -270,7 +262,7 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
         // (more fragments than `rest` do, at most one per pixel), so only they are sorted; the
         // whole list serves if the rounds ran out first.
         if rest > 0 {
-            let next_worths = |above: f64| -> Vec<(OrderedWorth, usize)> {
+            let next_worths = |above: f64| -> Vec<(TotalF64, usize)> {
                 chunks
                     .par_iter()
                     .map(|candidates| {
@@ -278,7 +270,7 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
                             .iter()
                             .map(|c| c.pixel as usize)
                             .filter(|&p| k[p] < counts[p])
-                            .map(|p| (OrderedWorth(worth[p].log_worth(k[p] - 1)), p))
+                            .map(|p| (TotalF64(worth[p].log_worth(k[p] - 1)), p))
                             .filter(|(w, _)| w.0 > above)
                             .collect::<Vec<_>>()
                     })
@@ -290,7 +282,7 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
                 next = next_worths(f64::NEG_INFINITY);
             }
             let n = (rest as usize).min(next.len());
-            let key = |e: &(OrderedWorth, usize)| (std::cmp::Reverse(e.0), e.1);
+            let key = |e: &(TotalF64, usize)| (std::cmp::Reverse(e.0), e.1);
             if n > 0 && n < next.len() {
                 next.select_nth_unstable_by_key(n - 1, key);
             }
@@ -325,24 +317,6 @@ impl Candidate {
     #[inline]
     fn extra_above(&self, level: f64) -> u32 {
         self.worth.extra_above(level, self.room)
-    }
-}
-
-/// An `f64` ordered by `total_cmp` (the worths are never NaN: logs of non-negative numbers).
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct OrderedWorth(f64);
-
-impl Eq for OrderedWorth {}
-
-impl PartialOrd for OrderedWorth {
-    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(other))
-    }
-}
-
-impl Ord for OrderedWorth {
-    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&other.0)
     }
 }
 
@@ -430,9 +404,9 @@ mod tests {
         use std::cmp::Reverse;
         use std::collections::BinaryHeap;
         let mut k: Vec<u32> = counts.iter().map(|&c| u32::from(c > 0)).collect();
-        let mut heap: BinaryHeap<(OrderedWorth, Reverse<usize>)> = (0..counts.len())
+        let mut heap: BinaryHeap<(TotalF64, Reverse<usize>)> = (0..counts.len())
             .filter(|&p| counts[p] > 1 && w[p].worthwhile())
-            .map(|p| (OrderedWorth(w[p].log_worth(0)), Reverse(p)))
+            .map(|p| (TotalF64(w[p].log_worth(0)), Reverse(p)))
             .collect();
         while rest > 0 {
             let Some((_, Reverse(p))) = heap.pop() else {
@@ -441,7 +415,7 @@ mod tests {
             k[p] += 1;
             rest -= 1;
             if k[p] < counts[p] {
-                heap.push((OrderedWorth(w[p].log_worth(k[p] - 1)), Reverse(p)));
+                heap.push((TotalF64(w[p].log_worth(k[p] - 1)), Reverse(p)));
             }
         }
         for p in 0..counts.len() {
