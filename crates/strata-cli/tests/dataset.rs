@@ -8,32 +8,36 @@ use strata_core::npy::{self, NpyValues};
 use strata_stores::kbuffer::features::{FEATURE_COUNT, FEATURE_SET, feature_names};
 use tempfile::TempDir;
 
+/// `strata dataset` of two generated scenes and `overlap`, 64 × 48, into `out` on `threads`.
+fn small_dataset(out: &std::path::Path, threads: u32) -> assert_cmd::Command {
+    let mut c = strata();
+    c.args([
+        "dataset",
+        "--procedural",
+        "2",
+        "--scenes",
+        "overlap",
+        "--views",
+        "2",
+    ])
+    .args([
+        "--budgets",
+        "40,80",
+        "--pixels-per-frame",
+        "100",
+        "--size",
+        "64x48",
+    ])
+    .args(["--seed", "9", "-j", &threads.to_string(), "--out"])
+    .arg(out);
+    c
+}
+
 #[test]
 fn dataset_writes_arrays_that_match_its_manifest() {
     let dir = TempDir::new().unwrap();
     let out = dir.path().join("data");
-    let ran = run_ok(
-        strata()
-            .args([
-                "dataset",
-                "--procedural",
-                "2",
-                "--scenes",
-                "overlap",
-                "--views",
-                "2",
-            ])
-            .args([
-                "--budgets",
-                "40,80",
-                "--pixels-per-frame",
-                "100",
-                "--size",
-                "64x48",
-            ])
-            .args(["--seed", "9", "-j", "2", "--out"])
-            .arg(&out),
-    );
+    let ran = run_ok(&mut small_dataset(&out, 2));
     assert!(ran.stderr.contains("wrote"), "{}", ran.stderr);
     let m = read_json(&out.join("manifest.json"));
     assert_eq!(m["feature_set"], FEATURE_SET);
@@ -65,28 +69,7 @@ fn dataset_writes_arrays_that_match_its_manifest() {
     assert!(ids.iter().all(|&id| (id as usize) < frames.len()));
     // The same command gives the same files.
     let again = dir.path().join("again");
-    run_ok(
-        strata()
-            .args([
-                "dataset",
-                "--procedural",
-                "2",
-                "--scenes",
-                "overlap",
-                "--views",
-                "2",
-            ])
-            .args([
-                "--budgets",
-                "40,80",
-                "--pixels-per-frame",
-                "100",
-                "--size",
-                "64x48",
-            ])
-            .args(["--seed", "9", "-j", "1", "--out"])
-            .arg(&again),
-    );
+    run_ok(&mut small_dataset(&again, 1));
     assert_eq!(read_json(&again.join("manifest.json")), m);
 }
 
