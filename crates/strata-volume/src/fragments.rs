@@ -107,18 +107,11 @@ impl FragmentLayer {
         pixels: usize,
         mut fill: impl FnMut(usize, &mut Vec<RayFragment>),
     ) -> FragmentLayer {
-        let mut starts = Vec::with_capacity(pixels + 1);
-        let mut fragments = Vec::new();
-        let mut run = Vec::new();
-        starts.push(0);
+        let mut layer = LayerBuilder::new(pixels);
         for p in 0..pixels {
-            run.clear();
-            fill(p, &mut run);
-            settle(&mut run);
-            fragments.extend_from_slice(&run);
-            starts.push(fragments.len());
+            layer.push(p, &mut fill);
         }
-        FragmentLayer { starts, fragments }
+        layer.finish(pixels)
     }
 
     /// A layer of a `width`-pixel-wide image of `pixels` pixels whose runs `fill(p, out)` pushes
@@ -131,10 +124,7 @@ impl FragmentLayer {
         rows: std::ops::Range<u32>,
         mut fill: impl FnMut(usize, &mut Vec<RayFragment>),
     ) -> FragmentLayer {
-        let mut starts = Vec::with_capacity(pixels + 1);
-        let mut fragments = Vec::new();
-        let mut run = Vec::new();
-        starts.push(0);
+        let mut layer = LayerBuilder::new(pixels);
         let cols = cols.start..cols.end.min(width);
         let width = width as usize;
         for y in rows {
@@ -144,16 +134,10 @@ impl FragmentLayer {
                 if p >= pixels {
                     break;
                 }
-                starts.resize(p + 1, fragments.len());
-                run.clear();
-                fill(p, &mut run);
-                settle(&mut run);
-                fragments.extend_from_slice(&run);
-                starts.push(fragments.len());
+                layer.push(p, &mut fill);
             }
         }
-        starts.resize(pixels + 1, fragments.len());
-        FragmentLayer { starts, fragments }
+        layer.finish(pixels)
     }
 
     /// Pixels in the layer.
@@ -193,6 +177,44 @@ impl FragmentLayer {
         out.extend_from_slice(self.run(p));
         out.extend_from_slice(other.run(p));
         settle(out);
+    }
+}
+
+/// Builds a [`FragmentLayer`] pixel by pixel, in increasing pixel order; pixels skipped get
+/// empty runs.
+struct LayerBuilder {
+    starts: Vec<usize>,
+    fragments: Vec<RayFragment>,
+    run: Vec<RayFragment>,
+}
+
+impl LayerBuilder {
+    fn new(pixels: usize) -> Self {
+        let mut starts = Vec::with_capacity(pixels + 1);
+        starts.push(0);
+        LayerBuilder {
+            starts,
+            fragments: Vec::new(),
+            run: Vec::new(),
+        }
+    }
+
+    /// Pixel `p`'s run, as `fill(p, out)` pushes it into an empty scratch list, settled.
+    fn push(&mut self, p: usize, fill: &mut impl FnMut(usize, &mut Vec<RayFragment>)) {
+        self.starts.resize(p + 1, self.fragments.len());
+        self.run.clear();
+        fill(p, &mut self.run);
+        settle(&mut self.run);
+        self.fragments.extend_from_slice(&self.run);
+        self.starts.push(self.fragments.len());
+    }
+
+    fn finish(mut self, pixels: usize) -> FragmentLayer {
+        self.starts.resize(pixels + 1, self.fragments.len());
+        FragmentLayer {
+            starts: self.starts,
+            fragments: self.fragments,
+        }
     }
 }
 
