@@ -55,6 +55,49 @@ pub struct FrameRecord {
     pub audit: Option<FrameAudit>,
 }
 
+impl FrameRecord {
+    /// The record of FC frame `f`, on screen at `shown_ms`, with its `audit` if it had one.
+    pub fn of(f: &crate::simulate::FcFrame, shown_ms: f64, audit: Option<FrameAudit>) -> Self {
+        Self::from_parts(
+            f.index,
+            f.t_ms,
+            shown_ms,
+            &f.snapshot,
+            f.sc.as_deref(),
+            audit,
+        )
+    }
+
+    /// The record of frame `index` started at `t_ms` and on screen at `shown_ms`, showing
+    /// `snapshot` over the SC buffer `sc`: what [`FrameRecord::of`] reads from a simulated FC
+    /// frame, for the frames of other runs (deferred shading) too.
+    pub fn from_parts(
+        index: u64,
+        t_ms: f64,
+        shown_ms: f64,
+        snapshot: &crate::authority::Snapshot,
+        sc: Option<&crate::transfer::TransferBuffer>,
+        audit: Option<FrameAudit>,
+    ) -> Self {
+        let mut selected: Vec<ObjectId> = snapshot
+            .objects
+            .iter()
+            .filter(|o| o.state == crate::ObjectState::Selected)
+            .map(|o| o.id)
+            .collect();
+        selected.sort_unstable();
+        FrameRecord {
+            index,
+            t_ms,
+            shown_ms,
+            events_applied: snapshot.events_applied,
+            sc_state_ms: sc.map(|sc| sc.snapshot_t_ms),
+            selected,
+            audit,
+        }
+    }
+}
+
 /// Latencies of a run's inputs (ms).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Latency {

@@ -474,15 +474,14 @@ fn lights_reach_the_screen_at_the_fc_rate_deferred_and_the_sc_rate_forward() {
                 if shade_on == ShadeOn::Fc {
                     assert_eq!(f.shaded, expected, "frame {}", f.index);
                 }
-                records.push(FrameRecord {
-                    index: f.index,
-                    t_ms: f.t_ms,
-                    shown_ms: f.t_ms + clock.fc_ms,
-                    events_applied: f.snapshot.events_applied,
-                    sc_state_ms: f.sc.as_ref().map(|sc| sc.snapshot_t_ms),
-                    selected: Vec::new(),
-                    audit: None,
-                });
+                records.push(FrameRecord::from_parts(
+                    f.index,
+                    f.t_ms,
+                    f.t_ms + clock.fc_ms,
+                    &f.snapshot,
+                    f.sc.as_deref(),
+                    None,
+                ));
             },
         )
         .expect("the run");

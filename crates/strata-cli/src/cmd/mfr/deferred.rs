@@ -98,15 +98,14 @@ pub(super) fn run(
                     light_counts.0.min(f.lights.len()),
                     light_counts.1.max(f.lights.len()),
                 );
-                records.push(FrameRecord {
-                    index: f.index,
-                    t_ms: f.t_ms,
-                    shown_ms: f.t_ms + clock.fc_ms,
-                    events_applied: f.snapshot.events_applied,
-                    sc_state_ms: f.sc.as_ref().map(|sc| sc.snapshot_t_ms),
-                    selected: Vec::new(),
-                    audit: Some(a),
-                });
+                records.push(FrameRecord::from_parts(
+                    f.index,
+                    f.t_ms,
+                    f.t_ms + clock.fc_ms,
+                    &f.snapshot,
+                    f.sc.as_deref(),
+                    Some(a),
+                ));
                 if args.save_frames
                     && let Some(dir) = &args.out_dir
                 {

@@ -13,6 +13,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
+use strata_mfr::FrameRecord;
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 use strata_mfr::tcp::TcpOptions;
@@ -30,7 +31,7 @@ mod view;
 mod volume;
 
 use clock::{make_trace, parse_clock};
-use summary::{Totals, frame_json, frame_record, incidents_text, summary_json, summary_text};
+use summary::{Totals, frame_json, incidents_text, summary_json, summary_text};
 
 /// Multi-frame-rate rendering: a slow and a fast client composited, every frame audited.
 ///
@@ -345,7 +346,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         }
         let result = audit_frame(&scene, &mut reference, f).and_then(|(a, reference)| {
             views.add(&scene, &mut view_reference, f, &a, shown_ms)?;
-            let r = frame_record(f, shown_ms, Some(a));
+            let r = FrameRecord::of(f, shown_ms, Some(a));
             if let Some(sheets) = &mut sheets {
                 sheets.offer(f, &reference, &a);
             }
@@ -437,7 +438,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
                     shown.push(f.clone());
                 } else {
                     unaudited.push((
-                        frame_record(f, f.t_ms, None),
+                        FrameRecord::of(f, f.t_ms, None),
                         f.sc.as_ref().map(|sc| sc.sc_frame),
                     ));
                 }

@@ -3,10 +3,9 @@
 use std::collections::BTreeSet;
 
 use serde_json::json;
-use strata_core::ObjectId;
 use strata_mfr::simulate::FcFrame;
 use strata_mfr::trace::Trace;
-use strata_mfr::{FrameAudit, FrameRecord, ObjectState, RealStats, events, latency, table_6_1_row};
+use strata_mfr::{FrameAudit, FrameRecord, RealStats, events, latency, table_6_1_row};
 
 use super::{Args, Clock};
 
@@ -24,27 +23,6 @@ impl Totals {
     pub(super) fn add(&mut self, record: FrameRecord, sc_frame: Option<u64>) {
         self.sc_frames_used.extend(sc_frame);
         self.records.push(record);
-    }
-}
-
-/// The record of frame `f`, on screen at `shown_ms`.
-pub(super) fn frame_record(f: &FcFrame, shown_ms: f64, audit: Option<FrameAudit>) -> FrameRecord {
-    let mut selected: Vec<ObjectId> = f
-        .snapshot
-        .objects
-        .iter()
-        .filter(|o| o.state == ObjectState::Selected)
-        .map(|o| o.id)
-        .collect();
-    selected.sort_unstable();
-    FrameRecord {
-        index: f.index,
-        t_ms: f.t_ms,
-        shown_ms,
-        events_applied: f.snapshot.events_applied,
-        sc_state_ms: f.sc.as_ref().map(|sc| sc.snapshot_t_ms),
-        selected,
-        audit,
     }
 }
 
