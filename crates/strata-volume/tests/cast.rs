@@ -3,42 +3,18 @@
 
 mod common;
 
-use common::ramp;
+use common::{UNIT_BOX, down_z, ramp, uniform, well};
 
 use glam::{Mat4, Vec3};
-use strata_volume::cast::{CastParams, Caster, Ray, VolumeBox};
+use strata_volume::cast::{CastParams, Caster};
 use strata_volume::geometry::{Shape, Solid, well_path};
 use strata_volume::stencil::{Renderer, VolumeScene};
-use strata_volume::transfer::{StepTable, TfPoint, TransferFunction};
+use strata_volume::transfer::StepTable;
 use strata_volume::volume::Volume;
-
-const UNIT_BOX: VolumeBox = VolumeBox {
-    min: Vec3::splat(-0.5),
-    max: Vec3::splat(0.5),
-};
-
-fn grey(alpha: f32) -> TransferFunction {
-    TransferFunction::new(
-        vec![TfPoint {
-            value: 0.0,
-            color: [1.0; 3],
-            alpha,
-        }],
-        1.0,
-    )
-    .expect("valid")
-}
-
-fn down_z() -> Ray {
-    Ray {
-        origin: Vec3::new(0.1, -0.2, 3.0),
-        dir: Vec3::NEG_Z,
-    }
-}
 
 fn transmittance(alpha: f32, step: f32, t_end: f32) -> (f32, u32) {
     let volume = Volume::constant([4, 4, 4], 0.7);
-    let tf = grey(alpha);
+    let tf = uniform(alpha);
     let params = CastParams {
         step,
         termination: 0.0,
@@ -83,7 +59,7 @@ fn opacity_correction_makes_the_result_independent_of_the_step() {
 #[test]
 fn early_termination_stops_once_the_ray_is_opaque() {
     let volume = Volume::constant([4, 4, 4], 0.5);
-    let tf = grey(0.9999);
+    let tf = uniform(0.9999);
     let params = CastParams {
         step: 1.0 / 128.0,
         termination: 0.01,
@@ -151,16 +127,7 @@ fn scene() -> VolumeScene {
         }],
         static_glass: vec![],
         interactive_glass: vec![],
-        interactive: well_path(
-            &[
-                Vec3::new(-0.2, 0.9, 0.1),
-                Vec3::new(-0.1, 0.1, 0.0),
-                Vec3::new(0.3, -0.3, 0.2),
-                Vec3::new(0.7, -0.4, 0.3),
-            ],
-            0.05,
-            [0.9, 0.2, 0.1],
-        ),
+        interactive: well(),
     }
 }
 

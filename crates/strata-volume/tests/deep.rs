@@ -4,42 +4,15 @@
 
 mod common;
 
-use common::ramp;
+use common::{UNIT_BOX, down_z, glass_tube, ramp, uniform, well};
 
 use glam::{Mat4, Vec3};
-use strata_volume::cast::{CastParams, Caster, Ray, VolumeBox, camera_rays, over_geometry};
+use strata_volume::cast::{CastParams, Caster, camera_rays, over_geometry};
 use strata_volume::fragments::{FragmentLayer, RayFragment};
-use strata_volume::geometry::{
-    BACKGROUND, Glass, Shape, Solid, fragment_layer, trace_layer, well_path,
-};
+use strata_volume::geometry::{BACKGROUND, Glass, Shape, Solid, fragment_layer, trace_layer};
 use strata_volume::stencil::{Interactive, Renderer, VolumeScene};
-use strata_volume::transfer::{StepTable, TfPoint, TransferFunction};
+use strata_volume::transfer::StepTable;
 use strata_volume::volume::Volume;
-
-const UNIT_BOX: VolumeBox = VolumeBox {
-    min: Vec3::splat(-0.5),
-    max: Vec3::splat(0.5),
-};
-
-fn white_medium(alpha: f32) -> TransferFunction {
-    TransferFunction::new(
-        vec![TfPoint {
-            value: 0.0,
-            color: [1.0; 3],
-            alpha,
-        }],
-        1.0,
-    )
-    .expect("valid")
-}
-
-/// A ray down the z axis entering the unit box at t = 2.5 and leaving it at t = 3.5.
-fn down_z() -> Ray {
-    Ray {
-        origin: Vec3::new(0.1, -0.2, 3.0),
-        dir: Vec3::NEG_Z,
-    }
-}
 
 fn frag(t: f32, color: [f32; 3], alpha: f32) -> RayFragment {
     RayFragment { t, color, alpha }
@@ -53,7 +26,7 @@ fn walk(medium_alpha: f32, run: &[RayFragment]) -> ([f32; 3], u32) {
     let caster = Caster {
         volume: &volume,
         placement: UNIT_BOX,
-        table: StepTable::new(&white_medium(medium_alpha), step),
+        table: StepTable::new(&uniform(medium_alpha), step),
         params: CastParams {
             step,
             termination: 0.0,
@@ -116,7 +89,7 @@ fn fragments_given_in_any_order_give_the_same_pixel_bit_for_bit() {
     let caster = Caster {
         volume: &volume,
         placement: UNIT_BOX,
-        table: StepTable::new(&white_medium(0.7), params.step),
+        table: StepTable::new(&uniform(0.7), params.step),
         params,
     };
     let ray = down_z();
@@ -162,19 +135,6 @@ fn floor() -> Solid {
     }
 }
 
-fn path() -> Vec<Solid> {
-    well_path(
-        &[
-            Vec3::new(-0.2, 0.9, 0.1),
-            Vec3::new(-0.1, 0.1, 0.0),
-            Vec3::new(0.3, -0.3, 0.2),
-            Vec3::new(0.7, -0.4, 0.3),
-        ],
-        0.05,
-        [0.9, 0.2, 0.1],
-    )
-}
-
 fn view_proj() -> Mat4 {
     Mat4::perspective_rh_gl(0.9, 64.0 / 48.0, 0.1, 20.0)
         * Mat4::look_at_rh(Vec3::new(0.6, 0.4, 2.2), Vec3::ZERO, Vec3::Y)
@@ -191,7 +151,7 @@ fn opaque_fragments_alone_give_exactly_the_opaque_geometry_cast() {
         params,
     };
     let rays = camera_rays(view_proj(), 64, 48);
-    let solids: Vec<Solid> = std::iter::once(floor()).chain(path()).collect();
+    let solids: Vec<Solid> = std::iter::once(floor()).chain(well()).collect();
     let depth_buffer = trace_layer(&rays, &solids);
     let before = caster.cast_image(&rays, &depth_buffer.depth, &depth_buffer.color);
     let layer = fragment_layer(&rays, &solids, &[]);
@@ -221,17 +181,9 @@ fn glass_scene() -> VolumeScene {
             color: [0.3, 0.7, 0.9],
             alpha: 0.3,
         }],
-        interactive: path(),
+        interactive: well(),
         // An interactive translucent tube beside the path, crossing the sheet.
-        interactive_glass: vec![Glass {
-            shape: Shape::Tube {
-                a: Vec3::new(-0.4, -0.3, -0.4),
-                b: Vec3::new(0.1, 0.4, 0.5),
-                radius: 0.12,
-            },
-            color: [0.9, 0.8, 0.2],
-            alpha: 0.4,
-        }],
+        interactive_glass: vec![glass_tube()],
     }
 }
 

@@ -4,11 +4,11 @@
 
 mod common;
 
-use common::ramp;
+use common::{glass_tube, ramp, well};
 
 use glam::{Mat4, Vec3};
 use strata_volume::cast::{CastParams, VolumeBox};
-use strata_volume::geometry::{Glass, Shape, Solid, fragment_layer, well_path};
+use strata_volume::geometry::{Glass, Shape, Solid, fragment_layer};
 use strata_volume::raster::{FragmentRaster, meshes};
 use strata_volume::stencil::{Renderer, VolumeScene};
 use strata_volume::volume::Volume;
@@ -54,25 +54,8 @@ fn scene() -> VolumeScene {
             color: [0.5, 0.5, 0.45],
         }],
         static_glass: vec![sheet()],
-        interactive: well_path(
-            &[
-                Vec3::new(-0.2, 0.9, 0.1),
-                Vec3::new(-0.1, 0.1, 0.0),
-                Vec3::new(0.3, -0.3, 0.2),
-                Vec3::new(0.7, -0.4, 0.3),
-            ],
-            0.05,
-            [0.9, 0.2, 0.1],
-        ),
-        interactive_glass: vec![Glass {
-            shape: Shape::Tube {
-                a: Vec3::new(-0.4, -0.3, -0.4),
-                b: Vec3::new(0.1, 0.4, 0.5),
-                radius: 0.12,
-            },
-            color: [0.9, 0.8, 0.2],
-            alpha: 0.4,
-        }],
+        interactive: well(),
+        interactive_glass: vec![glass_tube()],
     }
 }
 
