@@ -268,10 +268,7 @@ fn one_pixel_at_a_time_matches_the_maps() {
         .fragments;
     let mut maps = FeatureMaps::new();
     let frame = maps.compute(&sums, counts.counts(), total / 2, s.background);
-    assert_eq!(
-        frame,
-        FrameFeatures::of(&sums, counts.counts(), total / 2, s.background)
-    );
+    assert_eq!(frame, FrameFeatures::of(&sums, total / 2, s.background));
     assert_eq!(frame.total, total);
     for (x, y) in [(0, 0), (40, 22), (79, 44), (10, 30)] {
         let one = sums.pixel_features(counts.counts(), &frame, x, y);

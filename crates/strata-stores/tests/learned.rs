@@ -1,18 +1,24 @@
 //! The learned variable k-buffer: the shipped weights load and match the code's feature list;
 //! malformed and mismatched weights are refused with a clear error; the block evaluation of the
-//! importance pass equals the one-pixel reference; inference does not depend on the thread count.
+//! importance pass equals one pixel's evaluation and the plain-arithmetic network; inference does
+//! not depend on the thread count.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::{Scene, SearchPath, open_scene};
+use strata_stores::count::FragmentCounts;
 use strata_stores::kbuffer::VariableKBuffer;
-use strata_stores::kbuffer::features::{FEATURE_COUNT, FEATURE_SET, FEATURES};
-use strata_stores::kbuffer::learned::{
-    Activation, Input, Layer, LearnedModel, Target, Transform, WEIGHTS_FORMAT, WeightsError,
+use strata_stores::kbuffer::analytic::Worth;
+use strata_stores::kbuffer::features::{
+    FEATURE_SET, FEATURES, FeatureAccumulator, FeatureCapture, FrameFeatures,
 };
-use strata_stores::{Budget, KFrom, Method, MethodOptions, render_frame};
+use strata_stores::kbuffer::learned::{
+    Activation, Input, Layer, LearnedModel, Target, Transform, WEIGHTS_FORMAT, WeightsError, curve,
+    curve_base,
+};
+use strata_stores::{KFrom, MethodOptions, render_frame};
 
 fn pool(threads: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new()
@@ -217,47 +223,88 @@ fn malformed_and_mismatched_weights_are_refused_with_a_reason() {
     );
 }
 
+/// The counting pass's sums of a scene, and its frame values at half its fragments.
+fn counted(s: &Scene) -> (FragmentCounts, FeatureAccumulator, FrameFeatures) {
+    let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
+    counts.clear(s.width, s.height).expect("counts");
+    sums.clear(s.width, s.height).expect("sums");
+    let input = FrameInput::from_scene(s, 0);
+    let total = Rasterizer::default()
+        .prepare(&input)
+        .rasterize(&mut FeatureCapture {
+            counts: &mut counts,
+            sums: &mut sums,
+        })
+        .fragments;
+    let frame = FrameFeatures::of(&sums, total / 2, s.background);
+    (counts, sums, frame)
+}
+
 #[test]
-fn inference_is_the_one_pixel_reference_and_the_same_on_any_thread_count() {
+fn inference_is_the_one_pixel_evaluation_and_the_same_on_any_thread_count() {
     let s = scene("spheres", 160, 90);
+    let (counts, sums, frame) = counted(&s);
+    let counts = counts.counts();
+    let n = counts.len();
     for target in [Target::KeptFraction, Target::ErrorCurve] {
-        let m = Arc::new(model(target));
-        let options = MethodOptions {
-            budget: Budget::SceneShare(0.5),
-            k_from: KFrom::Learned,
-            weights: Some(m.clone()),
-            features: true,
-            ..MethodOptions::default()
+        let m = model(target);
+        let infer = |threads: usize| {
+            let mut importance = vec![f32::NAN; n];
+            let mut worth = vec![Worth::at_most_one(-1.0); n];
+            pool(threads).install(|| m.infer(&sums, counts, &frame, &mut importance, &mut worth));
+            (importance, worth)
         };
-        let one = render(&s, &options, 1);
-        let two = render(&s, &options, 2);
-        assert_eq!(one.importance_map(), two.importance_map(), "{target:?}");
-        assert_eq!(one.k_map(), two.k_map(), "{target:?}");
-        // The block evaluation equals the network run on each pixel's full feature vector.
-        let maps = one.feature_maps().expect("features were asked for");
+        let (importance, worth) = infer(1);
+        assert_eq!(
+            (&importance, &worth),
+            (&infer(2).0, &infer(2).1),
+            "{target:?}"
+        );
         let mut decided = 0;
-        for (p, (&c, &imp)) in one.counts().iter().zip(one.importance_map()).enumerate() {
-            if c < 2 {
-                assert_eq!(imp, 0.0);
+        for p in 0..n {
+            let Some(one) = m.infer_pixel(&sums, counts, &frame, p) else {
+                assert!(counts[p] < 2);
+                assert_eq!(importance[p], 0.0, "{target:?} pixel {p} has no choice");
                 continue;
-            }
+            };
             decided += 1;
-            let f: [f32; FEATURE_COUNT] = maps.pixel(p);
+            // A pixel's result does not depend on its block or lane.
+            assert_eq!(importance[p], one.importance, "{target:?} pixel {p}");
+            if target == Target::ErrorCurve {
+                assert_eq!(Some(worth[p]), one.worth, "pixel {p}");
+            }
+            // And it is the plain-arithmetic network's (the trainer's) up to the fast logarithms
+            // and exponentials.
+            let f = sums.pixel_features(counts, &frame, p % 160, p / 160);
             let y = m.predict(&f);
             let want = match target {
                 Target::ErrorCurve => {
-                    let (d, t) = strata_stores::kbuffer::learned::curve(
-                        strata_stores::kbuffer::learned::curve_base(&f),
-                        y[0],
-                        y[1],
-                    );
+                    let (d, t) = curve(curve_base(&f), y[0], y[1]);
                     d * t
                 }
-                _ => target.importance(y[0], c),
+                _ => target.importance(y[0], counts[p]),
             };
-            assert_eq!(imp, want, "{target:?} pixel {p}");
+            let err = (one.importance - want).abs() / want.abs().max(1e-3);
+            assert!(
+                err < 1e-4,
+                "{target:?} pixel {p}: {} vs {want}",
+                one.importance
+            );
         }
         assert!(decided > 1000, "{decided} pixels with a choice");
+        // The pixels with one fragment keep the analytic model's contrast; with the error
+        // curve every decided pixel has a falling worth.
+        if target == Target::ErrorCurve {
+            for p in 0..n {
+                match counts[p] {
+                    0 => assert_eq!(worth[p], Worth::at_most_one(-1.0), "untouched"),
+                    1 => {
+                        assert!(worth[p].contrast >= 0.0 && worth[p].log_fall == f64::NEG_INFINITY)
+                    }
+                    _ => assert!(worth[p].log_fall < 0.0 && worth[p].log_first.is_finite()),
+                }
+            }
+        }
     }
 }
 

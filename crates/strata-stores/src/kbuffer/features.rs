@@ -219,11 +219,36 @@ impl Default for PixelSums {
 }
 
 /// Per-pixel order-independent sums of one frame's fragments; see the module docs.
+///
+/// A pixel's sums are valid while its count is not 0: the counting pass starts them afresh at
+/// the pixel's first fragment, so they are never cleared between frames (the counts are).
 #[derive(Debug, Default)]
 pub struct FeatureAccumulator {
     width: u32,
     height: u32,
     sums: Vec<PixelSums>,
+    /// `N`, `C` and the depth range of each strip's fragments, kept by its sink.
+    strips: Vec<StripStats>,
+}
+
+/// What one strip's sink counts beside the per-pixel sums.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct StripStats {
+    fragments: u64,
+    covered: u64,
+    depth_min: f32,
+    depth_max: f32,
+}
+
+impl Default for StripStats {
+    fn default() -> Self {
+        StripStats {
+            fragments: 0,
+            covered: 0,
+            depth_min: f32::INFINITY,
+            depth_max: f32::NEG_INFINITY,
+        }
+    }
 }
 
 /// Fixed-point scale of [`FeatureAccumulator`]'s `log_t`.
@@ -248,35 +273,27 @@ fn log_t_table() -> &'static [u64; 256] {
 /// The `nearest` key of an empty pixel.
 const NO_FRAGMENT: u64 = u64::MAX;
 
-/// Resets `v` to `n` copies of `value`, allocating on first use or a size change.
-fn reset<T: Copy + Default + Send + Sync>(
-    v: &mut Vec<T>,
-    n: usize,
-    value: T,
-) -> Result<(), StoreError> {
-    if v.len() != n {
-        *v = Vec::new();
-        *v = try_alloc(
-            n,
-            || format!("{n} per-pixel feature sums"),
-            "render a smaller image",
-        )?;
-    }
-    v.par_iter_mut().for_each(|x| *x = value);
-    Ok(())
-}
-
 impl FeatureAccumulator {
     /// Empty sums.
     pub fn new() -> Self {
         Self::default()
     }
 
-    /// Resets the sums of a `width` × `height` frame, allocating them on first use.
+    /// Readies the sums for a `width` × `height` frame, allocating them on first use or a size
+    /// change. Clear the counts with them: a pixel's sums start afresh at its first fragment.
     pub fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         let n = width as usize * height as usize;
         (self.width, self.height) = (width, height);
-        reset(&mut self.sums, n, PixelSums::default())
+        self.strips.clear();
+        if self.sums.len() != n {
+            self.sums = Vec::new();
+            self.sums = try_alloc(
+                n,
+                || format!("{n} per-pixel feature sums"),
+                "render a smaller image",
+            )?;
+        }
+        Ok(())
     }
 
     /// Width and height of the frame the sums are for.
@@ -327,6 +344,7 @@ pub struct FeatureSink<'a> {
     first_pixel: usize,
     counts: &'a mut [u32],
     sums: &'a mut [PixelSums],
+    stats: &'a mut StripStats,
 }
 
 impl FragmentSink for FeatureSink<'_> {
@@ -334,9 +352,18 @@ impl FragmentSink for FeatureSink<'_> {
     fn push(&mut self, pixel: u32, fragment: Fragment) {
         let i = pixel as usize - self.first_pixel;
         let [r, g, b, a] = fragment.color.0.map(u32::from);
-        self.counts[i] += 1;
         let s = &mut self.sums[i];
-        s.nearest = s.nearest.min(nearest_key(&fragment));
+        let key = nearest_key(&fragment);
+        let stats = &mut *self.stats;
+        if self.counts[i] == 0 {
+            *s = PixelSums::default();
+            stats.covered += 1;
+        }
+        self.counts[i] += 1;
+        stats.fragments += 1;
+        stats.depth_min = stats.depth_min.min(f32::from_bits((key >> 32) as u32));
+        stats.depth_max = stats.depth_max.max(fragment.depth);
+        s.nearest = s.nearest.min(key);
         s.depth_max = s.depth_max.max(fragment.depth);
         s.sum[0] += r;
         s.sum[1] += g;
@@ -362,14 +389,19 @@ impl CaptureTarget for FeatureCapture<'_> {
             (s.width, s.height),
             "clear the feature sums before counting"
         );
+        if s.strips.len() != layout.count() {
+            s.strips = vec![StripStats::default(); layout.count()];
+        }
         let mut counts = layout.split_mut(self.counts.counts_mut());
         let mut sums = layout.split_mut(&mut s.sums);
+        let mut stats = s.strips.iter_mut();
         (0..layout.count())
             .filter_map(|strip| {
                 Some(FeatureSink {
                     first_pixel: layout.pixels(strip).start,
                     counts: counts.next()?,
                     sums: sums.next()?,
+                    stats: stats.next()?,
                 })
             })
             .collect()
@@ -473,7 +505,7 @@ impl FeatureMaps {
         (self.width, self.height) = (sums.width, sums.height);
         self.planes.clear();
         self.planes.resize(n * FEATURE_COUNT, 0.0);
-        let frame = FrameFeatures::of(sums, counts, budget, background);
+        let frame = FrameFeatures::of(sums, budget, background);
         let mut planes: Vec<&mut [f32]> = self.planes.chunks_mut(n.max(1)).collect();
         // Per task: ROWS_PER_TASK rows of every plane.
         let rows = ROWS_PER_TASK * w;
@@ -486,14 +518,18 @@ impl FeatureMaps {
         }
         tasks.into_par_iter().enumerate().for_each(|(t, mut out)| {
             let first_row = t * ROWS_PER_TASK;
-            let mut i = 0;
-            for y in first_row..(first_row + ROWS_PER_TASK).min(h) {
-                for x in 0..w {
-                    let row = sums.pixel_features(counts, &frame, x, y);
-                    for (plane, v) in out.iter_mut().zip(row) {
-                        plane[i] = v;
-                    }
-                    i += 1;
+            let first = first_row * w;
+            let end = ((first_row + ROWS_PER_TASK) * w).min(n);
+            let mut block = [[0.0; LANES]; FEATURE_COUNT];
+            let mut pixels = [0; LANES];
+            for start in (first..end).step_by(LANES) {
+                let lanes = LANES.min(end - start);
+                for (l, p) in pixels[..lanes].iter_mut().enumerate() {
+                    *p = start + l;
+                }
+                sums.block_features(counts, &frame, &pixels[..lanes], &mut block);
+                for (plane, f) in out.iter_mut().zip(&block) {
+                    plane[start - first..start - first + lanes].copy_from_slice(&f[..lanes]);
                 }
             }
         });
@@ -503,49 +539,56 @@ impl FeatureMaps {
 }
 
 impl FrameFeatures {
-    /// `N`, `C` and the depth range of the frame whose feature `sums` and per-pixel `counts` are
-    /// given, with budget `M` = `budget` and its `background`: sums over fixed chunks, the same
-    /// for any thread count.
-    pub fn of(
-        sums: &FeatureAccumulator,
-        counts: &[u32],
-        budget: u64,
-        background: [f32; 3],
-    ) -> FrameFeatures {
-        let (total, covered, lo, hi) = counts
-            .par_chunks(8 * 1024)
-            .zip(sums.sums.par_chunks(8 * 1024))
-            .map(|(c, s)| {
-                let (mut total, mut covered) = (0u64, 0u64);
-                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                for (&c, s) in c.iter().zip(s) {
-                    if c > 0 {
-                        total += u64::from(c);
-                        covered += 1;
-                        lo = lo.min(f32::from_bits((s.nearest >> 32) as u32));
-                        hi = hi.max(s.depth_max);
-                    }
-                }
-                (total, covered, lo, hi)
-            })
-            .reduce(
-                || (0, 0, f32::INFINITY, f32::NEG_INFINITY),
-                |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2), a.3.max(b.3)),
-            );
-        let empty = covered == 0;
+    /// `N`, `C` and the depth range of the frame whose counting pass left `sums` (kept per
+    /// strip by the pass: no pass over the pixels), with budget `M` = `budget` and its
+    /// `background`. Strips are combined in order: the same for any thread count.
+    pub fn of(sums: &FeatureAccumulator, budget: u64, background: [f32; 3]) -> FrameFeatures {
+        let all = sums
+            .strips
+            .iter()
+            .fold(StripStats::default(), |a, s| StripStats {
+                fragments: a.fragments + s.fragments,
+                covered: a.covered + s.covered,
+                depth_min: a.depth_min.min(s.depth_min),
+                depth_max: a.depth_max.max(s.depth_max),
+            });
+        let empty = all.covered == 0;
         FrameFeatures {
-            total,
-            covered,
+            total: all.fragments,
+            covered: all.covered,
             budget,
-            depth_min: if empty { 0.0 } else { lo },
-            depth_max: if empty { 0.0 } else { hi },
+            depth_min: if empty { 0.0 } else { all.depth_min },
+            depth_max: if empty { 0.0 } else { all.depth_max },
             background,
         }
     }
 }
 
+/// Pixels whose features are computed together ([`FeatureBlock`]).
+pub const LANES: usize = 8;
+
+/// One value for each of [`LANES`] pixels.
+pub type Lanes = [f32; LANES];
+
+/// The features of [`LANES`] pixels as a struct of arrays: `block[feature][lane]`, features in
+/// [`FEATURES`] order. Every feature is computed lane by lane with the same branch-free
+/// arithmetic, which the compiler turns into SIMD; a lane's values do not depend on the other
+/// lanes, so a pixel's features are the same bits in whichever block or position it lands.
+pub type FeatureBlock = [Lanes; FEATURE_COUNT];
+
 /// Mean and maximum count over the 3 × 3 pixels around `(x, y)` that lie inside the image.
+#[inline(always)]
 fn neighbourhood(counts: &[u32], width: usize, height: usize, x: usize, y: usize) -> (f32, f32) {
+    if x > 0 && y > 0 && x + 1 < width && y + 1 < height {
+        // Inside: nine loads, no bounds to clip.
+        let (mut sum, mut max) = (0u32, 0u32);
+        for row in [y - 1, y, y + 1] {
+            let r = &counts[row * width + x - 1..row * width + x + 2];
+            sum += r[0] + r[1] + r[2];
+            max = max.max(r[0]).max(r[1]).max(r[2]);
+        }
+        return (sum as f32 / 9.0, max as f32);
+    }
     let (mut sum, mut max, mut n) = (0u32, 0u32, 0u32);
     for yy in y.saturating_sub(1)..(y + 2).min(height) {
         for xx in x.saturating_sub(1)..(x + 2).min(width) {
@@ -559,17 +602,151 @@ fn neighbourhood(counts: &[u32], width: usize, height: usize, x: usize, y: usize
 }
 
 /// Distance of pixel `(x, y)`'s centre from the image centre over half the diagonal.
-fn periphery(width: usize, height: usize, x: usize, y: usize) -> f32 {
+#[inline]
+fn periphery(width: usize, height: usize, x: f32, y: f32) -> f32 {
     let (w, h) = (width as f32, height as f32);
-    let dx = x as f32 + 0.5 - 0.5 * w;
-    let dy = y as f32 + 0.5 - 0.5 * h;
+    let dx = x + 0.5 - 0.5 * w;
+    let dy = y + 0.5 - 0.5 * h;
     ((dx * dx + dy * dy) / (0.25 * (w * w + h * h))).sqrt()
 }
 
+/// `‖c − background‖` (RGB, Euclidean).
+#[inline]
+fn distance(c: [f32; 3], background: [f32; 3]) -> f32 {
+    let d = [
+        c[0] - background[0],
+        c[1] - background[1],
+        c[2] - background[2],
+    ];
+    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+}
+
+/// The sums of one block's pixels as a struct of arrays, gathered one pixel at a time (the only
+/// scalar stage of [`FeatureAccumulator::block_features`]).
+#[derive(Default)]
+struct Gathered {
+    count: Lanes,
+    /// `nearest` split into depth and 8-bit r, g, b, α.
+    near_depth: Lanes,
+    near: [Lanes; 4],
+    depth_max: Lanes,
+    alpha_max: Lanes,
+    sum: [Lanes; 4],
+    /// `Σ −ln(1 − α)` over the non-opaque fragments (0 where one is opaque).
+    log_t: Lanes,
+    opaque: Lanes,
+    /// `3 · 255² · count² · variance`, exactly: `count · Σ c² − Σ_ch (Σ c)²`.
+    spread: Lanes,
+    mean3: Lanes,
+    max3: Lanes,
+    x: Lanes,
+    y: Lanes,
+}
+
 impl FeatureAccumulator {
-    /// Every feature of pixel `(x, y)`, in [`FEATURES`] order, from these sums, the frame's
-    /// per-pixel `counts` and its `frame` values ([`FrameFeatures::of`]): what
-    /// [`FeatureMaps::compute`] stores, for a pass that wants one pixel at a time.
+    /// The features of the pixels `pixels` (row-major indices, at most [`LANES`]) into the
+    /// first lanes of `out`, from these sums, the frame's per-pixel `counts` and its `frame`
+    /// values ([`FrameFeatures::of`]); the lanes past `pixels.len()` hold the features of an
+    /// uncovered pixel. Uncovered pixels have 0 in every per-pixel feature (their sums are not
+    /// read, so they need not have been cleared).
+    ///
+    /// # Panics
+    /// If a pixel is outside the frame, `counts` does not cover the frame, or `pixels` holds
+    /// more than [`LANES`] pixels.
+    // Lane loops index every plane by lane: the shape the compiler vectorises.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    pub fn block_features(
+        &self,
+        counts: &[u32],
+        frame: &FrameFeatures,
+        pixels: &[usize],
+        out: &mut FeatureBlock,
+    ) {
+        assert!(pixels.len() <= LANES, "at most {LANES} pixels a block");
+        let (w, h) = (self.width as usize, self.height as usize);
+        let mut g = Gathered::default();
+        for (l, &p) in pixels.iter().enumerate() {
+            let (x, y) = (p % w, p / w);
+            (g.x[l], g.y[l]) = (x as f32, y as f32);
+            (g.mean3[l], g.max3[l]) = neighbourhood(counts, w, h, x, y);
+            let count = counts[p];
+            if count == 0 {
+                continue;
+            }
+            let s = &self.sums[p];
+            g.count[l] = count as f32;
+            g.near_depth[l] = f32::from_bits((s.nearest >> 32) as u32);
+            let near = Rgba8::from_bits(s.nearest as u32).0;
+            for (c, (&near, &sum)) in near.iter().zip(&s.sum).enumerate() {
+                g.near[c][l] = f32::from(near);
+                g.sum[c][l] = sum as f32;
+            }
+            g.depth_max[l] = s.depth_max;
+            g.alpha_max[l] = s.alpha_max;
+            g.log_t[l] = if s.opaque > 0 {
+                f32::INFINITY
+            } else {
+                s.log_t as f32
+            };
+            g.opaque[l] = s.opaque as f32;
+            let squares: u64 = s.sum[..3]
+                .iter()
+                .map(|&c| u64::from(c) * u64::from(c))
+                .sum();
+            g.spread[l] = (u64::from(count) * s.sum_sq).saturating_sub(squares) as f32;
+        }
+        let total = frame.total.max(1) as f32;
+        let budget = frame.budget as f32;
+        let per_covered = budget / frame.covered.max(1) as f32;
+        let bg = frame.background;
+        const UNIT: f32 = 1.0 / 255.0;
+        for l in 0..LANES {
+            let count = g.count[l];
+            let covered = count > 0.0;
+            let c = count.max(1.0);
+            let per = UNIT / c;
+            let mean = [g.sum[0][l] * per, g.sum[1][l] * per, g.sum[2][l] * per];
+            let near = [
+                g.near[0][l] * UNIT,
+                g.near[1][l] * UNIT,
+                g.near[2][l] * UNIT,
+            ];
+            out[0][l] = count / total;
+            out[1][l] = budget / total;
+            out[2][l] = g.near_depth[l];
+            out[3][l] = g.depth_max[l];
+            out[4][l] = frame.depth_min;
+            out[5][l] = frame.depth_max;
+            out[6][l] = mean[0];
+            out[7][l] = mean[1];
+            out[8][l] = mean[2];
+            out[9][l] = near[0];
+            out[10][l] = near[1];
+            out[11][l] = near[2];
+            out[12][l] = count;
+            out[13][l] = per_covered;
+            out[14][l] = g.sum[3][l] * UNIT;
+            out[15][l] = g.alpha_max[l];
+            let t = super::fast_math::fast_exp(-g.log_t[l] * (1.0 / LOG_T_SCALE as f32));
+            out[16][l] = if covered && g.log_t[l] < f32::INFINITY {
+                t
+            } else {
+                0.0
+            };
+            out[17][l] = g.near[3][l] * UNIT;
+            out[18][l] = g.opaque[l];
+            out[19][l] = g.spread[l] / (3.0 * 255.0 * 255.0 * c * c);
+            out[20][l] = g.mean3[l];
+            out[21][l] = g.max3[l];
+            out[22][l] = periphery(w, h, g.x[l], g.y[l]);
+            out[23][l] = if covered { distance(mean, bg) } else { 0.0 };
+            out[24][l] = if covered { distance(near, bg) } else { 0.0 };
+        }
+    }
+
+    /// Every feature of pixel `(x, y)`, in [`FEATURES`] order: [`FeatureAccumulator::block_features`]
+    /// for one pixel.
     ///
     /// # Panics
     /// If `(x, y)` is outside the frame or `counts` does not cover it.
@@ -580,57 +757,13 @@ impl FeatureAccumulator {
         x: usize,
         y: usize,
     ) -> [f32; FEATURE_COUNT] {
-        let (w, h) = (self.width as usize, self.height as usize);
-        let total = frame.total.max(1) as f32;
-        let mut out = [0.0; FEATURE_COUNT];
-        out[1] = frame.budget as f32 / total;
-        out[4] = frame.depth_min;
-        out[5] = frame.depth_max;
-        out[13] = frame.budget as f32 / frame.covered.max(1) as f32;
-        let (mean3, max3) = neighbourhood(counts, w, h, x, y);
-        out[20] = mean3;
-        out[21] = max3;
-        out[22] = periphery(w, h, x, y);
-        let p = y * w + x;
-        let count = counts[p];
-        if count == 0 {
-            return out;
-        }
-        let c = count as f32;
-        let sums = &self.sums[p];
-        let near = sums.nearest;
-        let [nr, ng, nb, na] = Rgba8::from_bits(near as u32).to_unorm();
-        let unit = |sum: u32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
-        let [sum_r, sum_g, sum_b, alpha_sum] = sums.sum;
-        let mean = [unit(sum_r), unit(sum_g), unit(sum_b)];
-        out[0] = c / total;
-        out[2] = f32::from_bits((near >> 32) as u32);
-        out[3] = sums.depth_max;
-        out[6..9].copy_from_slice(&mean);
-        out[9..12].copy_from_slice(&[nr, ng, nb]);
-        out[12] = c;
-        out[14] = (f64::from(alpha_sum) / 255.0) as f32;
-        out[15] = sums.alpha_max;
-        out[16] = if sums.opaque > 0 {
-            0.0
-        } else {
-            (-(sums.log_t as f64) / LOG_T_SCALE).exp() as f32
-        };
-        out[17] = na;
-        out[18] = sums.opaque as f32;
-        let mean_sq: f64 = [sum_r, sum_g, sum_b]
-            .iter()
-            .map(|&s| (f64::from(s) / 255.0 / f64::from(count)).powi(2))
-            .sum();
-        let sq = sums.sum_sq as f64 / (255.0 * 255.0) / f64::from(count);
-        out[19] = ((sq - mean_sq) / 3.0).max(0.0) as f32;
-        let bg = frame.background;
-        let dist = |c: [f32; 3]| {
-            ((c[0] - bg[0]).powi(2) + (c[1] - bg[1]).powi(2) + (c[2] - bg[2]).powi(2)).sqrt()
-        };
-        out[23] = dist(mean);
-        out[24] = dist([nr, ng, nb]);
-        out
+        assert!(
+            x < self.width as usize && y < self.height as usize,
+            "pixel ({x}, {y}) outside the frame"
+        );
+        let mut block = [[0.0; LANES]; FEATURE_COUNT];
+        self.block_features(counts, frame, &[y * self.width as usize + x], &mut block);
+        block.map(|f| f[0])
     }
 }
 
@@ -652,7 +785,7 @@ mod tests {
     fn periphery_and_neighbourhood_by_hand() {
         // 4 × 2: centre (2, 1), half diagonal √(16 + 4)/2 = √5. Pixel 0's centre (0.5, 0.5):
         // distance √(2.25 + 0.25) = √2.5 → √2.5/√5 = √0.5.
-        assert!((periphery(4, 2, 0, 0) - 0.5f32.sqrt()).abs() < 1e-6);
+        assert!((periphery(4, 2, 0.0, 0.0) - 0.5f32.sqrt()).abs() < 1e-6);
         let counts = [1, 2, 3, 4, 5, 6, 7, 8];
         // Pixel 0: neighbours 1, 2, 5, 6 → mean 3.5, max 6.
         assert_eq!(neighbourhood(&counts, 4, 2, 0, 0), (3.5, 6.0));

@@ -39,22 +39,17 @@
 //!
 //! # Inference
 //!
-//! [`LearnedModel::infer`] is the frame's importance pass: one parallel task per
-//! [`ROWS_PER_TASK`] rows; in each, the decision pixels (count ≥ 2) are gathered into blocks of
-//! [`LANES`], their features computed from the counting pass's sums, and the network evaluated a
-//! block at a time as a struct of arrays (each weight multiplies `LANES` pixels at once, which the
-//! compiler turns into SIMD). No cross-lane arithmetic: a pixel's result does not depend on which
-//! block or thread it lands in, so importance is the same for any thread count.
+//! [`LearnedModel::infer`] is the frame's importance pass, in [`super::inference`]: the
+//! decision pixels (count ≥ 2) in blocks of [`super::features::LANES`], features, network and
+//! curve evaluated lane by lane. [`LearnedModel::predict`] is the plain-arithmetic network of
+//! one pixel that the trainer uses.
 
 use std::collections::BTreeMap;
 
-use rayon::prelude::*;
 use safetensors::{Dtype, SafeTensors};
 
-use super::analytic::Worth;
-use super::features::{
-    FEATURE_COUNT, FEATURE_SET, FeatureAccumulator, FrameFeatures, feature_index,
-};
+use super::fast_math::fast_ln;
+use super::features::{FEATURE_COUNT, FEATURE_SET, feature_index};
 
 /// Name and version of the weights layout; see the module docs.
 pub const WEIGHTS_FORMAT: &str = "strata-learned-k-1";
@@ -71,26 +66,7 @@ mod tests {
         assert_eq!(feature_index("alpha_sum"), Some(ALPHA_SUM));
         assert_eq!(feature_index("contrast"), Some(CONTRAST));
     }
-
-    #[test]
-    fn fast_ln_is_close_to_ln() {
-        let mut worst = 0.0f32;
-        let mut y = 1.0f32;
-        while y < 1e6 {
-            worst = worst.max((fast_ln(y) - y.ln()).abs());
-            y *= 1.000_37;
-        }
-        assert!(worst < 1e-5, "worst error {worst}");
-        assert_eq!(fast_ln(1.0), 0.0);
-        assert!((fast_ln(0.25) - 0.25f32.ln()).abs() < 1e-5);
-    }
 }
-
-/// Pixels evaluated together.
-pub const LANES: usize = 8;
-
-/// Rows per parallel task of the importance pass.
-pub const ROWS_PER_TASK: usize = 8;
 
 /// Largest layer width a weights file may ask for.
 pub const MAX_WIDTH: usize = 512;
@@ -197,21 +173,6 @@ impl Activation {
     }
 }
 
-/// `ln y` for a finite `y ≥ 1` (and any positive normal `y`), within 1e-5 absolute: the
-/// exponent from the bits, then `ln m = 2 atanh((m − 1)/(m + 1))` to five terms for the mantissa
-/// `m` in `[1, 2)`. Plain `f32` arithmetic in a fixed order: the same result on every machine.
-#[inline]
-pub fn fast_ln(y: f32) -> f32 {
-    let bits = y.to_bits();
-    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
-    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
-    let s = (m - 1.0) / (m + 1.0);
-    let s2 = s * s;
-    let series = 1.0 / 5.0 + s2 * (1.0 / 7.0 + s2 * (1.0 / 9.0));
-    let ln_m = 2.0 * s * (1.0 + s2 * (1.0 / 3.0 + s2 * series));
-    exponent as f32 * std::f32::consts::LN_2 + ln_m
-}
-
 /// The logistic function.
 #[inline]
 pub fn sigmoid(x: f32) -> f32 {
@@ -268,10 +229,11 @@ impl Target {
 }
 
 /// Columns of the features the error curve's base reads (checked against the names by a test).
+#[cfg(test)]
 const MEAN_R: usize = 6;
-const COUNT: usize = 12;
-const ALPHA_SUM: usize = 14;
-const CONTRAST: usize = 23;
+pub(super) const COUNT: usize = 12;
+pub(super) const ALPHA_SUM: usize = 14;
+pub(super) const CONTRAST: usize = 23;
 
 /// Smallest `d₀` and distance of `t₀` from 0 and 1 in [`curve`] (the analytic model's `d` and
 /// `t` can be 0 or 1, where the corrections would have no effect).
@@ -503,62 +465,6 @@ impl LearnedModel {
         [x[0], x.get(1).copied().unwrap_or(0.0)]
     }
 
-    /// The importance pass: for every pixel of the frame whose counting pass left `sums` and
-    /// `counts` (frame values `frame`), its `importance` and, for [`Target::ErrorCurve`], its
-    /// error-curve `worth` for the analytic allocator (pixels with fewer than two fragments get
-    /// the analytic model's; other targets leave `worth` alone). See the module docs.
-    ///
-    /// # Panics
-    /// If `counts`, `importance` or `worth` do not have one entry per pixel of `sums`' frame.
-    pub fn infer(
-        &self,
-        sums: &FeatureAccumulator,
-        counts: &[u32],
-        frame: &FrameFeatures,
-        importance: &mut [f32],
-        worth: &mut [Worth],
-    ) {
-        let (w, h) = sums.size();
-        let (w, n) = (w as usize, w as usize * h as usize);
-        assert_eq!(counts.len(), n, "one count per pixel");
-        assert_eq!(importance.len(), n, "one importance per pixel");
-        assert_eq!(worth.len(), n, "one worth per pixel");
-        let rows = (ROWS_PER_TASK * w).max(1);
-        let curve_target = self.target == Target::ErrorCurve;
-        importance
-            .par_chunks_mut(rows)
-            .zip(worth.par_chunks_mut(rows))
-            .enumerate()
-            .for_each_init(
-                || Block::new(self),
-                |block, (t, (imp, worth))| {
-                    let first = t * rows;
-                    block.len = 0;
-                    imp.fill(0.0);
-                    for i in 0..imp.len() {
-                        let p = first + i;
-                        let count = counts[p];
-                        if count < 2 {
-                            if curve_target {
-                                let (mean, _) = sums.means(p, count);
-                                let d = Worth::contrast_of(mean, frame.background);
-                                worth[i] = Worth::at_most_one(d);
-                            }
-                            continue;
-                        }
-                        let f = sums.pixel_features(counts, frame, p % w, p / w);
-                        block.push(self, &f, i, count, frame.background);
-                        if block.len == LANES {
-                            block.run(self, imp, worth);
-                        }
-                    }
-                    if block.len > 0 {
-                        block.run(self, imp, worth);
-                    }
-                },
-            );
-    }
-
     /// Reads a weights file from disk; see [`LearnedModel::from_safetensors`].
     pub fn read(path: &std::path::Path) -> Result<Self, WeightsError> {
         let bytes = std::fs::read(path)
@@ -785,97 +691,3 @@ const RESERVED: [&str; 7] = [
     "target",
     "layers",
 ];
-
-/// Up to [`LANES`] pixels' activations, struct of arrays: `a[unit * LANES + lane]`.
-struct Block {
-    len: usize,
-    /// Where each lane's result goes in the task's output, and its count.
-    at: [(usize, u32); LANES],
-    /// Each lane's analytic `(d₀, t₀)` ([`Target::ErrorCurve`]).
-    base: [(f32, f32); LANES],
-    /// Each lane's contrast against the background, as the analytic model computes it.
-    contrast: [f64; LANES],
-    a: Vec<f32>,
-    b: Vec<f32>,
-}
-
-impl Block {
-    fn new(model: &LearnedModel) -> Self {
-        let n = model.width() * LANES;
-        Block {
-            len: 0,
-            at: [(0, 0); LANES],
-            base: [(1.0, 0.5); LANES],
-            contrast: [0.0; LANES],
-            a: vec![0.0; n],
-            b: vec![0.0; n],
-        }
-    }
-
-    #[inline]
-    fn push(
-        &mut self,
-        model: &LearnedModel,
-        f: &[f32; FEATURE_COUNT],
-        at: usize,
-        count: u32,
-        background: [f32; 3],
-    ) {
-        let lane = self.len;
-        for (u, input) in model.inputs.iter().enumerate() {
-            self.a[u * LANES + lane] = input.normalise(f[input.feature]);
-        }
-        self.at[lane] = (at, count);
-        self.base[lane] = curve_base(f);
-        let mean = [f[MEAN_R], f[MEAN_R + 1], f[MEAN_R + 2]];
-        self.contrast[lane] = Worth::contrast_of(mean, background);
-        self.len += 1;
-    }
-
-    /// Evaluates the block and writes each lane's importance into `out`; lanes past `len` hold
-    /// stale values that are computed and ignored.
-    fn run(&mut self, model: &LearnedModel, importance: &mut [f32], worth: &mut [Worth]) {
-        let last = model.layers.len() - 1;
-        for (li, l) in model.layers.iter().enumerate() {
-            let (src, dst) = (&self.a, &mut self.b);
-            for o in 0..l.outputs {
-                let row = &l.weight[o * l.inputs..(o + 1) * l.inputs];
-                let mut acc = [l.bias[o]; LANES];
-                for (i, &wi) in row.iter().enumerate() {
-                    let x: &[f32; LANES] = src[i * LANES..(i + 1) * LANES]
-                        .try_into()
-                        .expect("LANES values");
-                    for (a, &x) in acc.iter_mut().zip(x) {
-                        *a += wi * x;
-                    }
-                }
-                let out = &mut dst[o * LANES..(o + 1) * LANES];
-                if li < last {
-                    let act = model.activation;
-                    out.iter_mut().zip(acc).for_each(|(d, a)| *d = act.apply(a));
-                } else if model.target.sigmoid() {
-                    out.iter_mut().zip(acc).for_each(|(d, a)| *d = sigmoid(a));
-                } else {
-                    out.copy_from_slice(&acc);
-                }
-            }
-            std::mem::swap(&mut self.a, &mut self.b);
-        }
-        for lane in 0..self.len {
-            let (at, count) = self.at[lane];
-            if model.target == Target::ErrorCurve {
-                let (d, t) = curve(self.base[lane], self.a[lane], self.a[LANES + lane]);
-                worth[at] = Worth::from_curve(f64::from(d), f64::from(t));
-                // Which pixels keep a fragment at all, when the budget cannot give every
-                // covered pixel one, stays the analytic model's choice: the curve is fitted to
-                // the errors of keeping 1, 2, … fragments, not of keeping none.
-                worth[at].contrast = self.contrast[lane];
-                // What keeping only the nearest fragment would lose: ê(1) = d·t.
-                importance[at] = d * t;
-            } else {
-                importance[at] = model.target.importance(self.a[lane], count);
-            }
-        }
-        self.len = 0;
-    }
-}

@@ -9,14 +9,18 @@
 //! | [`analytic`] | k(p) by water-filling an analytic error model (no learning) | — |
 //! | [`optimal_k`](mod@optimal_k) | the greedy Optimal-K oracle | 001 §4.2.2, Alg. 23 |
 //! | [`features`] | per-pixel features for a learned k, gathered in the counting pass | 001 §4.2 |
-//! | [`learned`] | a small network's importance from those features (`--k-from learned`) | 001 ch. 4 |
+//! | [`learned`] | a small network over those features, its weights file (`--k-from learned`) | 001 ch. 4 |
+//! | [`inference`] | the network in the frame's importance pass, a block of pixels at a time | 001 ch. 4 |
+//! | [`fast_math`] | branch-free `f32` logarithms and exponentials for the lane-wise code | — |
 //! | [`maps`] | k and importance maps as heat-map images | 001 Fig. 3.9 |
 
 pub mod allocate;
 pub mod analytic;
+pub mod fast_math;
 pub mod features;
 pub mod fixed;
 pub mod importance;
+pub mod inference;
 pub mod learned;
 pub mod maps;
 pub mod optimal_k;

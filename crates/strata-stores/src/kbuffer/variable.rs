@@ -236,7 +236,7 @@ impl VariableKBuffer {
         let use_curve = match self.model.as_deref() {
             Some(model) => {
                 timings.time("capture.importance", || {
-                    let frame = FrameFeatures::of(sums, counts, budget, background);
+                    let frame = FrameFeatures::of(sums, budget, background);
                     model.infer(sums, counts, &frame, &mut self.importance, &mut self.worth);
                 });
                 model.target == Target::ErrorCurve

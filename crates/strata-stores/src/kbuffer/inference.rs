@@ -1,0 +1,342 @@
+//! The learned k's importance pass ([`LearnedModel::infer`]): the hot path between the counting
+//! pass and the allocation, written like the rasterizer (no allocation per pixel, laid out for
+//! SIMD, identical for any thread count).
+//!
+//! # Passes and data
+//!
+//! ```text
+//! per task of ROWS_PER_TASK rows (rayon), per pixel in row order:
+//!   count < 2 → no choice: importance 0; count 1: worth = the analytic model's contrast
+//!   count ≥ 2 → its index joins the block; a full block (LANES pixels) is evaluated:
+//!     1. features   FeatureAccumulator::block_features → FeatureBlock  [feature][lane] f32
+//!     2. inputs     x[u][lane] = (transform(feature[input u]) − mean_u) · scale_u
+//!     3. layers     h[o][lane] = act(b_o + Σ_i W_oi · x[i][lane])   ping-pong between two
+//!                   [width][lane] buffers; each weight multiplies LANES pixels at once
+//!     4. output     error curve: (a, b) → ln d, ln t, ln(1 − t) in the log domain → Worth
+//!                   other targets: σ(y) → importance
+//! ```
+//!
+//! Every stage loops over lanes with branch-free `f32` arithmetic ([`super::fast_math`] for the
+//! logarithms and exponentials), so the compiler emits SIMD, and no value crosses lanes: a
+//! pixel's result does not depend on its block, its lane or the thread that evaluated it.
+//! [`LearnedModel::infer_pixel`] runs one pixel through the same code (the reference the tests
+//! hold the pass to), and [`LearnedModel::predict`] is the plain-arithmetic network the trainer
+//! uses (the tests bound the difference).
+//!
+//! # The error curve in the log domain
+//!
+//! With `d = d₀ e^a` and `t = σ(z)`, `z = ln t₀ − ln(1 − t₀) + b` ([`super::learned::curve`]):
+//!
+//! ```text
+//! ln d = ln d₀ + a,   ln t = −softplus(−z),   ln(1 − t) = −softplus(z)
+//! Worth: log_first = ln d + ln(1 − t) + ln t,   log_fall = ln t,   importance = e^(ln d + ln t)
+//! ```
+//!
+//! which never rounds `t` to 1 (a pixel whose `t` is near 1 keeps a falling worth) and costs
+//! four logarithms and three exponentials a pixel, all vectorised.
+
+use rayon::prelude::*;
+
+use super::analytic::Worth;
+use super::fast_math::{fast_exp, fast_ln, fast_sigmoid, softplus};
+use super::features::{
+    FEATURE_COUNT, FeatureAccumulator, FeatureBlock, FrameFeatures, LANES, Lanes,
+};
+use super::learned::{
+    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, LearnedModel, Target, Transform,
+};
+
+/// Rows per parallel task of the importance pass.
+pub const ROWS_PER_TASK: usize = 8;
+
+/// One task's buffers, allocated once per task.
+struct Scratch {
+    /// The block's pixels (indices into the task's rows) and their count.
+    len: usize,
+    pixels: [usize; LANES],
+    counts: [u32; LANES],
+    features: FeatureBlock,
+    /// Ping-pong activations, `[width][LANES]`.
+    a: Vec<Lanes>,
+    b: Vec<Lanes>,
+}
+
+impl Scratch {
+    fn new(model: &LearnedModel) -> Self {
+        Scratch {
+            len: 0,
+            pixels: [0; LANES],
+            counts: [0; LANES],
+            features: [[0.0; LANES]; FEATURE_COUNT],
+            a: vec![[0.0; LANES]; model.width()],
+            b: vec![[0.0; LANES]; model.width()],
+        }
+    }
+}
+
+/// What every task of the pass reads.
+struct Pass<'a> {
+    model: &'a LearnedModel,
+    sums: &'a FeatureAccumulator,
+    counts: &'a [u32],
+    frame: &'a FrameFeatures,
+}
+
+/// One task: the rows whose first pixel is `first`, and their outputs.
+struct Rows<'a> {
+    pass: &'a Pass<'a>,
+    scratch: &'a mut Scratch,
+    first: usize,
+    importance: &'a mut [f32],
+    worth: &'a mut [Worth],
+}
+
+impl pulp::WithSimd for Rows<'_> {
+    type Output = ();
+
+    /// The task, compiled once per instruction set (everything it calls is inlined).
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let Rows {
+            pass,
+            scratch: s,
+            first,
+            importance,
+            worth,
+        } = self;
+        let Pass {
+            model,
+            sums,
+            counts,
+            frame,
+        } = *pass;
+        let curve_target = model.target == Target::ErrorCurve;
+        s.len = 0;
+        importance.fill(0.0);
+        for i in 0..importance.len() {
+            let p = first + i;
+            let count = counts[p];
+            if count >= 2 {
+                s.pixels[s.len] = p;
+                s.counts[s.len] = count;
+                s.len += 1;
+                if s.len == LANES {
+                    model.run(s, sums, counts, frame, first, (importance, worth));
+                }
+            } else if curve_target && count == 1 {
+                let d = Worth::contrast_of(sums.means(p, count).0, frame.background);
+                worth[i] = Worth::at_most_one(d);
+            }
+        }
+        // The task's last, partial block.
+        if s.len > 0 {
+            model.run(s, sums, counts, frame, first, (importance, worth));
+        }
+    }
+}
+
+/// What the pass gives one pixel with a choice.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelOutcome {
+    /// Its importance (for the error curve: `ê(1) = d·t`, what keeping only the nearest
+    /// fragment would lose).
+    pub importance: f32,
+    /// Its error curve's worth ([`Target::ErrorCurve`] only).
+    pub worth: Option<Worth>,
+}
+
+impl LearnedModel {
+    /// The importance pass: for every pixel of the frame whose counting pass left `sums` and
+    /// `counts` (frame values `frame`), its `importance` and, for [`Target::ErrorCurve`], its
+    /// error-curve `worth` for the analytic allocator (a pixel with one fragment gets the
+    /// analytic model's; an uncovered pixel's is left as it was, since no allocation reads it;
+    /// other targets leave `worth` alone). See the module docs.
+    ///
+    /// # Panics
+    /// If `counts`, `importance` or `worth` do not have one entry per pixel of `sums`' frame.
+    pub fn infer(
+        &self,
+        sums: &FeatureAccumulator,
+        counts: &[u32],
+        frame: &FrameFeatures,
+        importance: &mut [f32],
+        worth: &mut [Worth],
+    ) {
+        let (w, h) = sums.size();
+        let n = w as usize * h as usize;
+        assert_eq!(counts.len(), n, "one count per pixel");
+        assert_eq!(importance.len(), n, "one importance per pixel");
+        assert_eq!(worth.len(), n, "one worth per pixel");
+        let rows = (ROWS_PER_TASK * w as usize).max(1);
+        let pass = Pass {
+            model: self,
+            sums,
+            counts,
+            frame,
+        };
+        // The instruction set (AVX2, AVX-512, NEON, …) the lane loops are compiled for, found
+        // at run time; every set computes the same bits (no fused multiply-adds).
+        let arch = pulp::Arch::new();
+        importance
+            .par_chunks_mut(rows)
+            .zip(worth.par_chunks_mut(rows))
+            .enumerate()
+            .for_each_init(
+                || Scratch::new(self),
+                |scratch, (t, (importance, worth))| {
+                    arch.dispatch(Rows {
+                        pass: &pass,
+                        scratch,
+                        first: t * rows,
+                        importance,
+                        worth,
+                    })
+                },
+            );
+    }
+
+    /// One pixel `p` with two or more fragments through the importance pass's own code (see
+    /// the module docs); `None` for a pixel with no choice to make.
+    pub fn infer_pixel(
+        &self,
+        sums: &FeatureAccumulator,
+        counts: &[u32],
+        frame: &FrameFeatures,
+        p: usize,
+    ) -> Option<PixelOutcome> {
+        if counts[p] < 2 {
+            return None;
+        }
+        let mut s = Scratch::new(self);
+        (s.pixels[0], s.counts[0], s.len) = (p, counts[p], 1);
+        let (mut importance, mut worth) = ([0.0], [Worth::at_most_one(0.0)]);
+        self.run(
+            &mut s,
+            sums,
+            counts,
+            frame,
+            p,
+            (&mut importance, &mut worth),
+        );
+        Some(PixelOutcome {
+            importance: importance[0],
+            worth: (self.target == Target::ErrorCurve).then_some(worth[0]),
+        })
+    }
+
+    /// Evaluates the block in `s` and writes each pixel's results at its index minus `first`
+    /// in `out`; empties the block. Always inlined, like everything it calls, so that it is
+    /// compiled for the instruction set the pass dispatches to.
+    #[inline(always)]
+    fn run(
+        &self,
+        s: &mut Scratch,
+        sums: &FeatureAccumulator,
+        counts: &[u32],
+        frame: &FrameFeatures,
+        first: usize,
+        out: (&mut [f32], &mut [Worth]),
+    ) {
+        let (importance, worth) = out;
+        let len = std::mem::take(&mut s.len);
+        sums.block_features(counts, frame, &s.pixels[..len], &mut s.features);
+        let y = self.network(&s.features, &mut s.a, &mut s.b);
+        if self.target == Target::ErrorCurve {
+            let curve = CurveBlock::new(&s.features, y[0], y[1]);
+            for l in 0..len {
+                let at = s.pixels[l] - first;
+                importance[at] = curve.importance[l];
+                worth[at] = Worth {
+                    log_first: f64::from(curve.log_first[l]),
+                    log_fall: f64::from(curve.log_fall[l]),
+                    // Which pixels keep a fragment at all, when the budget cannot give every
+                    // covered pixel one, stays the analytic model's choice: the curve is
+                    // fitted to the errors of keeping 1, 2, … fragments, not of keeping none.
+                    contrast: f64::from(s.features[CONTRAST][l]),
+                };
+            }
+        } else {
+            for l in 0..len {
+                let y = fast_sigmoid(y[0][l]);
+                importance[s.pixels[l] - first] = self.target.importance(y, s.counts[l]);
+            }
+        }
+    }
+
+    /// The network's raw outputs (before the target's sigmoid) for a block of features, using
+    /// `a` and `b` (`[width][LANES]`) as the layers' buffers.
+    #[inline(always)]
+    fn network(&self, f: &FeatureBlock, a: &mut Vec<Lanes>, b: &mut Vec<Lanes>) -> [Lanes; 2] {
+        for (x, input) in a.iter_mut().zip(&self.inputs) {
+            let v = &f[input.feature];
+            let (mean, scale) = (input.mean, input.scale);
+            match input.transform {
+                Transform::Identity => {
+                    for l in 0..LANES {
+                        x[l] = (v[l] - mean) * scale;
+                    }
+                }
+                Transform::Log1p => {
+                    for l in 0..LANES {
+                        x[l] = (fast_ln(1.0 + v[l].max(0.0)) - mean) * scale;
+                    }
+                }
+            }
+        }
+        let last = self.layers.len() - 1;
+        for (li, layer) in self.layers.iter().enumerate() {
+            let hidden = li < last;
+            for (o, out) in b.iter_mut().take(layer.outputs).enumerate() {
+                let row = &layer.weight[o * layer.inputs..(o + 1) * layer.inputs];
+                let mut acc = [layer.bias[o]; LANES];
+                for (&w, x) in row.iter().zip(a.iter()) {
+                    for l in 0..LANES {
+                        acc[l] += w * x[l];
+                    }
+                }
+                if hidden {
+                    match self.activation {
+                        Activation::Relu => acc.iter_mut().for_each(|a| *a = a.max(0.0)),
+                        Activation::Sigmoid => acc.iter_mut().for_each(|a| *a = fast_sigmoid(*a)),
+                    }
+                }
+                *out = acc;
+            }
+            std::mem::swap(a, b);
+        }
+        [a[0], if a.len() > 1 { a[1] } else { [0.0; LANES] }]
+    }
+}
+
+/// The error curve of a block, in the log domain (module docs).
+struct CurveBlock {
+    log_first: Lanes,
+    log_fall: Lanes,
+    importance: Lanes,
+}
+
+impl CurveBlock {
+    /// From the block's features (for the analytic base `(d₀, t₀)`) and the network's
+    /// corrections `(a, b)`.
+    #[inline(always)]
+    fn new(f: &FeatureBlock, a: Lanes, b: Lanes) -> CurveBlock {
+        let mut c = CurveBlock {
+            log_first: [0.0; LANES],
+            log_fall: [0.0; LANES],
+            importance: [0.0; LANES],
+        };
+        for l in 0..LANES {
+            let count = f[COUNT][l].max(1.0);
+            let d0 = f[CONTRAST][l].max(CURVE_FLOOR);
+            let t0 = (1.0 - f[ALPHA_SUM][l] / count).clamp(CURVE_FLOOR, 1.0 - CURVE_FLOOR);
+            let ln_d = fast_ln(d0) + a[l];
+            let z = fast_ln(t0) - fast_ln(1.0 - t0) + b[l];
+            let ln_t = -softplus(-z);
+            let ln_not_t = -softplus(z);
+            c.log_first[l] = ln_d + ln_not_t + ln_t;
+            c.log_fall[l] = ln_t;
+            c.importance[l] = fast_exp(ln_d + ln_t);
+        }
+        c
+    }
+}
