@@ -64,23 +64,7 @@ pub struct Allocation {
 pub fn allocate_k(counts: &[u32], importance: &[f32], budget: u64, k: &mut Vec<u32>) -> Allocation {
     let pixels = counts.len();
     assert_eq!(importance.len(), pixels, "one importance per pixel");
-    k.clear();
-    k.resize(pixels, 0);
-    // One pass: the base k (1 per covered pixel) and the totals.
-    let parts: Vec<(u64, u64)> = k
-        .par_chunks_mut(PIXELS_PER_TASK)
-        .zip(counts.par_chunks(PIXELS_PER_TASK))
-        .map(|(k, c)| {
-            let (mut total, mut covered) = (0u64, 0u64);
-            for (k, &c) in k.iter_mut().zip(c) {
-                *k = c.min(1);
-                total += u64::from(c);
-                covered += u64::from(c > 0);
-            }
-            (total, covered)
-        })
-        .collect();
-    let (total, covered) = parts.iter().fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let (total, covered) = base_k(counts, k);
     let m = budget.min(total);
     let mut report = Allocation {
         budget,
@@ -111,6 +95,27 @@ pub fn allocate_k(counts: &[u32], importance: &[f32], budget: u64, k: &mut Vec<u
     largest_remainders(k, counts, fill.remainders, left);
     debug_assert_eq!(k.par_iter().map(|&x| u64::from(x)).sum::<u64>(), m);
     report
+}
+
+/// Resizes `k` to one entry per pixel of `counts` and gives every covered pixel 1 (the others
+/// 0), in one parallel pass that also returns `N` (fragments) and `C` (covered pixels): the
+/// first step of every allocation.
+pub(super) fn base_k(counts: &[u32], k: &mut Vec<u32>) -> (u64, u64) {
+    k.resize(counts.len(), 0);
+    let parts: Vec<(u64, u64)> = k
+        .par_chunks_mut(PIXELS_PER_TASK)
+        .zip(counts.par_chunks(PIXELS_PER_TASK))
+        .map(|(k, c)| {
+            let (mut total, mut covered) = (0u64, 0u64);
+            for (k, &c) in k.iter_mut().zip(c) {
+                *k = c.min(1);
+                total += u64::from(c);
+                covered += u64::from(c > 0);
+            }
+            (total, covered)
+        })
+        .collect();
+    parts.iter().fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
 }
 
 /// Below one fragment per covered pixel: gives 1 to the `m` covered pixels of largest `key`

@@ -40,7 +40,7 @@
 
 use rayon::prelude::*;
 
-use super::allocate::{Allocation, TotalF64, one_each_to_the_most};
+use super::allocate::{Allocation, TotalF64, base_k, one_each_to_the_most};
 
 /// Pixels per parallel work item.
 const PIXELS_PER_TASK: usize = 8 * 1024;
@@ -134,15 +134,7 @@ impl Worth {
 pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>) -> Allocation {
     assert_eq!(counts.len(), worth.len(), "one worth per pixel");
     let pixels = counts.len();
-    k.clear();
-    k.resize(pixels, 0);
-    let total: u64 = counts
-        .par_chunks(PIXELS_PER_TASK)
-        .map(|c| c.iter().map(|&n| u64::from(n)).sum::<u64>())
-        .collect::<Vec<u64>>()
-        .iter()
-        .sum();
-    let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
+    let (total, covered) = base_k(counts, k);
     let target = budget.min(total);
     let mut allocation = Allocation {
         budget,
@@ -157,33 +149,42 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
     }
     if target < covered {
         // The pixels that show most against the background get one.
+        k.par_iter_mut().for_each(|k| *k = 0);
         one_each_to_the_most(counts, target, k, |p| worth[p].contrast);
         return allocation;
-    }
-    for (kp, &c) in k.iter_mut().zip(counts) {
-        *kp = u32::from(c > 0);
     }
     let mut rest = target - covered;
     // The candidates: pixels with room for more whose fragments are worth something, one list
     // per chunk of PIXELS_PER_TASK pixels, in pixel order (the same for any thread count).
-    let chunks: Vec<Vec<Candidate>> = counts
+    // With them, in the same pass, the level's range: every candidate's second fragment is
+    // worth at most `hi`, and below `lo` every fragment of every candidate is in; and the
+    // smallest fall of a worth per fragment.
+    let (chunks, ranges): (Vec<Vec<Candidate>>, Vec<Range>) = counts
         .par_chunks(PIXELS_PER_TASK)
         .zip(worth.par_chunks(PIXELS_PER_TASK))
         .enumerate()
         .map(|(chunk, (c, w))| {
             let first = chunk * PIXELS_PER_TASK;
-            c.iter()
+            let mut range = Range::EMPTY;
+            let candidates = c
+                .iter()
                 .zip(w)
                 .enumerate()
                 .filter(|(_, (c, w))| **c > 1 && w.worthwhile())
-                .map(|(i, (&c, &w))| Candidate {
-                    worth: w,
-                    room: c - 1,
-                    pixel: (first + i) as u32,
+                .map(|(i, (&c, &w))| {
+                    let candidate = Candidate {
+                        worth: w,
+                        room: c - 1,
+                        pixel: (first + i) as u32,
+                    };
+                    range = range.with(&candidate);
+                    candidate
                 })
-                .collect()
+                .collect();
+            (candidates, range)
         })
-        .collect();
+        .unzip();
+    let range = ranges.iter().fold(Range::EMPTY, Range::join);
     let extra_at = |level: f64| -> u64 {
         chunks
             .par_iter()
@@ -196,18 +197,7 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
             .iter()
             .sum()
     };
-    // The level's range: every candidate's second fragment is worth at most `hi`; below `lo`
-    // every fragment of every candidate is in.
-    let (mut lo, mut hi) =
-        chunks
-            .iter()
-            .flatten()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), c| {
-                (
-                    lo.min(c.worth.log_worth(c.room - 1)),
-                    hi.max(c.worth.log_first),
-                )
-            });
+    let (mut lo, mut hi) = (range.lo, range.hi);
     if hi.is_finite() {
         lo -= 1.0;
         if extra_at(lo) <= rest {
@@ -218,11 +208,7 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
             // bracket narrower than the smallest fall: then no pixel has two fragments worth
             // between `lo` and `hi`, and giving the units left one each to the pixels whose
             // next fragment is worth most (below) is the greedy choice.
-            let narrowest = chunks
-                .iter()
-                .flatten()
-                .map(|c| -c.worth.log_fall)
-                .fold(f64::INFINITY, f64::min);
+            let narrowest = range.narrowest;
             for _ in 0..ROUNDS {
                 if hi - lo < narrowest {
                     break;
@@ -309,6 +295,39 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
         rest -= n;
     }
     allocation
+}
+
+/// The least and largest worth of a set of candidates (the last fragment of each, and the
+/// second), and their smallest fall `−ln t`.
+#[derive(Clone, Copy, Debug)]
+struct Range {
+    lo: f64,
+    hi: f64,
+    narrowest: f64,
+}
+
+impl Range {
+    const EMPTY: Range = Range {
+        lo: f64::INFINITY,
+        hi: f64::NEG_INFINITY,
+        narrowest: f64::INFINITY,
+    };
+
+    fn with(self, c: &Candidate) -> Range {
+        Range {
+            lo: self.lo.min(c.worth.log_worth(c.room - 1)),
+            hi: self.hi.max(c.worth.log_first),
+            narrowest: self.narrowest.min(-c.worth.log_fall),
+        }
+    }
+
+    fn join(self, other: &Range) -> Range {
+        Range {
+            lo: self.lo.min(other.lo),
+            hi: self.hi.max(other.hi),
+            narrowest: self.narrowest.min(other.narrowest),
+        }
+    }
 }
 
 /// A pixel with room for fragments beyond its first that are worth something.

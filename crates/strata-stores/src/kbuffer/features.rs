@@ -14,7 +14,7 @@
 //!    sum_sq:        u64   Σ (r² + g² + b²), 8-bit channels
 //!    log_t:         u64   Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
 //!    depth_max:     f32   farthest window depth
-//!    alpha_max:     f32   max α
+//!    alpha_max:     u32   max α, 8-bit
 //!    sum:           [u32; 4]  Σ straight-alpha r, g, b and α, 8-bit channels
 //!    opaque:        u32   fragments with α = 1 (255)
 //!    ```
@@ -199,7 +199,7 @@ pub struct PixelSums {
     sum_sq: u64,
     log_t: u64,
     depth_max: f32,
-    alpha_max: f32,
+    alpha_max: u32,
     sum: [u32; 4],
     opaque: u32,
 }
@@ -211,7 +211,7 @@ impl Default for PixelSums {
             sum_sq: 0,
             log_t: 0,
             depth_max: 0.0,
-            alpha_max: 0.0,
+            alpha_max: 0,
             sum: [0; 4],
             opaque: 0,
         }
@@ -345,6 +345,7 @@ pub struct FeatureSink<'a> {
     counts: &'a mut [u32],
     sums: &'a mut [PixelSums],
     stats: &'a mut StripStats,
+    log_t: &'static [u64; 256],
 }
 
 impl FragmentSink for FeatureSink<'_> {
@@ -370,8 +371,8 @@ impl FragmentSink for FeatureSink<'_> {
         s.sum[2] += b;
         s.sum[3] += a;
         s.sum_sq += u64::from(r * r + g * g + b * b);
-        s.alpha_max = s.alpha_max.max(a as f32 / 255.0);
-        s.log_t += log_t_table()[a as usize];
+        s.alpha_max = s.alpha_max.max(a);
+        s.log_t += self.log_t[a as usize];
         s.opaque += u32::from(a == 255);
     }
 }
@@ -402,6 +403,7 @@ impl CaptureTarget for FeatureCapture<'_> {
                     counts: counts.next()?,
                     sums: sums.next()?,
                     stats: stats.next()?,
+                    log_t: log_t_table(),
                 })
             })
             .collect()
@@ -683,7 +685,7 @@ impl FeatureAccumulator {
                 g.sum[c][l] = sum as f32;
             }
             g.depth_max[l] = s.depth_max;
-            g.alpha_max[l] = s.alpha_max;
+            g.alpha_max[l] = s.alpha_max as f32 / 255.0;
             g.log_t[l] = if s.opaque > 0 {
                 f32::INFINITY
             } else {

@@ -43,7 +43,7 @@ use super::features::{
     FEATURE_COUNT, FeatureAccumulator, FeatureBlock, FrameFeatures, LANES, Lanes,
 };
 use super::learned::{
-    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, LearnedModel, Target, Transform,
+    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, Layer, LearnedModel, Target, Transform,
 };
 
 /// Rows per parallel task of the importance pass.
@@ -286,26 +286,48 @@ impl LearnedModel {
         let last = self.layers.len() - 1;
         for (li, layer) in self.layers.iter().enumerate() {
             let hidden = li < last;
-            for (o, out) in b.iter_mut().take(layer.outputs).enumerate() {
-                let row = &layer.weight[o * layer.inputs..(o + 1) * layer.inputs];
-                let mut acc = [layer.bias[o]; LANES];
-                for (&w, x) in row.iter().zip(a.iter()) {
-                    for l in 0..LANES {
-                        acc[l] += w * x[l];
-                    }
-                }
-                if hidden {
+            // Four outputs at a time: four independent chains of multiply-adds per lane, so the
+            // loop is bound by throughput, not by the latency of one accumulator.
+            let mut o = 0;
+            while o + 4 <= layer.outputs {
+                dense::<4>(layer, o, a, b);
+                o += 4;
+            }
+            while o < layer.outputs {
+                dense::<1>(layer, o, a, b);
+                o += 1;
+            }
+            if hidden {
+                for out in b.iter_mut().take(layer.outputs) {
                     match self.activation {
-                        Activation::Relu => acc.iter_mut().for_each(|a| *a = a.max(0.0)),
-                        Activation::Sigmoid => acc.iter_mut().for_each(|a| *a = fast_sigmoid(*a)),
+                        Activation::Relu => out.iter_mut().for_each(|v| *v = v.max(0.0)),
+                        Activation::Sigmoid => out.iter_mut().for_each(|v| *v = fast_sigmoid(*v)),
                     }
                 }
-                *out = acc;
             }
             std::mem::swap(a, b);
         }
         [a[0], if a.len() > 1 { a[1] } else { [0.0; LANES] }]
     }
+}
+
+/// Outputs `first .. first + G` of `layer` for the block whose inputs are `x`, into `out`:
+/// `out[o][lane] = b_o + Σ_i W_oi · x[i][lane]`, summed in input order.
+#[inline(always)]
+fn dense<const G: usize>(layer: &Layer, first: usize, x: &[Lanes], out: &mut [Lanes]) {
+    let mut acc = [[0.0; LANES]; G];
+    for (g, acc) in acc.iter_mut().enumerate() {
+        *acc = [layer.bias[first + g]; LANES];
+    }
+    for (i, x) in x.iter().take(layer.inputs).enumerate() {
+        for (g, acc) in acc.iter_mut().enumerate() {
+            let w = layer.weight[(first + g) * layer.inputs + i];
+            for (a, &x) in acc.iter_mut().zip(x) {
+                *a += w * x;
+            }
+        }
+    }
+    out[first..first + G].copy_from_slice(&acc);
 }
 
 /// The error curve of a block, in the log domain (module docs).
