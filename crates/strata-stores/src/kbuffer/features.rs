@@ -20,12 +20,20 @@
 //!    ```
 //!
 //!    Fragments of a pixel arrive in primitive order from the one thread that owns the pixel's
-//!    strip, so the float sums are the same for any thread count.
+//!    strip, so the float sums are the same for any thread count. The sums are never cleared: a
+//!    pixel's start afresh at its first fragment (its count goes from 0 to 1), and nothing reads
+//!    the sums of a pixel whose count is 0. Each strip's sink also keeps `N`, `C` and the depth
+//!    range of its fragments, which give the frame values ([`FrameFeatures::of`]) without a
+//!    pass over the pixels.
 //!
-//! 2. **Finish** ([`FeatureMaps::compute`]): per-pixel features from the sums, the frame's counts
-//!    and the budget `M`, into [`FeatureMaps`], a struct of arrays: one plane of `w·h` `f32` per
-//!    feature, in the order of [`FEATURES`]. The budget features are the only ones that depend on
-//!    `M`, so one accumulation serves any number of budgets (the dataset renders each view once).
+//! 2. **Finish** ([`FeatureAccumulator::block_features`]): the features of a block of [`LANES`]
+//!    pixels from their sums, the frame's counts and the budget `M`, as a struct of arrays
+//!    computed lane by lane (vectorised); the only definition of the features, used by the
+//!    learned k's importance pass ([`super::inference`]), by [`FeatureMaps::compute`] (one plane
+//!    of `w·h` `f32` per feature, in the order of [`FEATURES`]: `render --maps` and the dataset)
+//!    and by [`FeatureAccumulator::pixel_features`]. The budget features are the only ones that
+//!    depend on `M`, so one accumulation serves any number of budgets (the dataset renders each
+//!    view once).
 //!
 //! # The feature list
 //!
