@@ -249,30 +249,113 @@ fn features_are_gathered_only_when_asked_and_change_nothing_else() {
     );
 }
 
+/// Counts `s` into `counts` and `sums` (cleared first) on `threads` threads; returns `N`.
+fn count_into(
+    s: &Scene,
+    counts: &mut strata_stores::count::FragmentCounts,
+    sums: &mut strata_stores::kbuffer::features::FeatureAccumulator,
+    threads: usize,
+) -> u64 {
+    use strata_stores::kbuffer::features::FeatureCapture;
+    counts.clear(s.width, s.height).unwrap();
+    sums.clear(s.width, s.height).unwrap();
+    let input = FrameInput::from_scene(s, 0);
+    pool(threads).install(|| {
+        Rasterizer::default()
+            .prepare(&input)
+            .rasterize(&mut FeatureCapture { counts, sums })
+            .fragments
+    })
+}
+
 #[test]
-fn one_pixel_at_a_time_matches_the_maps() {
+fn one_pixel_at_a_time_matches_the_maps_and_the_frame_values_the_pixels() {
     use strata_stores::count::FragmentCounts;
-    use strata_stores::kbuffer::features::{FeatureAccumulator, FeatureCapture, FrameFeatures};
+    use strata_stores::kbuffer::features::{FeatureAccumulator, FrameFeatures};
     let s = scene("spheres", 80, 45);
-    let input = FrameInput::from_scene(&s, 0);
     let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
-    counts.clear(80, 45).unwrap();
-    sums.clear(80, 45).unwrap();
-    let mut raster = Rasterizer::default();
-    let total = raster
-        .prepare(&input)
-        .rasterize(&mut FeatureCapture {
-            counts: &mut counts,
-            sums: &mut sums,
-        })
-        .fragments;
+    let total = count_into(&s, &mut counts, &mut sums, 2);
     let mut maps = FeatureMaps::new();
     let frame = maps.compute(&sums, counts.counts(), total / 2, s.background);
-    assert_eq!(frame, FrameFeatures::of(&sums, total / 2, s.background));
-    assert_eq!(frame.total, total);
     for (x, y) in [(0, 0), (40, 22), (79, 44), (10, 30)] {
         let one = sums.pixel_features(counts.counts(), &frame, x, y);
         assert_eq!(one, maps.pixel(y * 80 + x), "pixel ({x}, {y})");
+    }
+    // The frame values kept by the counting pass's strips are those of the pixels.
+    let covered: Vec<usize> = (0..counts.counts().len())
+        .filter(|&p| counts.counts()[p] > 0)
+        .collect();
+    let near = feature_index("depth_min").unwrap();
+    let far = feature_index("depth_max").unwrap();
+    let plane_min = |f: usize| {
+        covered
+            .iter()
+            .map(|&p| maps.plane(f)[p])
+            .fold(f32::INFINITY, f32::min)
+    };
+    let plane_max = |f: usize| {
+        covered
+            .iter()
+            .map(|&p| maps.plane(f)[p])
+            .fold(0.0, f32::max)
+    };
+    assert_eq!(
+        frame,
+        FrameFeatures {
+            total: counts.counts().iter().map(|&c| u64::from(c)).sum(),
+            covered: covered.len() as u64,
+            budget: total / 2,
+            depth_min: plane_min(near),
+            depth_max: plane_max(far),
+            background: s.background,
+        }
+    );
+    assert_eq!(frame.total, total);
+    assert!(
+        frame.covered > 100 && frame.covered < 80 * 45,
+        "{}",
+        frame.covered
+    );
+}
+
+/// The sums are never cleared: a pixel's start afresh at its first fragment. Counting a frame
+/// that covers few pixels after one that covers many, with the same sums, gives the features of
+/// fresh sums, and so do 1 and 2 threads.
+#[test]
+fn reused_sums_give_the_features_of_fresh_ones() {
+    use strata_stores::count::FragmentCounts;
+    use strata_stores::kbuffer::features::FeatureAccumulator;
+    let many = scene("mixed", 80, 45);
+    let few = layers([128, 64, 204]);
+    let few = Scene {
+        width: 80,
+        height: 45,
+        objects: vec![SceneObject {
+            scale: Vec3::splat(0.3),
+            ..few.objects[2].clone()
+        }],
+        ..few
+    };
+    let (mut counts, mut reused) = (FragmentCounts::new(), FeatureAccumulator::new());
+    let maps = |counts: &FragmentCounts, sums: &FeatureAccumulator, total: u64| {
+        let mut m = FeatureMaps::new();
+        m.compute(sums, counts.counts(), total, [0.0; 3]);
+        m
+    };
+    let n_many = count_into(&many, &mut counts, &mut reused, 2);
+    let covered_many = counts.counts().iter().filter(|&&c| c > 0).count();
+    let n_few = count_into(&few, &mut counts, &mut reused, 2);
+    let covered_few = counts.counts().iter().filter(|&&c| c > 0).count();
+    assert!(n_many > n_few && covered_few > 0 && covered_few * 4 < covered_many);
+    let after = maps(&counts, &reused, n_few);
+    for threads in [1, 2] {
+        let (mut fresh_counts, mut fresh) = (FragmentCounts::new(), FeatureAccumulator::new());
+        count_into(&few, &mut fresh_counts, &mut fresh, threads);
+        assert_eq!(
+            after,
+            maps(&fresh_counts, &fresh, n_few),
+            "{threads} thread(s)"
+        );
     }
 }
 

@@ -255,11 +255,8 @@ fn inference_is_the_one_pixel_evaluation_and_the_same_on_any_thread_count() {
             (importance, worth)
         };
         let (importance, worth) = infer(1);
-        assert_eq!(
-            (&importance, &worth),
-            (&infer(2).0, &infer(2).1),
-            "{target:?}"
-        );
+        let two = infer(2);
+        assert_eq!((&importance, &worth), (&two.0, &two.1), "{target:?}");
         let mut decided = 0;
         for p in 0..n {
             let Some(one) = m.infer_pixel(&sums, counts, &frame, p) else {

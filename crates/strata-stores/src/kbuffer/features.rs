@@ -310,6 +310,8 @@ impl FeatureAccumulator {
     }
 
     /// The mean colour and mean alpha of pixel `p`'s `count` fragments (zeros when it has none).
+    /// `count` must be the pixel's count from the same counting pass: the sums of a pixel with
+    /// none are last frame's, not zeros.
     pub fn means(&self, p: usize, count: u32) -> ([f32; 3], f32) {
         if count == 0 {
             return ([0.0; 3], 0.0);
@@ -397,6 +399,10 @@ impl CaptureTarget for FeatureCapture<'_> {
             (layout.width, layout.height),
             (s.width, s.height),
             "clear the feature sums before counting"
+        );
+        debug_assert!(
+            s.strips.is_empty() || s.strips.len() == layout.count(),
+            "one strip layout a frame: clear the sums before counting with another"
         );
         if s.strips.len() != layout.count() {
             s.strips = vec![StripStats::default(); layout.count()];
@@ -642,7 +648,7 @@ struct Gathered {
     depth_max: Lanes,
     alpha_max: Lanes,
     sum: [Lanes; 4],
-    /// `Σ −ln(1 − α)` over the non-opaque fragments (0 where one is opaque).
+    /// `Σ −ln(1 − α)` over the fragments, fixed point (infinite where one is opaque).
     log_t: Lanes,
     opaque: Lanes,
     /// `3 · 255² · count² · variance`, exactly: `count · Σ c² − Σ_ch (Σ c)²`.
@@ -656,9 +662,9 @@ struct Gathered {
 impl FeatureAccumulator {
     /// The features of the pixels `pixels` (row-major indices, at most [`LANES`]) into the
     /// first lanes of `out`, from these sums, the frame's per-pixel `counts` and its `frame`
-    /// values ([`FrameFeatures::of`]); the lanes past `pixels.len()` hold the features of an
-    /// uncovered pixel. Uncovered pixels have 0 in every per-pixel feature (their sums are not
-    /// read, so they need not have been cleared).
+    /// values ([`FrameFeatures::of`]); the lanes past `pixels.len()` hold values to ignore.
+    /// Uncovered pixels have 0 in every per-pixel feature (their sums are not read, so they need
+    /// not have been cleared).
     ///
     /// # Panics
     /// If a pixel is outside the frame, `counts` does not cover the frame, or `pixels` holds
@@ -700,11 +706,12 @@ impl FeatureAccumulator {
                 s.log_t as f32
             };
             g.opaque[l] = s.opaque as f32;
-            let squares: u64 = s.sum[..3]
+            // In u128: count · Σc² outgrows u64 past about ten million fragments a pixel.
+            let squares: u128 = s.sum[..3]
                 .iter()
-                .map(|&c| u64::from(c) * u64::from(c))
+                .map(|&c| u128::from(c) * u128::from(c))
                 .sum();
-            g.spread[l] = (u64::from(count) * s.sum_sq).saturating_sub(squares) as f32;
+            g.spread[l] = (u128::from(count) * u128::from(s.sum_sq)).saturating_sub(squares) as f32;
         }
         let total = frame.total.max(1) as f32;
         let budget = frame.budget as f32;

@@ -33,7 +33,7 @@
 //! ```
 //!
 //! which never rounds `t` to 1 (a pixel whose `t` is near 1 keeps a falling worth) and costs
-//! four logarithms and three exponentials a pixel, all vectorised.
+//! five logarithms (two of them in `softplus`) and three exponentials a pixel, all vectorised.
 
 use rayon::prelude::*;
 
@@ -174,7 +174,7 @@ impl LearnedModel {
             counts,
             frame,
         };
-        // The instruction set (AVX2, AVX-512, NEON, …) the lane loops are compiled for, found
+        // The instruction set (AVX2 where the CPU has it, else SSE2; NEON) the lane loops are compiled for, found
         // at run time; every set computes the same bits (no fused multiply-adds).
         let arch = pulp::Arch::new();
         importance
@@ -250,9 +250,13 @@ impl LearnedModel {
                     log_first: f64::from(curve.log_first[l]),
                     log_fall: f64::from(curve.log_fall[l]),
                     // Which pixels keep a fragment at all, when the budget cannot give every
-                    // covered pixel one, stays the analytic model's choice: the curve is
-                    // fitted to the errors of keeping 1, 2, … fragments, not of keeping none.
-                    contrast: f64::from(s.features[CONTRAST][l]),
+                    // covered pixel one, stays the analytic model's choice, to its bits (ties
+                    // go by pixel index): the curve is fitted to the errors of keeping 1, 2, …
+                    // fragments, not of keeping none.
+                    contrast: Worth::contrast_of(
+                        sums.means(s.pixels[l], s.counts[l]).0,
+                        frame.background,
+                    ),
                 };
             }
         } else {
