@@ -717,17 +717,23 @@ impl FeatureAccumulator {
         let budget = frame.budget as f32;
         let per_covered = budget / frame.covered.max(1) as f32;
         let bg = frame.background;
-        const UNIT: f32 = 1.0 / 255.0;
+        // Sums and counts are exact in f32 (below 2²⁴); the mean is their quotient in f64 and
+        // the 8-bit values are divided, not multiplied by 1/255, so these features are the
+        // bits of `means` and of the resolve's unorm table.
+        let mean_of = |sum: f32, count: f32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
         for l in 0..LANES {
             let count = g.count[l];
             let covered = count > 0.0;
             let c = count.max(1.0);
-            let per = UNIT / c;
-            let mean = [g.sum[0][l] * per, g.sum[1][l] * per, g.sum[2][l] * per];
+            let mean = [
+                mean_of(g.sum[0][l], c),
+                mean_of(g.sum[1][l], c),
+                mean_of(g.sum[2][l], c),
+            ];
             let near = [
-                g.near[0][l] * UNIT,
-                g.near[1][l] * UNIT,
-                g.near[2][l] * UNIT,
+                g.near[0][l] / 255.0,
+                g.near[1][l] / 255.0,
+                g.near[2][l] / 255.0,
             ];
             out[0][l] = count / total;
             out[1][l] = budget / total;
@@ -743,7 +749,7 @@ impl FeatureAccumulator {
             out[11][l] = near[2];
             out[12][l] = count;
             out[13][l] = per_covered;
-            out[14][l] = g.sum[3][l] * UNIT;
+            out[14][l] = (f64::from(g.sum[3][l]) / 255.0) as f32;
             out[15][l] = g.alpha_max[l];
             let t = super::fast_math::fast_exp(-g.log_t[l] * (1.0 / LOG_T_SCALE as f32));
             out[16][l] = if covered && g.log_t[l] < f32::INFINITY {
@@ -751,7 +757,7 @@ impl FeatureAccumulator {
             } else {
                 0.0
             };
-            out[17][l] = g.near[3][l] * UNIT;
+            out[17][l] = g.near[3][l] / 255.0;
             out[18][l] = g.opaque[l];
             out[19][l] = g.spread[l] / (3.0 * 255.0 * 255.0 * c * c);
             out[20][l] = g.mean3[l];

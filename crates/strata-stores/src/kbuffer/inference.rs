@@ -43,7 +43,8 @@ use super::features::{
     FEATURE_COUNT, FeatureAccumulator, FeatureBlock, FrameFeatures, LANES, Lanes,
 };
 use super::learned::{
-    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, Layer, LearnedModel, Target, Transform,
+    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, Layer, LearnedModel, MEAN_R, Target,
+    Transform,
 };
 
 /// Rows per parallel task of the importance pass.
@@ -254,7 +255,11 @@ impl LearnedModel {
                     // go by pixel index): the curve is fitted to the errors of keeping 1, 2, …
                     // fragments, not of keeping none.
                     contrast: Worth::contrast_of(
-                        sums.means(s.pixels[l], s.counts[l]).0,
+                        [
+                            s.features[MEAN_R][l],
+                            s.features[MEAN_R + 1][l],
+                            s.features[MEAN_R + 2][l],
+                        ],
                         frame.background,
                     ),
                 };

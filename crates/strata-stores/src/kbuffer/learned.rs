@@ -229,8 +229,7 @@ impl Target {
 }
 
 /// Columns of the features the error curve's base reads (checked against the names by a test).
-#[cfg(test)]
-const MEAN_R: usize = 6;
+pub(super) const MEAN_R: usize = 6;
 pub(super) const COUNT: usize = 12;
 pub(super) const ALPHA_SUM: usize = 14;
 pub(super) const CONTRAST: usize = 23;
