@@ -68,6 +68,7 @@ impl Worth {
     }
 
     /// `d = ‖mean − background‖`, as [`Worth::new`] computes it.
+    #[inline(always)]
     pub fn contrast_of(mean: [f32; 3], background: [f32; 3]) -> f64 {
         (0..3)
             .map(|c| f64::from(mean[c] - background[c]).powi(2))

@@ -316,7 +316,7 @@ impl FeatureAccumulator {
         if count == 0 {
             return ([0.0; 3], 0.0);
         }
-        let unit = |sum: u32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
+        let unit = |sum: u32| mean_of(sum as f32, count as f32);
         let [r, g, b, a] = self.sums[p].sum;
         ([unit(r), unit(g), unit(b)], unit(a))
     }
@@ -580,6 +580,14 @@ impl FrameFeatures {
     }
 }
 
+/// `sum / (255 · count)` for an 8-bit channel's sum over `count` fragments, both exact in `f32`
+/// (below 2²⁴): one correctly rounded division, vectorisable, the mean of
+/// [`FeatureAccumulator::means`] and of the feature blocks.
+#[inline(always)]
+fn mean_of(sum: f32, count: f32) -> f32 {
+    sum / (255.0 * count)
+}
+
 /// Pixels whose features are computed together ([`FeatureBlock`]).
 pub const LANES: usize = 8;
 
@@ -717,10 +725,8 @@ impl FeatureAccumulator {
         let budget = frame.budget as f32;
         let per_covered = budget / frame.covered.max(1) as f32;
         let bg = frame.background;
-        // Sums and counts are exact in f32 (below 2²⁴); the mean is their quotient in f64 and
-        // the 8-bit values are divided, not multiplied by 1/255, so these features are the
-        // bits of `means` and of the resolve's unorm table.
-        let mean_of = |sum: f32, count: f32| (f64::from(sum) / 255.0 / f64::from(count)) as f32;
+        // The 8-bit values are divided, not multiplied by 1/255: the bits of `means` and of
+        // the resolve's unorm table.
         for l in 0..LANES {
             let count = g.count[l];
             let covered = count > 0.0;
@@ -749,7 +755,7 @@ impl FeatureAccumulator {
             out[11][l] = near[2];
             out[12][l] = count;
             out[13][l] = per_covered;
-            out[14][l] = (f64::from(g.sum[3][l]) / 255.0) as f32;
+            out[14][l] = g.sum[3][l] / 255.0;
             out[15][l] = g.alpha_max[l];
             let t = super::fast_math::fast_exp(-g.log_t[l] * (1.0 / LOG_T_SCALE as f32));
             out[16][l] = if covered && g.log_t[l] < f32::INFINITY {

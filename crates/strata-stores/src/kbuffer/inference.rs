@@ -243,7 +243,7 @@ impl LearnedModel {
         sums.block_features(counts, frame, &s.pixels[..len], &mut s.features);
         let y = self.network(&s.features, &mut s.a, &mut s.b);
         if self.target == Target::ErrorCurve {
-            let curve = CurveBlock::new(&s.features, y[0], y[1]);
+            let curve = CurveBlock::new(&s.features, y[0], y[1], frame.background);
             for l in 0..len {
                 let at = s.pixels[l] - first;
                 importance[at] = curve.importance[l];
@@ -254,14 +254,7 @@ impl LearnedModel {
                     // covered pixel one, stays the analytic model's choice, to its bits (ties
                     // go by pixel index): the curve is fitted to the errors of keeping 1, 2, …
                     // fragments, not of keeping none.
-                    contrast: Worth::contrast_of(
-                        [
-                            s.features[MEAN_R][l],
-                            s.features[MEAN_R + 1][l],
-                            s.features[MEAN_R + 2][l],
-                        ],
-                        frame.background,
-                    ),
+                    contrast: curve.contrast[l],
                 };
             }
         } else {
@@ -341,17 +334,20 @@ fn dense<const G: usize>(layer: &Layer, first: usize, x: &[Lanes], out: &mut [La
 
 /// The error curve of a block, in the log domain (module docs).
 struct CurveBlock {
+    /// The analytic model's contrast, `‖mean − background‖` in f64.
+    contrast: [f64; LANES],
     log_first: Lanes,
     log_fall: Lanes,
     importance: Lanes,
 }
 
 impl CurveBlock {
-    /// From the block's features (for the analytic base `(d₀, t₀)`) and the network's
-    /// corrections `(a, b)`.
+    /// From the block's features (for the analytic base `(d₀, t₀)`), the network's
+    /// corrections `(a, b)` and the frame's background.
     #[inline(always)]
-    fn new(f: &FeatureBlock, a: Lanes, b: Lanes) -> CurveBlock {
+    fn new(f: &FeatureBlock, a: Lanes, b: Lanes, background: [f32; 3]) -> CurveBlock {
         let mut c = CurveBlock {
+            contrast: [0.0; LANES],
             log_first: [0.0; LANES],
             log_fall: [0.0; LANES],
             importance: [0.0; LANES],
@@ -367,6 +363,8 @@ impl CurveBlock {
             c.log_first[l] = ln_d + ln_not_t + ln_t;
             c.log_fall[l] = ln_t;
             c.importance[l] = fast_exp(ln_d + ln_t);
+            let mean = [f[MEAN_R][l], f[MEAN_R + 1][l], f[MEAN_R + 2][l]];
+            c.contrast[l] = Worth::contrast_of(mean, background);
         }
         c
     }
