@@ -107,9 +107,13 @@ pub struct VariableKBuffer {
     regions: Regions,
     allocation: Allocation,
     depth: Option<DepthStats>,
-    /// The feature sums and maps, when [`MethodOptions::features`] asks for them (the sums also
-    /// with `--k-from analytic`, which models each pixel from them).
-    features: Option<Box<(FeatureAccumulator, FeatureMaps)>>,
+    /// The counting pass's feature sums: gathered (and allocated) only when `needs_sums`.
+    sums: FeatureAccumulator,
+    /// Whether the counting pass gathers the sums: the error models read them, and the
+    /// feature maps are finished from them.
+    needs_sums: bool,
+    /// The feature maps, finished when [`MethodOptions::features`] asks for them.
+    maps: FeatureMaps,
     /// Whether the feature maps are to be finished (`MethodOptions::features`).
     want_maps: bool,
     /// Each pixel's model (`--k-from analytic`).
@@ -133,9 +137,10 @@ impl VariableKBuffer {
             regions: Regions::new(),
             allocation: Allocation::default(),
             depth: None,
-            features: (options.features
-                || matches!(options.k_from, KFrom::Analytic | KFrom::Learned))
-            .then(|| Box::new((FeatureAccumulator::new(), FeatureMaps::new()))),
+            sums: FeatureAccumulator::new(),
+            needs_sums: options.features
+                || matches!(options.k_from, KFrom::Analytic | KFrom::Learned),
+            maps: FeatureMaps::new(),
             want_maps: options.features,
             worth: Vec::new(),
             model: (options.k_from == KFrom::Learned).then(|| {
@@ -185,10 +190,7 @@ impl VariableKBuffer {
     }
 
     fn map_bytes(&self) -> u64 {
-        let features = self
-            .features
-            .as_ref()
-            .map_or(0, |f| f.0.memory_bytes() + f.1.memory_bytes());
+        let features = self.sums.memory_bytes() + self.maps.memory_bytes();
         ((self.importance.len() + self.k.len()) * 4) as u64
             + (self.worth.len() * std::mem::size_of::<Worth>()) as u64
             + self.counts.memory_bytes()
@@ -202,12 +204,15 @@ impl VariableKBuffer {
         timings: &mut PassTimings,
     ) -> u64 {
         timings
-            .time("capture.count", || match self.features.as_deref_mut() {
-                Some((sums, _)) => prepared.rasterize(&mut FeatureCapture {
-                    counts: &mut self.counts,
-                    sums,
-                }),
-                None => prepared.rasterize(&mut self.counts),
+            .time("capture.count", || {
+                if self.needs_sums {
+                    prepared.rasterize(&mut FeatureCapture {
+                        counts: &mut self.counts,
+                        sums: &mut self.sums,
+                    })
+                } else {
+                    prepared.rasterize(&mut self.counts)
+                }
             })
             .fragments
     }
@@ -229,9 +234,9 @@ impl VariableKBuffer {
             });
             return;
         }
-        let Some((sums, _)) = self.features.as_deref() else {
-            unreachable!("VariableKBuffer::new allocates the sums for the error models");
-        };
+        // The error models: `new` set `needs_sums`, so the counting pass gathered the sums.
+        debug_assert!(self.needs_sums, "the error models read the feature sums");
+        let sums = &self.sums;
         self.worth.resize(pixels, Worth::at_most_one(0.0));
         let use_curve = match self.model.as_deref() {
             Some(model) => {
@@ -297,8 +302,8 @@ impl Method for VariableKBuffer {
     fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         (self.width, self.height) = (width, height);
         self.counts.clear(width, height)?;
-        if let Some(f) = self.features.as_deref_mut() {
-            f.0.clear(width, height)?;
+        if self.needs_sums {
+            self.sums.clear(width, height)?;
         }
         self.depth = None;
         Ok(())
@@ -317,9 +322,8 @@ impl Method for VariableKBuffer {
 
         let total = self.count(&prepared, timings);
         let budget = self.budget.fragments(pixels as u64, total);
-        if let Some((sums, maps)) = self.features.as_deref_mut()
-            && self.want_maps
-        {
+        if self.want_maps {
+            let (sums, maps) = (&self.sums, &mut self.maps);
             let counts = self.counts.counts();
             timings.time("capture.features", || {
                 maps.compute(sums, counts, budget, input.background)
@@ -417,10 +421,7 @@ impl Method for VariableKBuffer {
     }
 
     fn feature_maps(&self) -> Option<&FeatureMaps> {
-        self.features
-            .as_deref()
-            .filter(|_| self.want_maps)
-            .map(|f| &f.1)
+        self.want_maps.then_some(&self.maps)
     }
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
