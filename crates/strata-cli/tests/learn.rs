@@ -177,26 +177,22 @@ fn bad_weights_and_options_are_refused_before_rendering() {
     let err = run_err(strata().args(["learn", "info"]).arg(&junk));
     assert!(err.contains("safetensors"), "{err}");
     let data = dataset(dir.path());
-    let err = run_err(
-        strata()
-            .args(["learn", "train", "--exclude", "bunny", "--data"])
-            .arg(&data)
-            .args(["--out", "x.safetensors"]),
-    );
+    // `strata learn train ARGS --data DATA --out x.safetensors`: what it says on refusing.
+    let train_err = |args: &[&str]| {
+        run_err(
+            strata()
+                .args(["learn", "train"])
+                .args(args)
+                .arg("--data")
+                .arg(&data)
+                .args(["--out", "x.safetensors"]),
+        )
+    };
+    let err = train_err(&["--exclude", "bunny"]);
     assert!(err.contains("bunny") && err.contains("procedural"), "{err}");
-    let err = run_err(
-        strata()
-            .args(["learn", "train", "--inputs", "count,nope", "--data"])
-            .arg(&data)
-            .args(["--out", "x.safetensors"]),
-    );
+    let err = train_err(&["--inputs", "count,nope"]);
     assert!(err.contains("`nope`"), "{err}");
-    let err = run_err(
-        strata()
-            .args(["learn", "train", "--hidden", "0", "--data"])
-            .arg(&data)
-            .args(["--out", "x"]),
-    );
+    let err = train_err(&["--hidden", "0"]);
     assert!(err.contains("--hidden"), "{err}");
     let err = run_err(
         strata()
