@@ -325,17 +325,52 @@ impl DeepFrame {
         if offsets[0] != 0 {
             return Err(DeepFrameError::BadOffsets { pixel: 0 });
         }
-        if let Some(p) = offsets.windows(2).position(|w| w[1] < w[0]) {
+        // Every check below runs over chunks in parallel, without a branch per item inside a
+        // chunk (decoders call this on every frame they receive); a chunk that fails is
+        // searched again for the first offender, so the error names the same item as a
+        // serial scan would.
+        if let Some(p) = first_failing(offsets.len().saturating_sub(1), CHECK_CHUNK, |r| {
+            offsets[r.start..r.end + 1]
+                .windows(2)
+                .fold(true, |ok, w| ok & (w[0] <= w[1]))
+        }) {
             return Err(DeepFrameError::BadOffsets { pixel: p });
         }
         if offsets[pixels] as usize != depth.len() {
             return Err(DeepFrameError::BadOffsets { pixel: pixels });
         }
-        if let Some(index) = depth.iter().position(|d| !valid_depth(*d)) {
+        // A valid depth is a non-negative float at most 1 and not −0: exactly the bit patterns
+        // up to 1.0's (negative numbers, −0 and NaNs all have larger ones).
+        let one = 1.0f32.to_bits();
+        if let Some(index) = first_failing(depth.len(), CHECK_CHUNK, |r| {
+            depth[r].iter().fold(0, |m, d| m.max(d.to_bits())) <= one
+        }) {
             return Err(DeepFrameError::BadDepth {
                 index,
                 depth: depth[index],
             });
+        }
+        // Sorted runs: each fragment's order key is at least its predecessor's in the run.
+        let key = |i: usize| {
+            (
+                (u64::from(depth[i].to_bits()) << 32) | u64::from(object[i].0),
+                color[i].to_bits(),
+            )
+        };
+        let unsorted = first_failing(pixels, CHECK_CHUNK, |r| {
+            let mut ok = true;
+            for w in offsets[r.start..r.end + 1].windows(2) {
+                let (a, b) = (w[0] as usize, w[1] as usize);
+                if b > a + 1 {
+                    for i in a + 1..b {
+                        ok &= key(i - 1) <= key(i);
+                    }
+                }
+            }
+            ok
+        });
+        if let Some(pixel) = unsorted {
+            return Err(DeepFrameError::Unsorted { pixel });
         }
         let frame = DeepFrame {
             width,
@@ -345,14 +380,6 @@ impl DeepFrame {
             color,
             object,
         };
-        let unsorted = (0..pixels).into_par_iter().find_first(|&p| {
-            let run = frame.run(p);
-            (1..run.len())
-                .any(|i| run.get(i - 1).map(|f| f.order_key()) > run.get(i).map(|f| f.order_key()))
-        });
-        if let Some(pixel) = unsorted {
-            return Err(DeepFrameError::Unsorted { pixel });
-        }
         Ok(frame)
     }
 
@@ -525,6 +552,22 @@ impl DeepFrame {
     }
 }
 
+/// Items per parallel chunk of [`DeepFrame::from_parts`]' checks.
+const CHECK_CHUNK: usize = 16 * 1024;
+
+/// The first `i < len` that fails, where `ok(range)` says whether every item of `range` passes:
+/// chunks of `chunk` items are checked in parallel, and the first failing chunk item by item.
+fn first_failing(
+    len: usize,
+    chunk: usize,
+    ok: impl Fn(std::ops::Range<usize>) -> bool + Sync,
+) -> Option<usize> {
+    let failing = (0..len.div_ceil(chunk))
+        .into_par_iter()
+        .find_first(|&c| !ok(c * chunk..((c + 1) * chunk).min(len)))?;
+    (failing * chunk..((failing + 1) * chunk).min(len)).find(|&i| !ok(i..i + 1))
+}
+
 fn valid_depth(d: f32) -> bool {
     (0.0..=1.0).contains(&d) && !(d == 0.0 && d.is_sign_negative())
 }
@@ -641,6 +684,57 @@ mod tests {
         }
         let b = DeepFrame::from_pixel_lists(2, 2, &lists).unwrap();
         assert_eq!(a, b);
+    }
+
+    #[test]
+    fn from_parts_names_the_first_offender_across_parallel_chunks() {
+        // Three fragments a pixel over more pixels and fragments than several check chunks.
+        let (w, h) = (256u32, 3 * CHECK_CHUNK as u32 / 256);
+        let pixels = (w * h) as usize;
+        let offsets: Vec<u32> = (0..=pixels as u32).map(|p| 3 * p).collect();
+        let n = 3 * pixels;
+        let depth: Vec<f32> = (0..n).map(|i| (i % 3) as f32 * 0.25).collect();
+        let color = vec![Rgba8([1, 2, 3, 4]); n];
+        let object = vec![ObjectId(1); n];
+        let parts = |depth: Vec<f32>| {
+            DeepFrame::from_parts(w, h, offsets.clone(), depth, color.clone(), object.clone())
+        };
+        assert!(parts(depth.clone()).is_ok());
+        // Two bad depths in different chunks: the first is named, whatever the threads do.
+        let (early, late) = (CHECK_CHUNK + 7, 2 * CHECK_CHUNK + 1);
+        let mut bad = depth.clone();
+        bad[late] = -0.0;
+        bad[early] = 1.5;
+        assert_eq!(
+            parts(bad),
+            Err(DeepFrameError::BadDepth {
+                index: early,
+                depth: 1.5
+            })
+        );
+        let mut nan = depth.clone();
+        nan[late] = f32::NAN;
+        assert!(matches!(parts(nan), Err(DeepFrameError::BadDepth { index, .. }) if index == late));
+        let mut negative_zero = depth.clone();
+        negative_zero[early] = -0.0;
+        assert!(matches!(
+            parts(negative_zero),
+            Err(DeepFrameError::BadDepth { index, .. }) if index == early
+        ));
+        // Two unsorted pixels far apart: the first.
+        let mut unsorted = depth.clone();
+        unsorted.swap(3 * 9000, 3 * 9000 + 1);
+        unsorted.swap(3 * 2, 3 * 2 + 2);
+        assert_eq!(parts(unsorted), Err(DeepFrameError::Unsorted { pixel: 2 }));
+        // A decreasing offset past the first chunk.
+        let mut broken = offsets.clone();
+        broken[CHECK_CHUNK + 3] = 0;
+        assert_eq!(
+            DeepFrame::from_parts(w, h, broken, depth, color.clone(), object.clone()),
+            Err(DeepFrameError::BadOffsets {
+                pixel: CHECK_CHUNK + 2
+            })
+        );
     }
 
     #[test]

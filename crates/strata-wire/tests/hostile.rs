@@ -13,8 +13,8 @@ use proptest::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId, Rgba8};
 use strata_wire::{
     Codec, DecodeOptions, FrameHeader, FrameMessage, Hello, Message, NodeStats, PREFIX_LEN,
-    PixelMask, Removals, Request, RequestKind, TransferMethod, WireError, decode, decode_frame,
-    encode_delta_into, encode_error_into, encode_frame, encode_frame_into,
+    PixelMask, Removals, Request, RequestKind, TransferMethod, VERSION, WireError, decode,
+    decode_frame, encode_delta_into, encode_error_into, encode_frame, encode_frame_into,
     encode_reprojection_into, inspect_frame, parse_prefix,
 };
 
@@ -489,7 +489,9 @@ fn every_truncation_is_an_error_that_names_the_field() {
 fn assert_prefix_flip_error(e: &WireError, at: usize, verify: bool, what: &str) {
     let ok = match at {
         0..4 => matches!(e, WireError::BadMagic { .. }),
-        4..6 => matches!(e, WireError::UnsupportedVersion { found, supported: 1 } if *found != 1),
+        4..6 => {
+            matches!(e, WireError::UnsupportedVersion { found, supported } if *supported == VERSION && *found != VERSION)
+        }
         // Reserved or unknown, or another message type, which is not a frame.
         6 => matches!(
             e,
@@ -619,9 +621,14 @@ fn cases() -> Vec<Case> {
             needles: &["magic", "byte 0", "STRW"],
         },
         Case {
-            what: "version 2",
-            edit: |b| b[4] = 2,
-            needles: &["version 2", "byte 4"],
+            what: "version 1 (the previous format)",
+            edit: |b| b[4] = 1,
+            needles: &["version 1", "byte 4", "reads version 2"],
+        },
+        Case {
+            what: "version 3",
+            edit: |b| b[4] = 3,
+            needles: &["version 3", "byte 4"],
         },
         Case {
             what: "version u16::MAX",

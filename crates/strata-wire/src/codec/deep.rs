@@ -7,14 +7,19 @@
 //! of the screen position (planar triangles) and its shaded colour varies slowly; the object id
 //! hardly ever changes. The thesis layout hides all of that from LZ4. This layout exposes it.
 //!
-//! # Neighbourhood
+//! # Bands and neighbourhood
+//!
+//! The frame's rows are cut into prediction bands of [`BAND_ROWS`] rows, and prediction never
+//! leaves its band, so bands encode and decode independently, in parallel.
 //!
 //! Fragments are visited in DeepFrame order (pixels row-major, each run front to back). Fragment
 //! `k` of pixel `(x, y)` is predicted from fragment `k` (the same *layer*) of its left `L = (x-1, y)`,
-//! upper `U = (x, y-1)` and upper-left `UL = (x-1, y-1)` neighbours where those pixels hold more than
-//! `k` fragments, else from the previous fragment `P` of its own run (`k > 0`), else from the first
-//! fragment of the last non-empty run visited (`F`), else from zero. All of these precede it, so the
-//! decoder, which visits in the same order, has them.
+//! upper `U = (x, y-1)` and upper-left `UL = (x-1, y-1)` neighbours where those pixels are in its
+//! band and hold more than `k` fragments, else from the previous fragment `P` of its own run
+//! (`k > 0`), else from the first fragment of the last non-empty run visited in the band (`F`),
+//! else from zero. All of these precede it, so the decoder, which visits in the same order, has
+//! them. One function, [`walk`], visits a band and names each fragment's source for both
+//! directions.
 //!
 //! # Sections (in this order)
 //!
@@ -46,9 +51,13 @@
 //! # Decoding
 //!
 //! The counts come first: they must add up to the header's fragment count before any fragment
-//! column is allocated. The decoder then replays the predictors; every stream must be consumed
-//! exactly; the result goes through `DeepFrame::from_parts`, which re-checks sortedness and depth
-//! range, so a well-formed message with nonsense residuals is an error, not a frame.
+//! column is allocated. The object stream is read next, into its non-zero residuals, and must
+//! cover exactly the fragments. Every check is done before the bands replay their predictors in
+//! parallel, so that replay cannot fail. The result goes through `DeepFrame::from_parts`, which
+//! re-checks sortedness and depth range, so a well-formed message with nonsense residuals is an
+//! error, not a frame.
+
+use std::ops::Range;
 
 use rayon::prelude::*;
 use strata_core::{DeepFrame, ObjectId, Rgba8};
@@ -57,8 +66,22 @@ use crate::bytes::{Reader, put_varint, unzigzag, zigzag};
 use crate::codec::SectionTag;
 use crate::error::WireError;
 
-/// The run of a neighbouring pixel: where it starts and how many fragments it holds (0 when the
-/// neighbour is outside the frame).
+/// Rows of pixels in a prediction band. Prediction never reads a pixel of an earlier band (a
+/// band's first row has no `U` or `UL`, and `F` starts empty in every band), so the bands of a
+/// frame encode and decode independently, in parallel. Part of the format (version 2).
+pub const BAND_ROWS: usize = 64;
+
+/// The pixel ranges of the prediction bands of a frame of `pixels` pixels, `width` to a row.
+fn bands(pixels: usize, width: usize) -> Vec<Range<usize>> {
+    let step = BAND_ROWS.saturating_mul(width).max(1);
+    (0..pixels)
+        .step_by(step)
+        .map(|p0| p0..(p0 + step).min(pixels))
+        .collect()
+}
+
+/// The run of a neighbouring pixel: where it starts (from the band's first fragment) and how
+/// many fragments it holds (0 when the neighbour is outside the band).
 #[derive(Clone, Copy)]
 struct Nb {
     start: usize,
@@ -67,39 +90,20 @@ struct Nb {
 
 const NONE: Nb = Nb { start: 0, len: 0 };
 
-/// The left, upper and upper-left runs of pixel `p`.
-#[inline]
-fn neighbours(offsets: &[u32], width: usize, p: usize) -> (Nb, Nb, Nb) {
-    let run = |q: usize| Nb {
-        start: offsets[q] as usize,
-        len: (offsets[q + 1] - offsets[q]) as usize,
-    };
-    let x = p % width;
-    let l = if x > 0 { run(p - 1) } else { NONE };
-    let (u, ul) = if p >= width {
-        (
-            run(p - width),
-            if x > 0 { run(p - width - 1) } else { NONE },
-        )
-    } else {
-        (NONE, NONE)
-    };
-    (l, u, ul)
-}
-
-/// Which neighbours fragment `k` of a pixel can be predicted from.
+/// Which earlier fragment(s) of its band a fragment is predicted from (indices from the band's
+/// first fragment).
 #[derive(Clone, Copy)]
 enum Source {
-    /// `L`, `U` and `UL` all hold layer `k`: indices of the three.
+    /// `L`, `U` and `UL` all hold the fragment's layer: the three.
     Plane(usize, usize, usize),
-    /// One earlier fragment: `L`, `U` or `P`.
+    /// One earlier fragment: `L`, `U`, `P` or `F`.
     One(usize),
-    /// The first fragment of the last non-empty run (or nothing yet).
-    Last,
+    /// Nothing precedes it in the band: predicted as zero.
+    Zero,
 }
 
-#[inline]
-fn source(k: usize, start: usize, l: Nb, u: Nb, ul: Nb) -> Source {
+#[inline(always)]
+fn source(k: usize, start: usize, l: Nb, u: Nb, ul: Nb, first: Option<usize>) -> Source {
     let (hl, hu) = (k < l.len, k < u.len);
     if hl && hu && k < ul.len {
         Source::Plane(l.start + k, u.start + k, ul.start + k)
@@ -110,56 +114,111 @@ fn source(k: usize, start: usize, l: Nb, u: Nb, ul: Nb) -> Source {
     } else if k > 0 {
         Source::One(start + k - 1)
     } else {
-        Source::Last
+        match first {
+            Some(f) => Source::One(f),
+            None => Source::Zero,
+        }
     }
 }
 
-#[inline]
-fn predict_depth(bits: &[u32], s: Source, last: u32) -> u32 {
+/// What [`walk`] hands each fragment to: the encoder computes its residuals, the decoder its
+/// values.
+trait Visit {
+    /// Fragment `i` of the band, predicted from `s`.
+    fn visit(&mut self, i: usize, s: Source);
+}
+
+/// Visits the fragments of `band` in wire order with the source each is predicted from; `i`,
+/// like every index in the source, counts from the band's first fragment. The encoder and the
+/// decoder both walk with it, so they cannot disagree on a neighbourhood.
+#[inline(always)]
+fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
+    if width == 0 {
+        return;
+    }
+    let base = offsets[band.start];
+    // The first fragment of the last non-empty run visited in the band (`F`).
+    let mut first: Option<usize> = None;
+    for row in band.clone().step_by(width) {
+        // This row's run offsets and the row above's (if it is in the band), from the band's
+        // first fragment.
+        let cur = &offsets[row..=row + width];
+        let up = if row >= band.start + width {
+            &offsets[row - width..=row]
+        } else {
+            &[][..]
+        };
+        let run = |o: &[u32], x: usize| Nb {
+            start: (o[x] - base) as usize,
+            len: (o[x + 1] - o[x]) as usize,
+        };
+        for x in 0..width {
+            if cur[x] == cur[x + 1] {
+                continue;
+            }
+            let me = run(cur, x);
+            let l = if x > 0 { run(cur, x - 1) } else { NONE };
+            let (u, ul) = match (up.is_empty(), x > 0) {
+                (false, true) => (run(up, x), run(up, x - 1)),
+                (false, false) => (run(up, x), NONE),
+                (true, _) => (NONE, NONE),
+            };
+            if me.len <= l.len.min(u.len).min(ul.len) {
+                // Inside a surface: every layer has all three neighbours (the common case,
+                // without a branch per fragment).
+                for k in 0..me.len {
+                    v.visit(
+                        me.start + k,
+                        Source::Plane(l.start + k, u.start + k, ul.start + k),
+                    );
+                }
+            } else {
+                for k in 0..me.len {
+                    v.visit(me.start + k, source(k, me.start, l, u, ul, first));
+                }
+            }
+            first = Some(me.start);
+        }
+    }
+}
+
+#[inline(always)]
+fn predict_depth(bits: impl Fn(usize) -> u32, s: Source) -> u32 {
     match s {
-        Source::Plane(l, u, ul) => bits[l].wrapping_add(bits[u]).wrapping_sub(bits[ul]),
-        Source::One(i) => bits[i],
-        Source::Last => last,
+        Source::Plane(l, u, ul) => bits(l).wrapping_add(bits(u)).wrapping_sub(bits(ul)),
+        Source::One(i) => bits(i),
+        Source::Zero => 0,
     }
 }
 
-/// LOCO-I's median edge detector.
-#[inline]
+/// LOCO-I's median edge detector: `min(a, b)` if `c ≥ max(a, b)`, `max(a, b)` if `c ≤ min(a, b)`,
+/// else `a + b − c`. That is `a + b − c` clamped to `[min(a, b), max(a, b)]` (when `c ≥ max`,
+/// `a + b − c ≤ min`, and symmetrically), which needs no branch: colour residuals are noisy, and
+/// a branch on them is mispredicted about as often as not.
+#[inline(always)]
 fn med(a: u8, b: u8, c: u8) -> u8 {
-    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
-    if c >= hi {
-        lo
-    } else if c <= lo {
-        hi
-    } else {
-        // lo < c < hi, so a + b - c lies in (lo, hi).
-        (i16::from(a) + i16::from(b) - i16::from(c)) as u8
-    }
+    let (a, b, c) = (i16::from(a), i16::from(b), i16::from(c));
+    (a + b - c).clamp(a.min(b), a.max(b)) as u8
 }
 
-#[inline]
-fn predict_color(colors: &[[u8; 4]], s: Source, last: [u8; 4]) -> [u8; 4] {
+#[inline(always)]
+fn predict_color(colors: impl Fn(usize) -> [u8; 4], s: Source) -> [u8; 4] {
     match s {
         Source::Plane(l, u, ul) => {
-            let (a, b, c) = (colors[l], colors[u], colors[ul]);
-            [
-                med(a[0], b[0], c[0]),
-                med(a[1], b[1], c[1]),
-                med(a[2], b[2], c[2]),
-                med(a[3], b[3], c[3]),
-            ]
+            let (a, b, c) = (colors(l), colors(u), colors(ul));
+            std::array::from_fn(|ch| med(a[ch], b[ch], c[ch]))
         }
-        Source::One(i) => colors[i],
-        Source::Last => last,
+        Source::One(i) => colors(i),
+        Source::Zero => [0; 4],
     }
 }
 
-#[inline]
-fn predict_object(objects: &[u32], s: Source, last: u32) -> u32 {
+#[inline(always)]
+fn predict_object(objects: impl Fn(usize) -> u32, s: Source) -> u32 {
     match s {
         // Ids are labels: the left neighbour, not an average.
-        Source::Plane(l, _, _) | Source::One(l) => objects[l],
-        Source::Last => last,
+        Source::Plane(l, _, _) | Source::One(l) => objects(l),
+        Source::Zero => 0,
     }
 }
 
@@ -187,30 +246,17 @@ impl ZeroRuns {
     }
 }
 
-/// Rows of pixels one encoding task predicts.
-const BAND_ROWS: usize = 16;
-
-/// The four uncompressed sections, in wire order.
-pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
-    encode_in_bands(frame, BAND_ROWS)
-}
-
-/// One band's outputs: its fragments' residuals, plane by plane, and its object residuals.
+/// One band's residuals: a contiguous range of every plane, and its object residuals.
 struct BandOut<'a> {
     depth: [&'a mut [u8]; 4],
     color: [&'a mut [u8]; 4],
     object: &'a mut [u32],
 }
 
-/// [`encode`] with the prediction cut into tasks of `band_rows` rows, run in parallel.
-///
-/// A residual depends only on the *original* values of the fragment's neighbours, which the
-/// encoder has for the whole frame, so bands can be predicted in any order: each task writes
-/// its own fragments' residuals (a contiguous range of every plane) and starts with the "last
-/// non-empty run" of the pixels before it, found beforehand. The output is the same bytes for
-/// any band height and thread count (tested). The object residuals are zero-run coded after,
-/// in one pass; the counts' varints are one pass too.
-fn encode_in_bands(frame: &DeepFrame, band_rows: usize) -> Vec<(SectionTag, Vec<u8>)> {
+/// The four uncompressed sections, in wire order. The bands are predicted in parallel; the
+/// bytes are the same for any thread count (tested). The counts' varints and the object
+/// residuals' zero runs are one pass each.
+pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
     let offsets = frame.offsets();
     let width = frame.width() as usize;
     let pixels = offsets.len() - 1;
@@ -219,21 +265,6 @@ fn encode_in_bands(frame: &DeepFrame, band_rows: usize) -> Vec<(SectionTag, Vec<
     let mut counts = Vec::with_capacity(pixels + pixels / 8);
     for c in frame.counts() {
         put_varint(&mut counts, c);
-    }
-
-    let band_pixels = band_rows.max(1).saturating_mul(width).max(1);
-    let bands: Vec<std::ops::Range<usize>> = (0..pixels)
-        .step_by(band_pixels)
-        .map(|p0| p0..(p0 + band_pixels).min(pixels))
-        .collect();
-    // The first fragment of the last non-empty run before each band (`None`: there is none).
-    let mut last_before = Vec::with_capacity(bands.len());
-    let mut last: Option<usize> = None;
-    for band in &bands {
-        last_before.push(last);
-        if let Some(q) = band.clone().rev().find(|&q| offsets[q + 1] > offsets[q]) {
-            last = Some(offsets[q] as usize);
-        }
     }
 
     let mut depth = vec![0u8; 4 * n];
@@ -245,19 +276,21 @@ fn encode_in_bands(frame: &DeepFrame, band_rows: usize) -> Vec<(SectionTag, Vec<
             planes(&mut color, n),
             &mut object[..],
         );
-        let mut tasks = Vec::with_capacity(bands.len());
-        for (band, last) in bands.iter().zip(&last_before) {
-            let len = (offsets[band.end] - offsets[band.start]) as usize;
-            let out = BandOut {
-                depth: d.each_mut().map(|plane| take_front(plane, len)),
-                color: c.each_mut().map(|plane| take_front(plane, len)),
-                object: take_front(&mut o, len),
-            };
-            tasks.push((band.clone(), *last, out));
-        }
+        let tasks: Vec<(Range<usize>, BandOut<'_>)> = bands(pixels, width)
+            .into_iter()
+            .map(|band| {
+                let len = (offsets[band.end] - offsets[band.start]) as usize;
+                let out = BandOut {
+                    depth: d.each_mut().map(|plane| take_front(plane, len)),
+                    color: c.each_mut().map(|plane| take_front(plane, len)),
+                    object: take_front(&mut o, len),
+                };
+                (band, out)
+            })
+            .collect();
         tasks
             .into_par_iter()
-            .for_each(|(band, last, mut out)| predict_band(frame, band, last, &mut out));
+            .for_each(|(band, mut out)| encode_band(frame, band, &mut out));
     }
     let mut zero_runs = ZeroRuns {
         out: Vec::new(),
@@ -275,7 +308,7 @@ fn encode_in_bands(frame: &DeepFrame, band_rows: usize) -> Vec<(SectionTag, Vec<
 }
 
 /// The four planes of `n` bytes of `v`.
-fn planes(v: &mut [u8], n: usize) -> [&mut [u8]; 4] {
+fn planes<T>(v: &mut [T], n: usize) -> [&mut [T]; 4] {
     let (a, rest) = v.split_at_mut(n);
     let (b, rest) = rest.split_at_mut(n);
     let (c, d) = rest.split_at_mut(n);
@@ -289,84 +322,57 @@ fn take_front<'a, T>(slice: &mut &'a mut [T], len: usize) -> &'a mut [T] {
     head
 }
 
-/// The residuals of the fragments of the pixels in `band` into `out` (indexed from the band's
-/// first fragment); `last` is the first fragment of the last non-empty run before the band.
-fn predict_band(
-    frame: &DeepFrame,
-    band: std::ops::Range<usize>,
-    last: Option<usize>,
-    out: &mut BandOut<'_>,
-) {
+/// The residuals of the fragments of the pixels in `band` into `out`.
+fn encode_band(frame: &DeepFrame, band: Range<usize>, out: &mut BandOut<'_>) {
     let offsets = frame.offsets();
-    let width = frame.width() as usize;
-    // Plain views of the columns: bits for depth, byte arrays for colour, u32 for ids.
-    let bits: &[f32] = frame.depths();
-    let colors: &[Rgba8] = frame.colors();
-    let objects: &[ObjectId] = frame.objects();
-    let bit = |i: usize| bits[i].to_bits();
-    let (mut last_depth, mut last_color, mut last_object) = match last {
-        Some(i) => (bit(i), colors[i].0, objects[i].0),
-        None => (0u32, [0u8; 4], 0u32),
+    let (lo, hi) = (offsets[band.start] as usize, offsets[band.end] as usize);
+    let mut encoder = BandEncoder {
+        depths: &frame.depths()[lo..hi],
+        colors: &frame.colors()[lo..hi],
+        objects: &frame.objects()[lo..hi],
+        out,
     };
-    let base = offsets[band.start] as usize;
-    for p in band {
-        let start = offsets[p] as usize;
-        let len = offsets[p + 1] as usize - start;
-        if len == 0 {
-            continue;
-        }
-        let (l, u, ul) = neighbours(offsets, width, p);
-        for k in 0..len {
-            let i = start + k;
-            let j = i - base;
-            let s = source(k, start, l, u, ul);
-            let predicted = match s {
-                Source::Plane(l, u, ul) => bit(l).wrapping_add(bit(u)).wrapping_sub(bit(ul)),
-                Source::One(q) => bit(q),
-                Source::Last => last_depth,
-            };
-            let r = zigzag(bit(i).wrapping_sub(predicted) as i32);
-            let [b0, b1, b2, b3] = r.to_le_bytes();
-            out.depth[0][j] = b0;
-            out.depth[1][j] = b1;
-            out.depth[2][j] = b2;
-            out.depth[3][j] = b3;
-            let pc = predict_color_of(colors, s, last_color);
-            let c = colors[i].0;
-            for (plane, (value, guess)) in out.color.iter_mut().zip(c.into_iter().zip(pc)) {
-                plane[j] = value.wrapping_sub(guess);
-            }
-            let po = match s {
-                Source::Plane(l, _, _) | Source::One(l) => objects[l].0,
-                Source::Last => last_object,
-            };
-            out.object[j] = objects[i].0 ^ po;
-        }
-        (last_depth, last_color, last_object) = (bit(start), colors[start].0, objects[start].0);
-    }
+    walk(offsets, frame.width() as usize, band, &mut encoder);
 }
 
-/// [`predict_color`] over the frame's own colour column.
-#[inline]
-fn predict_color_of(colors: &[Rgba8], s: Source, last: [u8; 4]) -> [u8; 4] {
-    match s {
-        Source::Plane(l, u, ul) => {
-            let (a, b, c) = (colors[l].0, colors[u].0, colors[ul].0);
-            [
-                med(a[0], b[0], c[0]),
-                med(a[1], b[1], c[1]),
-                med(a[2], b[2], c[2]),
-                med(a[3], b[3], c[3]),
-            ]
+/// A band's fragments, and where their residuals go.
+struct BandEncoder<'a, 'b> {
+    depths: &'a [f32],
+    colors: &'a [Rgba8],
+    objects: &'a [ObjectId],
+    out: &'a mut BandOut<'b>,
+}
+
+impl Visit for BandEncoder<'_, '_> {
+    #[inline(always)]
+    fn visit(&mut self, i: usize, s: Source) {
+        // The columns read as the decoder holds them: bits, byte arrays, u32 ids.
+        let bits = |q: usize| self.depths[q].to_bits();
+        let color = |q: usize| self.colors[q].0;
+        let object = |q: usize| self.objects[q].0;
+        let r = zigzag(bits(i).wrapping_sub(predict_depth(bits, s)) as i32);
+        for (plane, byte) in self.out.depth.iter_mut().zip(r.to_le_bytes()) {
+            plane[i] = byte;
         }
-        Source::One(i) => colors[i].0,
-        Source::Last => last,
+        let guess = predict_color(color, s);
+        for (plane, (value, guess)) in self
+            .out
+            .color
+            .iter_mut()
+            .zip(color(i).into_iter().zip(guess))
+        {
+            plane[i] = value.wrapping_sub(guess);
+        }
+        self.out.object[i] = object(i) ^ predict_object(object, s);
     }
 }
 
 /// Rebuilds the frame from the four decompressed sections (`section_offsets`: where each payload
 /// starts in the message, for errors). Lengths were checked against
 /// [`SectionTag::decoded_range`] before decompressing.
+///
+/// The counts and the object stream are read first, in one pass each, and checked; then the
+/// bands replay their predictors in parallel into the frame's columns, which cannot fail.
 pub(crate) fn decode(
     width: u32,
     height: u32,
@@ -387,43 +393,7 @@ pub(crate) fn decode(
     let w = width as usize;
 
     // Counts first: nothing per fragment is allocated before they add up.
-    let mut reader = Reader::new(counts, 0);
-    let mut offsets = Vec::with_capacity(pixels + 1);
-    offsets.push(0u32);
-    let mut total: u64 = 0;
-    for p in 0..pixels {
-        let c = reader
-            .varint("count")
-            .map_err(|e| WireError::section("counts", at(0), format!("pixel {p}: {e}")))?;
-        total += u64::from(c);
-        if total > n as u64 {
-            return Err(WireError::section(
-                "counts",
-                at(0),
-                format!(
-                    "the counts up to pixel {p} add up to {total}, more than the {n} fragments the header announces"
-                ),
-            ));
-        }
-        offsets.push(total as u32);
-    }
-    if total != n as u64 {
-        return Err(WireError::section(
-            "counts",
-            at(0),
-            format!("the counts add up to {total}, the header announces {n} fragments"),
-        ));
-    }
-    if reader.remaining() != 0 {
-        return Err(WireError::section(
-            "counts",
-            at(0),
-            format!(
-                "{} bytes left after the {pixels} counts",
-                reader.remaining()
-            ),
-        ));
-    }
+    let offsets = decode_counts(counts, pixels, n, at(0))?;
     if depth.len() != 4 * n || color.len() != 4 * n {
         return Err(WireError::section(
             "depth",
@@ -436,64 +406,41 @@ pub(crate) fn decode(
             ),
         ));
     }
+    let nonzero = object_residuals(object, n, at(3))?;
 
-    let (d0, rest) = depth.split_at(n);
-    let (d1, rest) = rest.split_at(n);
-    let (d2, d3) = rest.split_at(n);
-    let (c0, rest) = color.split_at(n);
-    let (c1, rest) = rest.split_at(n);
-    let (c2, c3) = rest.split_at(n);
+    let (d, c) = (split4(depth, n), split4(color, n));
     let mut bits = vec![0u32; n];
     let mut colors = vec![[0u8; 4]; n];
     let mut objects = vec![0u32; n];
-    let mut ids = Reader::new(object, 0);
-    let object_error =
-        |e: WireError| WireError::section("object", at(3), format!("zero-run stream: {e}"));
-    // Zero residuals left in the current run; `None` once the final run has been read.
-    let mut zeros_left: u64 = u64::from(ids.varint("run").map_err(object_error)?);
-    let (mut last_depth, mut last_color, mut last_object) = (0u32, [0u8; 4], 0u32);
-    let mut i = 0usize;
-    for p in 0..pixels {
-        let start = offsets[p] as usize;
-        let len = offsets[p + 1] as usize - start;
-        if len == 0 {
-            continue;
-        }
-        let (l, u, ul) = neighbours(&offsets, w, p);
-        for k in 0..len {
-            debug_assert_eq!(i, start + k);
-            let s = source(k, start, l, u, ul);
-            let r = u32::from_le_bytes([d0[i], d1[i], d2[i], d3[i]]);
-            bits[i] = predict_depth(&bits, s, last_depth).wrapping_add(unzigzag(r) as u32);
-            let pc = predict_color(&colors, s, last_color);
-            colors[i] = [
-                pc[0].wrapping_add(c0[i]),
-                pc[1].wrapping_add(c1[i]),
-                pc[2].wrapping_add(c2[i]),
-                pc[3].wrapping_add(c3[i]),
-            ];
-            let residual = if zeros_left > 0 {
-                zeros_left -= 1;
-                0
-            } else {
-                let v = ids.varint("value").map_err(object_error)?;
-                zeros_left = u64::from(ids.varint("run").map_err(object_error)?);
-                v
-            };
-            objects[i] = predict_object(&objects, s, last_object) ^ residual;
-            i += 1;
-        }
-        (last_depth, last_color, last_object) = (bits[start], colors[start], objects[start]);
-    }
-    if zeros_left != 0 || ids.remaining() != 0 {
-        return Err(WireError::section(
-            "object",
-            at(3),
-            format!(
-                "the zero-run stream covers more than the {n} fragments ({zeros_left} zeros and {} bytes left)",
-                ids.remaining()
-            ),
-        ));
+    {
+        let (mut bits, mut colors, mut objects) =
+            (&mut bits[..], &mut colors[..], &mut objects[..]);
+        let mut nonzero = &nonzero[..];
+        let tasks: Vec<_> = bands(pixels, w)
+            .into_iter()
+            .map(|band| {
+                let (lo, hi) = (offsets[band.start] as usize, offsets[band.end] as usize);
+                let len = hi - lo;
+                let (mine, rest) =
+                    nonzero.split_at(nonzero.partition_point(|&(i, _)| (i as usize) < hi));
+                nonzero = rest;
+                let residuals = BandResiduals {
+                    depth: d.map(|plane| &plane[lo..hi]),
+                    color: c.map(|plane| &plane[lo..hi]),
+                    object: mine,
+                    first: lo,
+                };
+                let out = (
+                    take_front(&mut bits, len),
+                    take_front(&mut colors, len),
+                    take_front(&mut objects, len),
+                );
+                (band, residuals, out)
+            })
+            .collect();
+        tasks
+            .into_par_iter()
+            .for_each(|(band, residuals, out)| decode_band(&offsets, w, band, &residuals, out));
     }
     let depth = bits.into_iter().map(f32::from_bits).collect();
     let color = colors.into_iter().map(Rgba8).collect();
@@ -501,6 +448,166 @@ pub(crate) fn decode(
     Ok(DeepFrame::from_parts(
         width, height, offsets, depth, color, object,
     )?)
+}
+
+/// The four planes of `n` bytes of `v` (whose length the caller checked).
+fn split4(v: &[u8], n: usize) -> [&[u8]; 4] {
+    let (a, rest) = v.split_at(n);
+    let (b, rest) = rest.split_at(n);
+    let (c, d) = rest.split_at(n);
+    [a, b, c, d]
+}
+
+/// The run offsets of the `pixels` counts in `bytes`, checked to add up to `n` exactly and to
+/// fill the section.
+fn decode_counts(bytes: &[u8], pixels: usize, n: usize, at: u64) -> Result<Vec<u32>, WireError> {
+    let mut offsets = Vec::with_capacity(pixels + 1);
+    offsets.push(0u32);
+    let mut total: u64 = 0;
+    let mut pos = 0usize;
+    for p in 0..pixels {
+        let c = match bytes.get(pos) {
+            // Almost every count fits one byte.
+            Some(&b) if b < 0x80 => {
+                pos += 1;
+                u32::from(b)
+            }
+            _ => {
+                let mut reader = Reader::new(&bytes[pos..], 0);
+                let c = reader
+                    .varint("count")
+                    .map_err(|e| WireError::section("counts", at, format!("pixel {p}: {e}")))?;
+                pos += reader.offset() as usize;
+                c
+            }
+        };
+        total += u64::from(c);
+        if total > n as u64 {
+            return Err(WireError::section(
+                "counts",
+                at,
+                format!(
+                    "the counts up to pixel {p} add up to {total}, more than the {n} fragments the header announces"
+                ),
+            ));
+        }
+        offsets.push(total as u32);
+    }
+    if total != n as u64 {
+        return Err(WireError::section(
+            "counts",
+            at,
+            format!("the counts add up to {total}, the header announces {n} fragments"),
+        ));
+    }
+    if pos != bytes.len() {
+        return Err(WireError::section(
+            "counts",
+            at,
+            format!("{} bytes left after the {pixels} counts", bytes.len() - pos),
+        ));
+    }
+    Ok(offsets)
+}
+
+/// The non-zero object residuals of the zero-run stream, as (fragment index, residual) in
+/// fragment order, checked to cover exactly `n` fragments.
+fn object_residuals(stream: &[u8], n: usize, at: u64) -> Result<Vec<(u32, u32)>, WireError> {
+    let error = |e: WireError| WireError::section("object", at, format!("zero-run stream: {e}"));
+    let mut ids = Reader::new(stream, 0);
+    let mut nonzero = Vec::new();
+    let mut next: u64 = 0;
+    loop {
+        next += u64::from(ids.varint("run").map_err(error)?);
+        if next >= n as u64 {
+            break;
+        }
+        nonzero.push((next as u32, ids.varint("value").map_err(error)?));
+        next += 1;
+    }
+    if next != n as u64 || ids.remaining() != 0 {
+        return Err(WireError::section(
+            "object",
+            at,
+            format!(
+                "the zero-run stream covers more than the {n} fragments ({} zeros and {} bytes left)",
+                next - n as u64,
+                ids.remaining()
+            ),
+        ));
+    }
+    Ok(nonzero)
+}
+
+/// What one band decodes from: its range of every residual plane and its non-zero object
+/// residuals (indexed from the frame's first fragment; `first` is the band's).
+struct BandResiduals<'a> {
+    depth: [&'a [u8]; 4],
+    color: [&'a [u8]; 4],
+    object: &'a [(u32, u32)],
+    first: usize,
+}
+
+/// Replays the predictors of `band` into its columns.
+fn decode_band(
+    offsets: &[u32],
+    width: usize,
+    band: Range<usize>,
+    r: &BandResiduals<'_>,
+    out: (&mut [u32], &mut [[u8; 4]], &mut [u32]),
+) {
+    let (bits, colors, objects) = out;
+    let mut decoder = BandDecoder {
+        depth: r.depth,
+        color: r.color,
+        nonzero: r.object,
+        first: r.first,
+        bits,
+        colors,
+        objects,
+    };
+    walk(offsets, width, band, &mut decoder);
+}
+
+/// A band's residuals, and its columns being rebuilt.
+struct BandDecoder<'a> {
+    depth: [&'a [u8]; 4],
+    color: [&'a [u8]; 4],
+    /// The band's non-zero object residuals not used yet (fragment indices from the frame's
+    /// first fragment; `first` is the band's).
+    nonzero: &'a [(u32, u32)],
+    first: usize,
+    bits: &'a mut [u32],
+    colors: &'a mut [[u8; 4]],
+    objects: &'a mut [u32],
+}
+
+impl Visit for BandDecoder<'_> {
+    #[inline(always)]
+    fn visit(&mut self, i: usize, s: Source) {
+        let [d0, d1, d2, d3] = self.depth;
+        let [c0, c1, c2, c3] = self.color;
+        let residual = u32::from_le_bytes([d0[i], d1[i], d2[i], d3[i]]);
+        let bits = &mut *self.bits;
+        bits[i] = predict_depth(|q| bits[q], s).wrapping_add(unzigzag(residual) as u32);
+        let colors = &mut *self.colors;
+        let guess = predict_color(|q| colors[q], s);
+        colors[i] = [
+            guess[0].wrapping_add(c0[i]),
+            guess[1].wrapping_add(c1[i]),
+            guess[2].wrapping_add(c2[i]),
+            guess[3].wrapping_add(c3[i]),
+        ];
+        let residual = match self.nonzero.first() {
+            Some(&(at, v)) if at as usize - self.first == i => {
+                self.nonzero = &self.nonzero[1..];
+                v
+            }
+            _ => 0,
+        };
+        let objects = &mut *self.objects;
+        objects[i] = predict_object(|q| objects[q], s) ^ residual;
+    }
 }
 
 #[cfg(test)]
@@ -538,29 +645,137 @@ mod tests {
         DeepFrame::from_pixel_lists(width, height, &lists).expect("a valid frame")
     }
 
+    fn decode_sections(
+        frame: &DeepFrame,
+        sections: Vec<(SectionTag, Vec<u8>)>,
+    ) -> Result<DeepFrame, WireError> {
+        let sections: Vec<Vec<u8>> = sections.into_iter().map(|(_, bytes)| bytes).collect();
+        decode(
+            frame.width(),
+            frame.height(),
+            frame.fragment_count() as u32,
+            &sections,
+            &[0; 4],
+        )
+    }
+
     #[test]
-    fn any_band_height_and_thread_count_give_the_same_bytes() {
+    fn any_thread_count_gives_the_same_bytes_and_frame() {
+        // 29 rows: one full band and a partial one.
         let frame = patchy_frame(37, 29);
-        let one = encode_in_bands(&frame, 1000);
-        for rows in [1, 2, 3, 16, 29, 30] {
-            assert_eq!(encode_in_bands(&frame, rows), one, "{rows} rows a band");
-        }
-        for threads in [1, 2, 3] {
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("a pool")
+            .install(|| encode(&frame));
+        for threads in [2, 3] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .expect("a pool");
-            assert_eq!(
-                pool.install(|| encode_in_bands(&frame, 1)),
-                one,
-                "{threads} threads"
-            );
+            assert_eq!(pool.install(|| encode(&frame)), one, "{threads} threads");
+            let decoded = pool
+                .install(|| decode_sections(&frame, one.clone()))
+                .expect("decodes");
+            assert_eq!(decoded, frame, "{threads} threads");
         }
-        // And it decodes to the frame.
-        let sections: Vec<Vec<u8>> = one.into_iter().map(|(_, bytes)| bytes).collect();
-        let decoded =
-            decode(37, 29, frame.fragment_count() as u32, &sections, &[0; 4]).expect("decodes");
-        assert_eq!(decoded, frame);
+    }
+
+    #[test]
+    fn a_band_is_predicted_from_its_own_pixels_only() {
+        // Changing every fragment of the first band (but not the counts) leaves every residual
+        // of the second band as it was: its first row has no upper neighbours and its first
+        // fragment no earlier run to fall back on.
+        let (w, h) = (37u32, 2 * BAND_ROWS as u32);
+        let frame = patchy_frame(w, h);
+        let lists: Vec<Vec<strata_core::Fragment>> = (0..(w * h) as usize)
+            .map(|p| {
+                let mut run: Vec<strata_core::Fragment> = frame.run(p).iter().collect();
+                if p < BAND_ROWS * w as usize {
+                    for f in &mut run {
+                        f.depth = f.depth * 0.61 + 0.013;
+                        f.color = Rgba8([1, 2, 3, 4]);
+                        f.object = ObjectId(77);
+                    }
+                }
+                run
+            })
+            .collect();
+        let changed = DeepFrame::from_pixel_lists(w, h, &lists).expect("a valid frame");
+        let split = frame.offsets()[BAND_ROWS * w as usize] as usize;
+        let n = frame.fragment_count();
+        assert!(split > 0 && split < n, "both bands hold fragments");
+        let (a, b) = (encode(&frame), encode(&changed));
+        for plane in 0..4 {
+            let band2 = plane * n + split..(plane + 1) * n;
+            assert_eq!(
+                a[1].1[band2.clone()],
+                b[1].1[band2.clone()],
+                "depth plane {plane}"
+            );
+            assert_eq!(a[2].1[band2.clone()], b[2].1[band2], "colour plane {plane}");
+        }
+        let band1 = |s: &[u8]| {
+            (0..4)
+                .flat_map(|p| s[p * n..p * n + split].to_vec())
+                .collect::<Vec<u8>>()
+        };
+        assert_ne!(
+            band1(&a[1].1),
+            band1(&b[1].1),
+            "the first band's depths changed"
+        );
+        assert_ne!(
+            band1(&a[2].1),
+            band1(&b[2].1),
+            "the first band's colours changed"
+        );
+        assert_eq!(decode_sections(&changed, b).expect("decodes"), changed);
+    }
+
+    #[test]
+    fn malformed_counts_and_object_streams_are_errors() {
+        let frame = patchy_frame(37, 29);
+        let good = encode(&frame);
+        let n = frame.fragment_count();
+        let with = |i: usize, bytes: Vec<u8>| {
+            let mut s = good.clone();
+            s[i].1 = bytes;
+            decode_sections(&frame, s)
+                .expect_err("malformed")
+                .to_string()
+        };
+        // A count too many, one too few, a truncated varint, a byte left over.
+        let mut more = good[0].1.clone();
+        more[0] += 1;
+        assert!(with(0, more).contains("more than the"), "count too many");
+        let mut fewer = good[0].1.clone();
+        let last = fewer
+            .iter()
+            .rposition(|&b| b > 0)
+            .expect("a non-zero count");
+        fewer[last] -= 1;
+        assert!(with(0, fewer).contains("add up to"), "count too few");
+        let mut truncated = good[0].1.clone();
+        *truncated.last_mut().expect("counts") = 0x80;
+        assert!(with(0, truncated).contains("pixel"), "truncated varint");
+        let mut extra = good[0].1.clone();
+        extra.push(0);
+        assert!(with(0, extra).contains("bytes left"), "trailing byte");
+        // Object streams: a final run past the end, a missing final run, trailing bytes.
+        let mut long = Vec::new();
+        put_varint(&mut long, n as u32 + 1);
+        assert!(
+            with(3, long).contains("covers more than"),
+            "run past the end"
+        );
+        let mut short = Vec::new();
+        put_varint(&mut short, 0);
+        put_varint(&mut short, 5);
+        assert!(with(3, short).contains("object"), "no final run");
+        let mut trailing = good[3].1.clone();
+        trailing.push(0);
+        assert!(with(3, trailing).contains("bytes left"), "trailing byte");
     }
 
     #[test]
