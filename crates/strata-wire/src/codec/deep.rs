@@ -18,7 +18,7 @@
 //! band and hold more than `k` fragments, else from the previous fragment `P` of its own run
 //! (`k > 0`), else from the first fragment of the last non-empty run visited in the band (`F`),
 //! else from zero. All of these precede it, so the decoder, which visits in the same order, has
-//! them. One function, [`walk`], visits a band and names each fragment's source for both
+//! them. One function, `walk`, visits a band and names each fragment's source for both
 //! directions.
 //!
 //! # Sections (in this order)
