@@ -34,8 +34,8 @@ use glam::Mat4;
 use strata_core::{DeepFrame, DeepFrameError, ObjectId, Rgb8Image};
 use strata_scene::Scene;
 use strata_wire::{
-    Codec, DecodeOptions, FrameMessage, Hello, MessageType, NodeStats, PixelMask, Request,
-    RequestKind, decode_error, decode_frame,
+    Codec, DecodeOptions, FrameDecoder, FrameMessage, Hello, MessageType, NodeStats, PixelMask,
+    Request, RequestKind, decode_error,
 };
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
@@ -1184,11 +1184,22 @@ async fn decode_frames(
     limits: DecodeOptions,
     out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
 ) {
+    // Kept across frames: its decompression buffers are reused instead of fresh pages.
+    let mut decoder = FrameDecoder::new();
     while let Some((bytes, stats, transfer)) = raw.recv().await {
         let limits = limits.clone();
         let len = bytes.len() as u64;
         let start = Instant::now();
-        let decoded = tokio::task::spawn_blocking(move || decode_frame(&bytes, &limits)).await;
+        let mut d = std::mem::take(&mut decoder);
+        let decoded = tokio::task::spawn_blocking(move || {
+            let msg = d.decode_frame(&bytes, &limits);
+            (d, msg)
+        })
+        .await
+        .map(|(d, msg)| {
+            decoder = d;
+            msg
+        });
         let decode = start.elapsed();
         let item = match decoded {
             Ok(Ok(msg)) => Ok(Box::new(Arrival {

@@ -571,52 +571,89 @@ pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Message, WireErro
     }
 }
 
-/// Decodes one complete frame message.
+/// Decodes one complete frame message. A consumer of a stream of frames decodes faster with a
+/// [`FrameDecoder`], which keeps its buffers between frames.
 pub fn decode_frame(bytes: &[u8], options: &DecodeOptions) -> Result<FrameMessage, WireError> {
-    let parsed = parse_frame(bytes, options)?;
-    let mut decoded = codec::decompress_sections(&parsed.sections)?;
-    // Below the decode limits; u32 because masks index pixels with u32.
-    let pixels = u32::try_from(u64::from(parsed.info.width) * u64::from(parsed.info.height))
-        .map_err(|_| {
-            WireError::invalid(
-                "width·height",
-                32,
-                u64::from(parsed.info.width) * u64::from(parsed.info.height),
-                "a difference frame holds at most 2^32 - 1 pixels",
-            )
-        })?;
-    let (side, sections) = decode_side_sections(&parsed, &mut decoded, pixels)?;
-    let SideSections {
-        changed,
-        stale,
-        removals,
-    } = side;
-    let frame = codec::decode_sections(
-        parsed.info.codec,
-        parsed.info.width,
-        parsed.info.height,
-        parsed.info.fragment_count,
-        sections,
-        decoded,
-    )?;
-    if let Some(mask) = &changed {
-        let outside = outside_mask(&frame, mask);
-        if outside > 0 {
-            return Err(WireError::section(
-                "mask",
-                parsed.sections[0].offset,
-                format!("{outside} fragments lie outside the pixel mask"),
-            ));
-        }
+    FrameDecoder::new().decode_frame(bytes, options)
+}
+
+/// Decodes a stream of frame messages, keeping its buffers between them: the decompressed
+/// sections always, and the columns of a frame handed back with [`FrameDecoder::recycle`] once
+/// its holder is done with it. The messages decode exactly as with [`decode_frame`] (tested);
+/// what changes is that a steady stream touches memory it already has, instead of pages the
+/// kernel must zero (about a quarter of a fresh decode's time on 1280×720 frames).
+#[derive(Debug, Default)]
+pub struct FrameDecoder {
+    scratch: codec::Scratch,
+}
+
+impl FrameDecoder {
+    /// A decoder with no buffers yet.
+    pub fn new() -> Self {
+        Self::default()
     }
-    Ok(FrameMessage {
-        header: parsed.info.header,
-        codec: parsed.info.codec,
-        frame,
-        changed,
-        stale,
-        removals,
-    })
+
+    /// Decodes one complete frame message (as [`decode_frame`]). After an error the decoder
+    /// is still usable.
+    pub fn decode_frame(
+        &mut self,
+        bytes: &[u8],
+        options: &DecodeOptions,
+    ) -> Result<FrameMessage, WireError> {
+        let parsed = parse_frame(bytes, options)?;
+        let scratch = &mut self.scratch;
+        codec::decompress_sections(&parsed.sections, &mut scratch.sections)?;
+        let decoded = &scratch.sections[..parsed.sections.len()];
+        // Below the decode limits; u32 because masks index pixels with u32.
+        let pixels = u32::try_from(u64::from(parsed.info.width) * u64::from(parsed.info.height))
+            .map_err(|_| {
+                WireError::invalid(
+                    "width·height",
+                    32,
+                    u64::from(parsed.info.width) * u64::from(parsed.info.height),
+                    "a difference frame holds at most 2^32 - 1 pixels",
+                )
+            })?;
+        let (side, first) = decode_side_sections(&parsed, decoded, pixels)?;
+        let SideSections {
+            changed,
+            stale,
+            removals,
+        } = side;
+        let frame = codec::decode_sections(
+            parsed.info.codec,
+            parsed.info.width,
+            parsed.info.height,
+            parsed.info.fragment_count,
+            &parsed.sections[first..],
+            &decoded[first..],
+            &mut scratch.columns,
+        )?;
+        if let Some(mask) = &changed {
+            let outside = outside_mask(&frame, mask);
+            if outside > 0 {
+                return Err(WireError::section(
+                    "mask",
+                    parsed.sections[0].offset,
+                    format!("{outside} fragments lie outside the pixel mask"),
+                ));
+            }
+        }
+        Ok(FrameMessage {
+            header: parsed.info.header,
+            codec: parsed.info.codec,
+            frame,
+            changed,
+            stale,
+            removals,
+        })
+    }
+
+    /// Hands a frame's allocations back for the next decode (a frame this decoder made, or any
+    /// other: only its capacity is kept).
+    pub fn recycle(&mut self, frame: DeepFrame) {
+        self.scratch.recycle(frame);
+    }
 }
 
 /// What a difference or reprojection frame carries before the codec's sections.
@@ -628,36 +665,36 @@ struct SideSections {
 }
 
 /// Decodes the difference transfer's `mask` and `stale` or the reprojection transfer's `mask`
-/// and `removals` (taking them from the front of `decoded`); returns them with the codec's
-/// sections that follow.
-fn decode_side_sections<'p, 'a>(
-    parsed: &'p ParsedFrame<'a>,
-    decoded: &mut Vec<Vec<u8>>,
+/// and `removals` from the front of `decoded`; returns them with the index of the codec's first
+/// section.
+fn decode_side_sections(
+    parsed: &ParsedFrame<'_>,
+    decoded: &[Vec<u8>],
     pixels: u32,
-) -> Result<(SideSections, &'p [SectionRef<'a>]), WireError> {
+) -> Result<(SideSections, usize), WireError> {
     let at = |i: usize| parsed.sections[i].offset;
     match parsed.info.header.transfer {
         TransferMethod::Difference => {
-            let mask = PixelMask::decode(&decoded.remove(0), at(0), pixels)?;
-            let stale = PixelMask::decode(&decoded.remove(0), at(1), pixels)?;
+            let mask = PixelMask::decode(&decoded[0], at(0), pixels)?;
+            let stale = PixelMask::decode(&decoded[1], at(1), pixels)?;
             let side = SideSections {
                 changed: Some(mask),
                 stale: Some(stale),
                 removals: None,
             };
-            Ok((side, &parsed.sections[2..]))
+            Ok((side, 2))
         }
         TransferMethod::Reprojection => {
-            let mask = PixelMask::decode(&decoded.remove(0), at(0), pixels)?;
-            let removals = Removals::decode(&decoded.remove(0), at(1), mask.len())?;
+            let mask = PixelMask::decode(&decoded[0], at(0), pixels)?;
+            let removals = Removals::decode(&decoded[1], at(1), mask.len())?;
             let side = SideSections {
                 changed: Some(mask),
                 stale: None,
                 removals: Some(removals),
             };
-            Ok((side, &parsed.sections[2..]))
+            Ok((side, 2))
         }
-        _ => Ok((SideSections::default(), &parsed.sections[..])),
+        _ => Ok((SideSections::default(), 0)),
     }
 }
 

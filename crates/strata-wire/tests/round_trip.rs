@@ -15,9 +15,10 @@ use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::{MethodOptions, create, render_frame};
 use strata_wire::{
-    Codec, Compression, DecodeOptions, FrameHeader, Message, PREFIX_LEN, PixelMask, Removals,
-    SectionTag, TransferMethod, VERSION, WireError, decode, decode_frame, encode_delta_into,
-    encode_frame, encode_frame_into, encode_reprojection_into, inspect_frame, parse_prefix,
+    Codec, Compression, DecodeOptions, FrameDecoder, FrameHeader, Message, PREFIX_LEN, PixelMask,
+    Removals, SectionTag, TransferMethod, VERSION, WireError, decode, decode_frame,
+    encode_delta_into, encode_frame, encode_frame_into, encode_reprojection_into, inspect_frame,
+    parse_prefix,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -559,6 +560,70 @@ fn the_encoder_refuses_what_the_format_cannot_carry() {
             e.to_string().contains("zstd level") && e.to_string().contains("-128..=22"),
             "{codec:?}: {e}"
         );
+    }
+}
+
+#[test]
+fn one_decoder_reusing_its_buffers_decodes_a_stream_like_fresh_decoders() {
+    // Frames that grow, shrink, change size and codec, a difference frame and a corrupt
+    // message in the middle: a decoder that keeps its buffers and gets each frame back must
+    // decode each exactly as a fresh one does, and survive the error.
+    let search = SearchPath::default();
+    let big = render(&scene("spheres", &search, 96, 54), 3);
+    let small = render(&scene("mixed", &search, 64, 36), 5);
+    let empty = DeepFrame::from_pixel_lists(5, 4, &vec![Vec::new(); 20]).unwrap();
+    // Without the checksum, so that the corrupt payloads reach the codecs and fail there,
+    // after the decoder has resized its buffers.
+    let options = DecodeOptions {
+        verify_checksum: false,
+        ..DecodeOptions::default()
+    };
+    let mut stream: Vec<Vec<u8>> = Vec::new();
+    for codec in codecs() {
+        for (header, frame) in [&big, &small, &big] {
+            stream.push(encode_frame(header, frame, codec).unwrap());
+        }
+        stream.push(encode_frame(&FrameHeader::default(), &empty, codec).unwrap());
+        let (changed, stale) = full_delta(&small.1);
+        let header = FrameHeader {
+            transfer: TransferMethod::Difference,
+            ..small.0.clone()
+        };
+        let mut delta = Vec::new();
+        encode_delta_into(&mut delta, &header, &changed, &stale, &small.1, codec).unwrap();
+        stream.push(delta);
+        // Garbage through the second half of the payloads.
+        let mut corrupt = encode_frame(&big.0, &big.1, codec).unwrap();
+        let half = corrupt.len() / 2;
+        for (i, b) in corrupt[half..].iter_mut().enumerate() {
+            *b ^= 0x5a ^ (i as u8);
+        }
+        stream.push(corrupt);
+    }
+    let failures = stream
+        .iter()
+        .filter(|bytes| decode_frame(bytes, &options).is_err())
+        .count();
+    assert_eq!(
+        failures,
+        codecs().len(),
+        "every corrupt message fails, nothing else"
+    );
+    let mut decoder = FrameDecoder::new();
+    for (i, bytes) in stream.iter().enumerate() {
+        match (
+            decode_frame(bytes, &options),
+            decoder.decode_frame(bytes, &options),
+        ) {
+            (Ok(fresh), Ok(reused)) => {
+                assert_same_frame(&fresh.frame, &reused.frame, &format!("message {i}"));
+                assert_eq!(fresh.changed, reused.changed, "message {i}");
+                assert_eq!(fresh.stale, reused.stale, "message {i}");
+                decoder.recycle(reused.frame);
+            }
+            (Err(fresh), Err(reused)) => assert_eq!(fresh, reused, "message {i}"),
+            (fresh, reused) => panic!("message {i}: {:?} against {:?}", fresh.err(), reused.err()),
+        }
     }
 }
 

@@ -19,6 +19,9 @@ use crate::options::{check_output, open_scene, search_path, thread_pool};
 /// with 16 bytes per fragment (a 12-byte fragment node padded to 16) and with the plain fragment
 /// layout under LZ4, the codec the original remote-rendering work used. Times are medians over
 /// frames and runs, wall-clock on a possibly shared machine, on the CPU named in the output.
+/// Each message is decoded twice: by a fresh decoder ("decode"), and by one that keeps its
+/// buffers and gets each decoded frame back, as a consumer of a stream of frames does
+/// ("reused": no fresh memory for the kernel to zero).
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
@@ -56,6 +59,8 @@ struct Tally {
     bytes: Vec<u64>,
     encode: Vec<Duration>,
     decode: Vec<Duration>,
+    /// Decodes by a decoder that keeps its buffers (one per codec, over every frame and run).
+    reused: Vec<Duration>,
     /// Per section name: encoded bytes summed over frames.
     sections: Vec<(&'static str, u64)>,
 }
@@ -134,8 +139,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
             bytes: Vec::new(),
             encode: Vec::new(),
             decode: Vec::new(),
+            reused: Vec::new(),
             sections: Vec::new(),
         })
+        .collect();
+    let mut decoders: Vec<strata_wire::FrameDecoder> = codecs
+        .iter()
+        .map(|_| strata_wire::FrameDecoder::new())
         .collect();
     let mut fragments = Vec::new();
     let mut seed_lz4 = Vec::new();
@@ -154,7 +164,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         // The thesis layout under LZ4 is the reference ratio even when not listed.
         seed_lz4.push(strata_wire::encode_frame(&header, &deep, Codec::Lz4)?.len() as u64);
         let mut buf = Vec::new();
-        for t in &mut tallies {
+        for (t, decoder) in tallies.iter_mut().zip(&mut decoders) {
             pool.install(|| -> Result<()> {
                 for _ in 0..args.runs {
                     let start = Instant::now();
@@ -169,6 +179,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
                             t.codec
                         );
                     }
+                    drop(back);
+                    let start = Instant::now();
+                    let again = decoder.decode_frame(&buf, &options)?;
+                    t.reused.push(start.elapsed());
+                    if again.frame != deep {
+                        bail!(
+                            "codec {}: frame {f} does not round-trip bit-exactly through a reused decoder",
+                            t.codec
+                        );
+                    }
+                    decoder.recycle(again.frame);
                 }
                 Ok(())
             })
@@ -189,15 +210,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
     )?;
     outln!()?;
     outln!(
-        "{:<12} {:>12} {:>9} {:>9} {:>11} {:>11} {:>10} {:>10}  sections (bytes per frame)",
+        "{:<12} {:>12} {:>9} {:>9} {:>10} {:>10} {:>10} {:>9} {:>9} {:>11}  sections (bytes per frame)",
         "codec",
         "bytes/frame",
         "% of 16N",
         "% of lz4",
         "encode ms",
         "decode ms",
+        "reused ms",
         "enc MB/s",
-        "dec MB/s"
+        "dec MB/s",
+        "reused MB/s"
     )?;
     // Throughput in bytes of the DeepFrame itself (16 a fragment), per median frame time.
     let raw_bytes = 16.0 * total_fragments as f64 / n;
@@ -213,7 +236,11 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let total: u64 = t.bytes.iter().sum();
         let of_16n = 100.0 * total as f64 / (16 * total_fragments).max(1) as f64;
         let of_lz4 = 100.0 * total as f64 / total_lz4.max(1) as f64;
-        let (enc, dec) = (median_ms(&t.encode), median_ms(&t.decode));
+        let (enc, dec, reused) = (
+            median_ms(&t.encode),
+            median_ms(&t.decode),
+            median_ms(&t.reused),
+        );
         let sections: Vec<String> = if t.sections.len() > 1 {
             t.sections
                 .iter()
@@ -223,15 +250,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
             Vec::new()
         };
         outln!(
-            "{:<12} {:>12.0} {:>8.1}% {:>8.1}% {:>11.2} {:>11.2} {:>10.0} {:>10.0}  {}",
+            "{:<12} {:>12.0} {:>8.1}% {:>8.1}% {:>10.2} {:>10.2} {:>10.2} {:>9.0} {:>9.0} {:>11.0}  {}",
             t.codec.to_string(),
             total as f64 / n,
             of_16n,
             of_lz4,
             enc,
             dec,
+            reused,
             mb_per_s(enc),
             mb_per_s(dec),
+            mb_per_s(reused),
             sections.join(", ")
         )?;
         rows.push(json!({
@@ -244,6 +273,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "decode_ms_median": dec,
             "encode_mb_per_s": mb_per_s(enc),
             "decode_mb_per_s": mb_per_s(dec),
+            "decode_reused_ms_median": reused,
+            "decode_reused_mb_per_s": mb_per_s(reused),
             "section_bytes_per_frame": t.sections.iter().map(|(name, b)| (name.to_string(), json!(*b as f64 / n))).collect::<serde_json::Map<String, Value>>(),
         }));
     }

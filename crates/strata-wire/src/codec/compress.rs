@@ -98,6 +98,7 @@ const ZSTD_PREALLOC_RATIO: usize = 64;
 ///
 /// The caller has checked `decoded_len <= method.max_decoded(payload.len())` and the decoder
 /// limits; this checks that the payload really produces `decoded_len` bytes, no more, no fewer.
+#[cfg(test)]
 pub(crate) fn decompress(
     payload: &[u8],
     method: Compression,
@@ -105,6 +106,21 @@ pub(crate) fn decompress(
     section: &'static str,
     offset: u64,
 ) -> Result<Vec<u8>, WireError> {
+    let mut out = Vec::new();
+    decompress_into(payload, method, decoded_len, section, offset, &mut out)?;
+    Ok(out)
+}
+
+/// [`decompress`] into `out`, whose allocation (and, for LZ4, whose bytes: every one is
+/// overwritten) is reused: a decoder keeps one such buffer per section between frames.
+pub(crate) fn decompress_into(
+    payload: &[u8],
+    method: Compression,
+    decoded_len: usize,
+    section: &'static str,
+    offset: u64,
+    out: &mut Vec<u8>,
+) -> Result<(), WireError> {
     let wrong_length = |got: &dyn std::fmt::Display| {
         WireError::section(
             section,
@@ -117,25 +133,30 @@ pub(crate) fn decompress(
             if payload.len() != decoded_len {
                 return Err(wrong_length(&payload.len()));
             }
-            Ok(payload.to_vec())
+            out.clear();
+            out.extend_from_slice(payload);
+            Ok(())
         }
         Compression::Lz4 => {
-            let mut out = vec![0u8; decoded_len];
-            let n = lz4_flex::block::decompress_into(payload, &mut out)
+            // Zeroes only what the buffer grows by; LZ4 writes every byte it reports.
+            out.resize(decoded_len, 0);
+            let n = lz4_flex::block::decompress_into(payload, out)
                 .map_err(|e| WireError::section(section, offset, format!("lz4: {e}")))?;
             if n != decoded_len {
                 return Err(wrong_length(&n));
             }
-            Ok(out)
+            Ok(())
         }
         Compression::Zstd => {
+            out.clear();
             let initial = decoded_len.min(payload.len().saturating_mul(ZSTD_PREALLOC_RATIO));
-            let mut out = Vec::with_capacity(initial);
+            out.reserve(initial);
             if initial == decoded_len {
-                // Small enough to trust: one call into an exact-size buffer.
-                // `Vec` as a `WriteBuf`: its capacity bounds the output.
+                // Small enough to trust: one call into the buffer. `Vec` as a `WriteBuf`: its
+                // capacity (at least `decoded_len`, more if reused) bounds the output, and any
+                // length but `decoded_len` is an error.
                 let n = zstd::bulk::Decompressor::new()
-                    .and_then(|mut d| d.decompress_to_buffer(payload, &mut out))
+                    .and_then(|mut d| d.decompress_to_buffer(payload, out))
                     .map_err(|e| {
                         WireError::section(
                             section,
@@ -146,14 +167,14 @@ pub(crate) fn decompress(
                 if n != decoded_len {
                     return Err(wrong_length(&n));
                 }
-                return Ok(out);
+                return Ok(());
             }
             // A large announced expansion: let the buffer grow only with real output.
             let decoder = zstd::stream::read::Decoder::with_buffer(payload)
                 .map_err(|e| WireError::section(section, offset, format!("zstd: {e}")))?;
             let mut limited = decoder.take(decoded_len as u64 + 1);
             limited
-                .read_to_end(&mut out)
+                .read_to_end(out)
                 .map_err(|e| WireError::section(section, offset, format!("zstd: {e}")))?;
             if out.len() > decoded_len {
                 return Err(wrong_length(&format!("more than {decoded_len}")));
@@ -161,7 +182,7 @@ pub(crate) fn decompress(
             if out.len() != decoded_len {
                 return Err(wrong_length(&out.len()));
             }
-            Ok(out)
+            Ok(())
         }
     }
 }

@@ -63,7 +63,7 @@ use rayon::prelude::*;
 use strata_core::{DeepFrame, ObjectId, Rgba8};
 
 use crate::bytes::{Reader, put_varint, unzigzag, zigzag};
-use crate::codec::SectionTag;
+use crate::codec::{Columns, SectionTag};
 use crate::error::WireError;
 
 /// Rows of pixels in a prediction band. Prediction never reads a pixel of an earlier band (a
@@ -379,6 +379,7 @@ pub(crate) fn decode(
     fragments: u32,
     sections: &[Vec<u8>],
     section_offsets: &[u64],
+    spare: &mut Columns,
 ) -> Result<DeepFrame, WireError> {
     let [counts, depth, color, object] = sections else {
         return Err(WireError::section(
@@ -393,7 +394,8 @@ pub(crate) fn decode(
     let w = width as usize;
 
     // Counts first: nothing per fragment is allocated before they add up.
-    let offsets = decode_counts(counts, pixels, n, at(0))?;
+    let mut offsets = std::mem::take(&mut spare.offsets);
+    decode_counts(counts, pixels, n, at(0), &mut offsets)?;
     if depth.len() != 4 * n || color.len() != 4 * n {
         return Err(WireError::section(
             "depth",
@@ -409,9 +411,15 @@ pub(crate) fn decode(
     let nonzero = object_residuals(object, n, at(3))?;
 
     let (d, c) = (split4(depth, n), split4(color, n));
-    let mut bits = vec![0u32; n];
-    let mut colors = vec![[0u8; 4]; n];
-    let mut objects = vec![0u32; n];
+    // Every item is overwritten by its band: a reused column is only resized.
+    let (mut bits, mut colors, mut objects) = (
+        std::mem::take(&mut spare.bits),
+        std::mem::take(&mut spare.colors),
+        std::mem::take(&mut spare.objects),
+    );
+    bits.resize(n, 0);
+    colors.resize(n, [0; 4]);
+    objects.resize(n, 0);
     {
         let (mut bits, mut colors, mut objects) =
             (&mut bits[..], &mut colors[..], &mut objects[..]);
@@ -458,10 +466,132 @@ fn split4(v: &[u8], n: usize) -> [&[u8]; 4] {
     [a, b, c, d]
 }
 
-/// The run offsets of the `pixels` counts in `bytes`, checked to add up to `n` exactly and to
-/// fill the section.
-fn decode_counts(bytes: &[u8], pixels: usize, n: usize, at: u64) -> Result<Vec<u32>, WireError> {
-    let mut offsets = Vec::with_capacity(pixels + 1);
+/// Bytes of the counts section per parallel task.
+const COUNTS_CHUNK: usize = 64 * 1024;
+
+/// The run offsets of the `pixels` counts in `bytes` into `offsets`, checked to add up to `n`
+/// exactly and to fill the section.
+fn decode_counts(
+    bytes: &[u8],
+    pixels: usize,
+    n: usize,
+    at: u64,
+    offsets: &mut Vec<u32>,
+) -> Result<(), WireError> {
+    if counts_in_chunks(bytes, pixels, n, offsets, COUNTS_CHUNK) {
+        Ok(())
+    } else {
+        decode_counts_in_order(bytes, pixels, n, at, offsets)
+    }
+}
+
+/// [`decode_counts`] in parallel over chunks of `chunk` bytes, for a valid section; `false`
+/// (and `offsets` in any state) for anything else. A chunk owns the varints that
+/// start after the last varint end (a byte below `0x80`) before it, up to where the next
+/// chunk's start; a varint has at most four bytes before its last, so looking back five bytes
+/// finds it. A first pass counts each chunk's varints and sums its counts; a second, knowing
+/// every chunk's first pixel and first offset, writes the offsets. Anything unusual (a
+/// malformed varint, counts that do not add up) is left to the one-pass reader, which names
+/// the pixel.
+fn counts_in_chunks(
+    bytes: &[u8],
+    pixels: usize,
+    n: usize,
+    offsets: &mut Vec<u32>,
+    chunk: usize,
+) -> bool {
+    let chunks = bytes.len().div_ceil(chunk);
+    // Where the first varint chunk `c` owns starts (`None`: no varint ends in the five bytes
+    // before it, which no valid stream has).
+    let first = |c: usize| -> Option<usize> {
+        let lo = (c * chunk).min(bytes.len());
+        let from = lo.saturating_sub(5);
+        match bytes[from..lo].iter().rposition(|&b| b < 0x80) {
+            Some(i) => Some(from + i + 1),
+            None if from == 0 => Some(0),
+            None => None,
+        }
+    };
+    let owned = |c: usize| -> Option<Range<usize>> { Some(first(c)?..first(c + 1)?) };
+    // Each chunk's (varints, sum of counts), or `None` where the one-pass reader must look.
+    let totals: Option<Vec<(usize, u64)>> = (0..chunks)
+        .into_par_iter()
+        .map(|c| {
+            let r = owned(c)?;
+            let (mut varints, mut sum) = (0usize, 0u64);
+            let ok = varints_of(&bytes[r.start..r.end.max(r.start)], |v| {
+                varints += 1;
+                sum += u64::from(v);
+            });
+            ok.then_some((varints, sum))
+        })
+        .collect();
+    let fits = totals.as_ref().is_some_and(|t| {
+        let (varints, sum) = t.iter().fold((0, 0), |(v, s), &(cv, cs)| (v + cv, s + cs));
+        varints == pixels && sum == n as u64
+    });
+    let Some(totals) = totals.filter(|_| fits) else {
+        return false;
+    };
+    offsets.clear();
+    offsets.resize(pixels + 1, 0);
+    let mut rest = &mut offsets[1..];
+    let mut base = 0u64;
+    let mut tasks = Vec::with_capacity(chunks);
+    for (c, &(varints, sum)) in totals.iter().enumerate() {
+        tasks.push((c, base, take_front(&mut rest, varints)));
+        base += sum;
+    }
+    tasks.into_par_iter().for_each(|(c, base, out)| {
+        // The first pass read exactly `out.len()` varints here without error.
+        let Some(r) = owned(c) else { return };
+        let mut total = base;
+        let mut o = out.iter_mut();
+        varints_of(&bytes[r.start..r.end.max(r.start)], |v| {
+            total += u64::from(v);
+            if let Some(o) = o.next() {
+                *o = total as u32;
+            }
+        });
+    });
+    true
+}
+
+/// Calls `each` with every varint of `bytes`, which must hold whole varints of at most 32
+/// bits; `false` if it does not (what was passed on before then is unspecified).
+#[inline(always)]
+fn varints_of(bytes: &[u8], mut each: impl FnMut(u32)) -> bool {
+    let (mut value, mut shift) = (0u32, 0u32);
+    for &b in bytes {
+        if shift == 0 && b < 0x80 {
+            // Almost every count is one byte.
+            each(u32::from(b));
+            continue;
+        }
+        if shift == 28 && b > 0x0f {
+            return false;
+        }
+        value |= u32::from(b & 0x7f) << shift;
+        if b < 0x80 {
+            each(value);
+            (value, shift) = (0, 0);
+        } else {
+            shift += 7;
+        }
+    }
+    shift == 0
+}
+
+/// [`decode_counts`] in one pass, naming the pixel of the first problem.
+fn decode_counts_in_order(
+    bytes: &[u8],
+    pixels: usize,
+    n: usize,
+    at: u64,
+    offsets: &mut Vec<u32>,
+) -> Result<(), WireError> {
+    offsets.clear();
+    offsets.reserve(pixels + 1);
     offsets.push(0u32);
     let mut total: u64 = 0;
     let mut pos = 0usize;
@@ -507,7 +637,7 @@ fn decode_counts(bytes: &[u8], pixels: usize, n: usize, at: u64) -> Result<Vec<u
             format!("{} bytes left after the {pixels} counts", bytes.len() - pos),
         ));
     }
-    Ok(offsets)
+    Ok(())
 }
 
 /// The non-zero object residuals of the zero-run stream, as (fragment index, residual) in
@@ -656,6 +786,7 @@ mod tests {
             frame.fragment_count() as u32,
             &sections,
             &[0; 4],
+            &mut Columns::default(),
         )
     }
 
@@ -731,6 +862,69 @@ mod tests {
             "the first band's colours changed"
         );
         assert_eq!(decode_sections(&changed, b).expect("decodes"), changed);
+    }
+
+    #[test]
+    fn counts_read_in_chunks_equal_counts_read_in_order() {
+        // Counts of 1 to 5 varint bytes, so that chunk boundaries fall inside varints.
+        let counts: Vec<u32> = (0..997u32)
+            .map(|i| match i % 7 {
+                0 => 0,
+                1 => 127,
+                2 => 128,
+                3 => 20_000,
+                4 => 3_000_000,
+                5 => 1 << 29,
+                _ => i,
+            })
+            .collect();
+        let mut bytes = Vec::new();
+        for &c in &counts {
+            put_varint(&mut bytes, c);
+        }
+        let n = counts.iter().map(|&c| u64::from(c)).sum::<u64>() as usize;
+        let mut expected = Vec::new();
+        decode_counts_in_order(&bytes, counts.len(), n, 0, &mut expected).expect("valid");
+        assert_eq!(expected.len(), counts.len() + 1);
+        for chunk in [1, 2, 3, 4, 5, 6, 7, 64, 1 << 20] {
+            let mut got = vec![9; 3];
+            assert!(
+                counts_in_chunks(&bytes, counts.len(), n, &mut got, chunk),
+                "{chunk}"
+            );
+            assert_eq!(got, expected, "chunks of {chunk} bytes");
+        }
+        // And the errors are the one-pass reader's, wherever the chunks fall.
+        // A varint's last byte made a continuation byte: two varints become one.
+        let mut bad = bytes.clone();
+        let end = (500..bytes.len())
+            .find(|&i| bytes[i] < 0x80)
+            .expect("a varint end");
+        bad[end] |= 0x80;
+        for chunk in [1, 3, 64] {
+            assert!(!counts_in_chunks(
+                &bad,
+                counts.len(),
+                n,
+                &mut Vec::new(),
+                chunk
+            ));
+        }
+        assert!(decode_counts(&bad, counts.len(), n, 0, &mut Vec::new()).is_err());
+        assert!(!counts_in_chunks(
+            &bytes,
+            counts.len(),
+            n + 1,
+            &mut Vec::new(),
+            3
+        ));
+        assert!(!counts_in_chunks(
+            &bytes,
+            counts.len() - 1,
+            n,
+            &mut Vec::new(),
+            3
+        ));
     }
 
     #[test]
