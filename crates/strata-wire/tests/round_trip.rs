@@ -587,7 +587,7 @@ fn one_decoder_reusing_its_buffers_decodes_a_stream_like_fresh_decoders() {
         let (changed, stale) = full_delta(&small.1);
         let header = FrameHeader {
             transfer: TransferMethod::Difference,
-            ..small.0.clone()
+            ..small.0
         };
         let mut delta = Vec::new();
         encode_delta_into(&mut delta, &header, &changed, &stale, &small.1, codec).unwrap();
