@@ -723,7 +723,7 @@ mod tests {
         ));
         // Two unsorted pixels far apart: the first.
         let mut unsorted = depth.clone();
-        unsorted.swap(3 * 9000, 3 * 9000 + 1);
+        unsorted.swap(3 * 20_000, 3 * 20_000 + 1);
         unsorted.swap(3 * 2, 3 * 2 + 2);
         assert_eq!(parts(unsorted), Err(DeepFrameError::Unsorted { pixel: 2 }));
         // A decreasing offset past the first chunk.

@@ -295,7 +295,9 @@ proptest! {
     fn random_bodies_behind_a_valid_prefix_never_panic(
         body in prop::collection::vec(any::<u8>(), 0..600),
     ) {
-        let mut bytes = b"STRW\x01\x00\x01\x00".to_vec();
+        let mut bytes = b"STRW".to_vec();
+        bytes.extend_from_slice(&VERSION.to_le_bytes());
+        bytes.extend_from_slice(&[1, 0]);
         bytes.extend_from_slice(&[0; 12]);
         bytes.extend_from_slice(&body);
         reseal(&mut bytes);

@@ -148,15 +148,13 @@ pub(crate) fn decompress_into(
             Ok(())
         }
         Compression::Zstd => {
-            out.clear();
             let initial = decoded_len.min(payload.len().saturating_mul(ZSTD_PREALLOC_RATIO));
-            out.reserve(initial);
             if initial == decoded_len {
-                // Small enough to trust: one call into the buffer. `Vec` as a `WriteBuf`: its
-                // capacity (at least `decoded_len`, more if reused) bounds the output, and any
-                // length but `decoded_len` is an error.
+                // Small enough to trust: one call into a slice of exactly `decoded_len` bytes
+                // (whatever the buffer held before), which bounds the output.
+                out.resize(decoded_len, 0);
                 let n = zstd::bulk::Decompressor::new()
-                    .and_then(|mut d| d.decompress_to_buffer(payload, out))
+                    .and_then(|mut d| d.decompress_to_buffer(payload, &mut out[..]))
                     .map_err(|e| {
                         WireError::section(
                             section,
@@ -169,6 +167,7 @@ pub(crate) fn decompress_into(
                 }
                 return Ok(());
             }
+            out.clear();
             // A large announced expansion: let the buffer grow only with real output.
             let decoder = zstd::stream::read::Decoder::with_buffer(payload)
                 .map_err(|e| WireError::section(section, offset, format!("zstd: {e}")))?;
@@ -193,6 +192,26 @@ mod tests {
 
     fn sample() -> Vec<u8> {
         (0..100_000u32).map(|i| (i / 7 % 13) as u8).collect()
+    }
+
+    #[test]
+    fn a_reused_buffer_decodes_like_a_fresh_one() {
+        // A buffer left longer and dirtier by an earlier section: the same bytes, the same
+        // errors, for every method.
+        let data = sample();
+        for method in [Compression::None, Compression::Lz4, Compression::Zstd] {
+            let (used, payload) = compress(&data, method, 3).expect("compresses");
+            let mut reused = vec![0xee; 3 * data.len()];
+            decompress_into(&payload, used, data.len(), "s", 0, &mut reused).expect("decodes");
+            assert_eq!(reused, data, "{method:?}");
+            for wrong in [data.len() - 1, data.len() + 1] {
+                let mut reused = vec![0xee; 3 * data.len()];
+                let fresh = decompress(&payload, used, wrong, "s", 0).map(|_| ());
+                let again = decompress_into(&payload, used, wrong, "s", 0, &mut reused);
+                assert!(fresh.is_err(), "{method:?}, {wrong}");
+                assert_eq!(again, fresh, "{method:?}, {wrong}");
+            }
+        }
     }
 
     #[test]

@@ -371,8 +371,9 @@ impl Visit for BandEncoder<'_, '_> {
 /// starts in the message, for errors). Lengths were checked against
 /// [`SectionTag::decoded_range`] before decompressing.
 ///
-/// The counts and the object stream are read first, in one pass each, and checked; then the
-/// bands replay their predictors in parallel into the frame's columns, which cannot fail.
+/// The counts (in parallel chunks) and the object stream (in one pass) are read first and
+/// checked; then the bands replay their predictors in parallel into the frame's columns, which
+/// cannot fail.
 pub(crate) fn decode(
     width: u32,
     height: u32,
@@ -500,6 +501,11 @@ fn counts_in_chunks(
     offsets: &mut Vec<u32>,
     chunk: usize,
 ) -> bool {
+    // The section must end with the end of a varint; stray continuation bytes after the last
+    // one would otherwise fall between the chunks unread.
+    if bytes.last().is_some_and(|&b| b >= 0x80) {
+        return false;
+    }
     let chunks = bytes.len().div_ceil(chunk);
     // Where the first varint chunk `c` owns starts (`None`: no varint ends in the five bytes
     // before it, which no valid stream has).
@@ -655,13 +661,22 @@ fn object_residuals(stream: &[u8], n: usize, at: u64) -> Result<Vec<(u32, u32)>,
         nonzero.push((next as u32, ids.varint("value").map_err(error)?));
         next += 1;
     }
-    if next != n as u64 || ids.remaining() != 0 {
+    if next != n as u64 {
         return Err(WireError::section(
             "object",
             at,
             format!(
-                "the zero-run stream covers more than the {n} fragments ({} zeros and {} bytes left)",
-                next - n as u64,
+                "the zero-run stream covers more than the {n} fragments ({} zeros too many)",
+                next - n as u64
+            ),
+        ));
+    }
+    if ids.remaining() != 0 {
+        return Err(WireError::section(
+            "object",
+            at,
+            format!(
+                "{} bytes left after the zero-run stream of the {n} fragments",
                 ids.remaining()
             ),
         ));
@@ -792,8 +807,8 @@ mod tests {
 
     #[test]
     fn any_thread_count_gives_the_same_bytes_and_frame() {
-        // 29 rows: one full band and a partial one.
-        let frame = patchy_frame(37, 29);
+        // Two full bands and a partial one.
+        let frame = patchy_frame(37, 2 * BAND_ROWS as u32 + 9);
         let one = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
@@ -956,6 +971,12 @@ mod tests {
         let mut extra = good[0].1.clone();
         extra.push(0);
         assert!(with(0, extra).contains("bytes left"), "trailing byte");
+        let mut unfinished = good[0].1.clone();
+        unfinished.push(0x80);
+        assert!(
+            with(0, unfinished).contains("bytes left"),
+            "trailing continuation byte"
+        );
         // Object streams: a final run past the end, a missing final run, trailing bytes.
         let mut long = Vec::new();
         put_varint(&mut long, n as u32 + 1);
