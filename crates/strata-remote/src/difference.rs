@@ -218,10 +218,11 @@ impl NodeCopy {
         &self.frame
     }
 
-    /// Replaces everything (the `full` and `depth-limited` transfers).
-    pub fn replace(&mut self, frame: DeepFrame) {
-        self.frame = frame;
+    /// Replaces everything (the `full` and `depth-limited` transfers); returns the frame it
+    /// held, for its memory to be reused.
+    pub fn replace(&mut self, frame: DeepFrame) -> DeepFrame {
         self.stale.fill(false);
+        std::mem::replace(&mut self.frame, frame)
     }
 
     /// Applies a delta: marks `stale`, then replaces the runs at `changed` by those of `runs`

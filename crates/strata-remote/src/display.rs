@@ -311,6 +311,8 @@ struct NodeState {
     scene: String,
     /// Left out for good (it serves another scene).
     refused: bool,
+    /// Where frames this node sent go once applied, for its decoder to reuse.
+    spare: Spare,
 }
 
 /// Arrivals not yet applied, by node, frame number and whether they answer a fixup request.
@@ -359,6 +361,7 @@ impl<'o> Driver<'o> {
         let mut nodes = Vec::new();
         for (i, addr) in config.nodes.iter().enumerate() {
             let (cmd_tx, cmd_rx) = mpsc::channel(64);
+            let spare = Spare::default();
             tokio::spawn(link(
                 i,
                 addr.clone(),
@@ -366,6 +369,7 @@ impl<'o> Driver<'o> {
                 evt_tx.clone(),
                 config.limits.clone(),
                 config.timeout,
+                spare.clone(),
             ));
             nodes.push(NodeState {
                 addr: addr.clone(),
@@ -379,6 +383,7 @@ impl<'o> Driver<'o> {
                 first_request: config.first_frame,
                 scene: config.scene.name.clone(),
                 refused: false,
+                spare,
             });
         }
         let view = config.scene.camera.view().to_cols_array();
@@ -643,6 +648,7 @@ impl<'o> Driver<'o> {
         match (msg.changed, msg.stale, msg.removals, reproj_view) {
             (Some(changed), Some(stale), None, None) => {
                 n.copy.apply_delta(&changed, &stale, &msg.frame);
+                n.spare.put(msg.frame);
             }
             (Some(_), None, Some(_), Some(_))
                 if msg.header.view != self.view || msg.header.projection != self.projection =>
@@ -657,9 +663,11 @@ impl<'o> Driver<'o> {
                 tokio::task::block_in_place(|| n.reproj.apply(v, &touched, &removals, &msg.frame))
                     .map_err(|e| e.to_string())?;
                 n.depth_error = removals.depth_error();
-                n.copy.replace(n.reproj.held().to_frame());
+                // The copy it replaces is the size of a full frame; the message only held
+                // the inserted fragments.
+                n.spare.put(n.copy.replace(n.reproj.held().to_frame()));
             }
-            (None, None, None, None) => n.copy.replace(msg.frame),
+            (None, None, None, None) => n.spare.put(n.copy.replace(msg.frame)),
             _ => {
                 return Err(format!(
                     "sent a frame of another transfer than {}",
@@ -942,6 +950,7 @@ async fn link(
     events: mpsc::Sender<LinkEvent>,
     limits: DecodeOptions,
     wait: Duration,
+    spare: Spare,
 ) {
     let mut generation = 0u64;
     let mut backoff = Duration::from_millis(100);
@@ -962,7 +971,8 @@ async fn link(
                 {
                     return;
                 }
-                match carry(node, generation, rd, wr, &mut cmds, &events, &limits).await {
+                let io = (rd, wr, &spare);
+                match carry(node, generation, io, &mut cmds, &events, &limits).await {
                     ConnectionEnd::Lost(reason) => reason,
                     ConnectionEnd::Finished => return,
                 }
@@ -1004,14 +1014,13 @@ enum ConnectionEnd {
 async fn carry(
     node: usize,
     generation: u64,
-    rd: OwnedReadHalf,
-    mut wr: OwnedWriteHalf,
+    (rd, mut wr, spare): (OwnedReadHalf, OwnedWriteHalf, &Spare),
     cmds: &mut mpsc::Receiver<LinkCmd>,
     events: &mpsc::Sender<LinkEvent>,
     limits: &DecodeOptions,
 ) -> ConnectionEnd {
     let (in_tx, mut in_rx) = mpsc::channel(4);
-    let reader = tokio::spawn(read_frames(rd, limits.clone(), in_tx));
+    let reader = tokio::spawn(read_frames(rd, limits.clone(), in_tx, spare.clone()));
     let end = loop {
         tokio::select! {
             cmd = cmds.recv() => match cmd {
@@ -1122,14 +1131,31 @@ async fn connect(
 /// arrive.
 type RawFrame = (Vec<u8>, NodeStats, Duration);
 
+/// A frame the driver is done with, handed back to its node's decoder so that the next frame
+/// decodes into its memory instead of fresh pages ([`FrameDecoder::recycle`]).
+#[derive(Clone, Default)]
+struct Spare(Arc<std::sync::Mutex<Option<DeepFrame>>>);
+
+impl Spare {
+    fn put(&self, frame: DeepFrame) {
+        // A poisoned lock only means a panic elsewhere; the slot itself is always valid.
+        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(frame);
+    }
+
+    fn take(&self) -> Option<DeepFrame> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).take()
+    }
+}
+
 /// Reads frame + stats message pairs and decodes them on the blocking pool, in order.
 async fn read_frames(
     mut rd: OwnedReadHalf,
     limits: DecodeOptions,
     out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
+    spare: Spare,
 ) {
     let (raw_tx, raw_rx) = mpsc::channel::<RawFrame>(2);
-    let decoder = tokio::spawn(decode_frames(raw_rx, limits.clone(), out.clone()));
+    let decoder = tokio::spawn(decode_frames(raw_rx, limits.clone(), out.clone(), spare));
     let failed = loop {
         match read_frame_and_stats(&mut rd, &limits).await {
             Ok(raw) => {
@@ -1183,15 +1209,21 @@ async fn decode_frames(
     mut raw: mpsc::Receiver<RawFrame>,
     limits: DecodeOptions,
     out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
+    spare: Spare,
 ) {
-    // Kept across frames: its decompression buffers are reused instead of fresh pages.
+    // Kept across frames: its buffers, and the frames the driver hands back, are reused
+    // instead of fresh pages.
     let mut decoder = FrameDecoder::new();
     while let Some((bytes, stats, transfer)) = raw.recv().await {
         let limits = limits.clone();
         let len = bytes.len() as u64;
         let start = Instant::now();
         let mut d = std::mem::take(&mut decoder);
+        let old = spare.take();
         let decoded = tokio::task::spawn_blocking(move || {
+            if let Some(old) = old {
+                d.recycle(old);
+            }
             let msg = d.decode_frame(&bytes, &limits);
             (d, msg)
         })
