@@ -62,13 +62,14 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             "% of 16N",
             "enc MB/s",
             "dec MB/s",
+            "reused MB/s",
             "for scale: LZ4 on the plain layout",
         ],
     );
     let names = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd"];
     for name in names {
         let cols = row(&stdout, name);
-        assert!(cols.len() >= 8, "{name}: {cols:?}");
+        assert!(cols.len() >= 10, "{name}: {cols:?}");
     }
     // The deep rows break their bytes down by section.
     for name in ["deep-lz4", "deep-zstd"] {
@@ -133,6 +134,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
         for (mb_s, ms) in [
             ("encode_mb_per_s", "encode_ms_median"),
             ("decode_mb_per_s", "decode_ms_median"),
+            ("decode_reused_mb_per_s", "decode_reused_ms_median"),
         ] {
             let expected = if f(&c[ms]) > 0.0 {
                 raw_mb / (f(&c[ms]) / 1e3)
