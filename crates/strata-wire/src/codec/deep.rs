@@ -152,8 +152,13 @@ fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
             start: (o[x] - base) as usize,
             len: (o[x + 1] - o[x]) as usize,
         };
-        for x in 0..width {
+        let mut x = 0;
+        while x < width {
             if cur[x] == cur[x + 1] {
+                // A span of empty pixels: offsets never decrease, so it ends at the pixel
+                // before the first offset above this one (found by bisection; sparse frames
+                // are mostly such spans).
+                x += cur[x + 1..].partition_point(|&o| o == cur[x]);
                 continue;
             }
             let me = run(cur, x);
@@ -178,6 +183,7 @@ fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
                 }
             }
             first = Some(me.start);
+            x += 1;
         }
     }
 }
