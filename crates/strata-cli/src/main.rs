@@ -67,6 +67,16 @@ enum Command {
     TfssSim(cmd::tfss_sim::Args),
     /// Encode a scene's DeepFrames with every wire codec: bytes, ratios against raw and the
     /// plain layout under LZ4, encode and decode times, bit-exact round trips.
+    ///
+    /// Renders frames spread over the scene's animation with the A-buffer, encodes each
+    /// DeepFrame with every codec, decodes it again and checks the round trip is bit-exact.
+    /// Sizes are compared with 16 bytes a fragment (a 12-byte fragment node padded to 16) and
+    /// with the plain fragment layout under LZ4, the codec the original remote-rendering work
+    /// used. Times are medians over frames and runs, wall-clock, on the CPU named in the
+    /// output; MB/s are DeepFrame bytes (16 a fragment) per median time. Each message is
+    /// decoded twice: by a fresh decoder ("decode"), and by one that keeps its buffers and
+    /// gets each decoded frame back, as a consumer of a stream of frames does ("reused": no
+    /// fresh memory for the kernel to zero).
     Codecs(cmd::codecs::Args),
     /// Serve a display as a render node: render some objects of a scene, stream the fragments.
     ///
