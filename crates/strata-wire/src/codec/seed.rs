@@ -16,6 +16,7 @@
 
 use strata_core::{DeepFrame, ObjectId, Rgba8};
 
+use crate::codec::Columns;
 use crate::error::WireError;
 
 /// Bytes per node.
@@ -42,14 +43,15 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<u8> {
     out
 }
 
-/// Rebuilds the frame from the section's bytes; `bytes.len() == 4·w·h + 12·n` was checked against
-/// the header before decompressing.
+/// Rebuilds the frame from the section's bytes, into `spare`'s allocations; `bytes.len() ==
+/// 4·w·h + 12·n` was checked against the header before decompressing.
 pub(crate) fn decode(
     width: u32,
     height: u32,
     fragments: u32,
     bytes: &[u8],
     offset: u64,
+    spare: &mut Columns,
 ) -> Result<DeepFrame, WireError> {
     let pixels = width as usize * height as usize;
     let n = fragments as usize;
@@ -65,7 +67,9 @@ pub(crate) fn decode(
         ));
     }
     let (head, nodes) = bytes.split_at(4 * pixels);
-    let mut offsets = Vec::with_capacity(pixels + 1);
+    let mut offsets = std::mem::take(&mut spare.offsets);
+    offsets.clear();
+    offsets.reserve(pixels + 1);
     offsets.push(0u32);
     let mut total: u64 = 0;
     for (p, c) in head.chunks_exact(4).enumerate() {
@@ -89,16 +93,26 @@ pub(crate) fn decode(
             format!("the counts add up to {total}, the header announces {n} fragments"),
         ));
     }
-    let mut depth = Vec::with_capacity(n);
-    let mut color = Vec::with_capacity(n);
-    let mut object = Vec::with_capacity(n);
+    let (mut bits, mut colors, mut objects) = (
+        std::mem::take(&mut spare.bits),
+        std::mem::take(&mut spare.colors),
+        std::mem::take(&mut spare.objects),
+    );
+    bits.clear();
+    colors.clear();
+    objects.clear();
+    bits.reserve(n);
+    colors.reserve(n);
+    objects.reserve(n);
     for node in nodes.chunks_exact(NODE_BYTES) {
-        depth.push(f32::from_le_bytes([node[0], node[1], node[2], node[3]]));
-        color.push(Rgba8([node[4], node[5], node[6], node[7]]));
-        object.push(ObjectId(u32::from_le_bytes([
-            node[8], node[9], node[10], node[11],
-        ])));
+        bits.push(u32::from_le_bytes([node[0], node[1], node[2], node[3]]));
+        colors.push([node[4], node[5], node[6], node[7]]);
+        objects.push(u32::from_le_bytes([node[8], node[9], node[10], node[11]]));
     }
+    // In place: the allocations become the frame's columns.
+    let depth = bits.into_iter().map(f32::from_bits).collect();
+    let color = colors.into_iter().map(Rgba8).collect();
+    let object = objects.into_iter().map(ObjectId).collect();
     Ok(DeepFrame::from_parts(
         width, height, offsets, depth, color, object,
     )?)
