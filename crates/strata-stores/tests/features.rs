@@ -343,10 +343,23 @@ fn reused_sums_give_the_features_of_fresh_ones() {
         m
     };
     let n_many = count_into(&many, &mut counts, &mut reused, 2);
-    let covered_many = counts.counts().iter().filter(|&&c| c > 0).count();
+    let covered_before: Vec<bool> = counts.counts().iter().map(|&c| c > 0).collect();
+    let covered_many = covered_before.iter().filter(|&&c| c).count();
     let n_few = count_into(&few, &mut counts, &mut reused, 2);
     let covered_few = counts.counts().iter().filter(|&&c| c > 0).count();
     assert!(n_many > n_few && covered_few > 0 && covered_few * 4 < covered_many);
+    // The second frame covers pixels whose sums the first left behind: stale sums are there to
+    // be reset.
+    let overlap = counts
+        .counts()
+        .iter()
+        .zip(&covered_before)
+        .filter(|&(&c, &before)| c > 0 && before)
+        .count();
+    assert!(
+        overlap * 2 > covered_few,
+        "{overlap} of {covered_few} pixels overlap"
+    );
     let after = maps(&counts, &reused, n_few);
     for threads in [1, 2] {
         let (mut fresh_counts, mut fresh) = (FragmentCounts::new(), FeatureAccumulator::new());

@@ -714,7 +714,9 @@ impl FeatureAccumulator {
                 s.log_t as f32
             };
             g.opaque[l] = s.opaque as f32;
-            // In u128: count · Σc² outgrows u64 past about ten million fragments a pixel.
+            // In u128: count · Σc² outgrows u64 past about ten million fragments a pixel. (The
+            // u32 channel sums themselves wrap past 16.8 million fragments of 255 in one
+            // pixel; the densest scenes here hold a few hundred.)
             let squares: u128 = s.sum[..3]
                 .iter()
                 .map(|&c| u128::from(c) * u128::from(c))
