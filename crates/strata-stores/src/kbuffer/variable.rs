@@ -107,11 +107,9 @@ pub struct VariableKBuffer {
     regions: Regions,
     allocation: Allocation,
     depth: Option<DepthStats>,
-    /// The counting pass's feature sums: gathered (and allocated) only when `needs_sums`.
+    /// The counting pass's feature sums: gathered (and allocated) only when
+    /// [`VariableKBuffer::needs_sums`].
     sums: FeatureAccumulator,
-    /// Whether the counting pass gathers the sums: the error models read them, and the
-    /// feature maps are finished from them.
-    needs_sums: bool,
     /// The feature maps, finished when [`MethodOptions::features`] asks for them.
     maps: FeatureMaps,
     /// Whether the feature maps are to be finished (`MethodOptions::features`).
@@ -138,8 +136,6 @@ impl VariableKBuffer {
             allocation: Allocation::default(),
             depth: None,
             sums: FeatureAccumulator::new(),
-            needs_sums: options.features
-                || matches!(options.k_from, KFrom::Analytic | KFrom::Learned),
             maps: FeatureMaps::new(),
             want_maps: options.features,
             worth: Vec::new(),
@@ -205,7 +201,7 @@ impl VariableKBuffer {
     ) -> u64 {
         timings
             .time("capture.count", || {
-                if self.needs_sums {
+                if self.needs_sums() {
                     prepared.rasterize(&mut FeatureCapture {
                         counts: &mut self.counts,
                         sums: &mut self.sums,
@@ -219,6 +215,12 @@ impl VariableKBuffer {
 }
 
 impl VariableKBuffer {
+    /// Whether the counting pass gathers the feature sums: the error models read them, and the
+    /// feature maps are finished from them.
+    fn needs_sums(&self) -> bool {
+        self.want_maps || matches!(self.k_from, KFrom::Analytic | KFrom::Learned)
+    }
+
     /// The importance and k passes of every mode but Optimal-K: fills `importance`, `k` (and
     /// `worth` for the error models) and `allocation` from the counting pass's results.
     fn choose_k(&mut self, budget: u64, background: [f32; 3], timings: &mut PassTimings) {
@@ -234,8 +236,7 @@ impl VariableKBuffer {
             });
             return;
         }
-        // The error models: `new` set `needs_sums`, so the counting pass gathered the sums.
-        debug_assert!(self.needs_sums, "the error models read the feature sums");
+        // The error models: `needs_sums` holds, so the counting pass gathered the sums.
         let sums = &self.sums;
         self.worth.resize(pixels, Worth::at_most_one(0.0));
         let use_curve = match self.model.as_deref() {
@@ -302,7 +303,7 @@ impl Method for VariableKBuffer {
     fn clear(&mut self, width: u32, height: u32) -> Result<(), StoreError> {
         (self.width, self.height) = (width, height);
         self.counts.clear(width, height)?;
-        if self.needs_sums {
+        if self.needs_sums() {
             self.sums.clear(width, height)?;
         }
         self.depth = None;
