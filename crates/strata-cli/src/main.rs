@@ -91,6 +91,12 @@ enum Command {
     /// fragments while capturing, which saves the node the selection pass. The reprojection
     /// transfer renders normal fragments and needs a store that keeps every fragment: abuffer
     /// (with a growing pool) or sbuffer.
+    ///
+    /// To measure a display alone, record what a node sends one display run (`--record FILE`),
+    /// then serve the recording from memory (`--replay FILE`, no scene or rendering): a display
+    /// run with the same options gets the recorded bytes at once, so its rate is its own
+    /// (transfer, decode, merge, resolve). Requests the recording does not hold are answered
+    /// with an error that says so.
     Node(cmd::node::Args),
     /// Drive render nodes, merge their fragments per pixel, resolve, and measure it all.
     ///
@@ -102,6 +108,9 @@ enum Command {
     /// the display). A node that fails is reported, composed without (or from its last frame,
     /// `--on-fault hold`) and reconnected when it returns. Rates, bytes and times are figures of
     /// the frames some node delivered.
+    ///
+    /// `--discard` measures the nodes alone: every frame is dropped as soon as it has arrived,
+    /// undecoded, and the rate is the nodes' (render, select, encode, socket).
     ///
     /// Exit status: 0 every node delivered every frame; 1 no node delivered any frame (nothing
     /// listening, every node serving another scene, ...): nothing was displayed; 2 a usage or

@@ -234,7 +234,7 @@ pub fn run(config: DisplayConfig, observer: &mut dyn Observer) -> Result<RunResu
 }
 
 /// Everything `run` refuses before it connects to anything.
-fn check_config(config: &DisplayConfig) -> Result<(), DisplayError> {
+pub(crate) fn check_config(config: &DisplayConfig) -> Result<(), DisplayError> {
     if config.nodes.is_empty() {
         return Err(DisplayError::NoNodes);
     }
@@ -266,6 +266,49 @@ fn check_config(config: &DisplayConfig) -> Result<(), DisplayError> {
         .ok_or(range_error(FrameOutOfRange(u64::MAX)))?;
     animation_frame(last).map_err(range_error)?;
     Ok(())
+}
+
+/// The request a display with `config` sends node `node` for frame `frame`, encoded; `camera`
+/// is the view and projection every request carries (column-major).
+pub(crate) fn encode_request(
+    config: &DisplayConfig,
+    (view, projection): (&[f32; 16], &[f32; 16]),
+    frame: u64,
+    node: usize,
+    kind: RequestKind,
+) -> Result<Vec<u8>, DisplayError> {
+    let r = Request {
+        frame_number: frame,
+        node_id: u32::try_from(node).map_err(|_| DisplayError::TooManyNodes {
+            given: config.nodes.len(),
+            max: MAX_NODES,
+        })?,
+        width: config.width,
+        height: config.height,
+        view: *view,
+        projection: *projection,
+        transfer: config.transfer,
+        codec: config.codec,
+        kind,
+        tolerance: match config.transfer {
+            Transfer::Difference | Transfer::Reprojection => config.tolerance,
+            _ => 0,
+        },
+    };
+    let mut b = Vec::new();
+    r.encode_into(&mut b).map_err(DisplayError::Request)?;
+    Ok(b)
+}
+
+/// The view and projection (column-major) of every request of a run with `config`.
+pub(crate) fn request_camera(config: &DisplayConfig) -> ([f32; 16], [f32; 16]) {
+    let camera = &config.scene.camera;
+    (
+        camera.view().to_cols_array(),
+        camera
+            .projection(config.width, config.height)
+            .to_cols_array(),
+    )
 }
 
 /// Commands from the driver to a link.
@@ -386,12 +429,7 @@ impl<'o> Driver<'o> {
                 spare,
             });
         }
-        let view = config.scene.camera.view().to_cols_array();
-        let projection = config
-            .scene
-            .camera
-            .projection(config.width, config.height)
-            .to_cols_array();
+        let (view, projection) = request_camera(&config);
         let all_objects = config.scene.objects.iter().map(|o| o.id).collect();
         Driver {
             config,
@@ -455,28 +493,13 @@ impl<'o> Driver<'o> {
 
     /// The request for frame `frame` of node `node`, encoded.
     fn request(&self, frame: u64, node: usize, kind: RequestKind) -> Result<Vec<u8>, DisplayError> {
-        let config = &self.config;
-        let r = Request {
-            frame_number: frame,
-            node_id: u32::try_from(node).map_err(|_| DisplayError::TooManyNodes {
-                given: config.nodes.len(),
-                max: MAX_NODES,
-            })?,
-            width: config.width,
-            height: config.height,
-            view: self.view,
-            projection: self.projection,
-            transfer: config.transfer,
-            codec: config.codec,
+        encode_request(
+            &self.config,
+            (&self.view, &self.projection),
+            frame,
+            node,
             kind,
-            tolerance: match config.transfer {
-                Transfer::Difference | Transfer::Reprojection => config.tolerance,
-                _ => 0,
-            },
-        };
-        let mut b = Vec::new();
-        r.encode_into(&mut b).map_err(DisplayError::Request)?;
-        Ok(b)
+        )
     }
 
     /// Hands node `i`'s link a request for frame `frame` on its current connection.
@@ -1056,7 +1079,7 @@ async fn carry(
 
 /// Why a link lost (or never got) its connection; reported as "down: …".
 #[derive(Debug, thiserror::Error)]
-enum LinkError {
+pub(crate) enum LinkError {
     #[error("no connection within {0:.1} s")]
     ConnectTimeout(f64),
     #[error("cannot connect: {0}")]
@@ -1103,7 +1126,7 @@ fn node_reported(bytes: &[u8], limits: &DecodeOptions) -> LinkError {
 
 /// Connects to the node at `addr` and reads its hello, each within `wait`; the error says why
 /// the node cannot be used.
-async fn connect(
+pub(crate) async fn connect(
     addr: &str,
     limits: &DecodeOptions,
     wait: Duration,
@@ -1129,7 +1152,7 @@ async fn connect(
 
 /// A frame message's bytes, the stats that followed it, and how long both bodies took to
 /// arrive.
-type RawFrame = (Vec<u8>, NodeStats, Duration);
+pub(crate) type RawFrame = (Vec<u8>, NodeStats, Duration);
 
 /// A frame the driver is done with, handed back to its node's decoder so that the next frame
 /// decodes into its memory instead of fresh pages ([`FrameDecoder::recycle`]).
@@ -1179,7 +1202,7 @@ async fn read_frames(
 }
 
 /// Reads the next frame message and the stats message that follows it.
-async fn read_frame_and_stats(
+pub(crate) async fn read_frame_and_stats(
     rd: &mut OwnedReadHalf,
     limits: &DecodeOptions,
 ) -> Result<RawFrame, LinkError> {

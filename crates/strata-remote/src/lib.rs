@@ -15,16 +15,20 @@
 //! - [`difference`]: the exact difference transfer — node keys, display copies, fixups;
 //! - [`merge`]: per-pixel k-way merge of sorted runs and resolve;
 //! - [`node`] and [`display`]: the services (tokio for sockets, threads for CPU stages);
-//! - [`report`]: per-frame statistics and the run's summary.
+//! - [`report`]: per-frame statistics and the run's summary;
+//! - [`sink`] and [`recording`]: each side measured alone — a display that drops frames on
+//!   arrival, and a node that replays a recorded stream from memory.
 
 pub mod difference;
 pub mod display;
 pub mod merge;
 pub mod node;
+pub mod recording;
 pub mod reference;
 pub mod report;
 pub mod reprojection;
 pub mod select;
+pub mod sink;
 mod stream;
 pub mod transfer;
 

@@ -40,6 +40,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 
 use crate::difference::DiffEncoder;
+use crate::recording::{Recorder, RecordingError};
 use crate::reprojection::{ReprojEncoder, TooDeep, View};
 use crate::select::{depth_limit, restrict};
 use crate::stream::{ReadError, read_message};
@@ -66,6 +67,9 @@ pub struct NodeConfig {
     pub method_options: MethodOptions,
     /// Limits on what the node accepts from a display.
     pub limits: DecodeOptions,
+    /// Where to record every exchange (request and reply), for a display measured alone
+    /// later ([`crate::recording`]); `None`: nothing is recorded.
+    pub record: Option<Arc<Recorder>>,
 }
 
 /// Why a configuration cannot serve.
@@ -146,7 +150,8 @@ impl NodeConfig {
             .map_err(|e| NodeError::Method(e.to_string()))
     }
 
-    fn hello(&self) -> Hello {
+    /// What the node says first on every connection.
+    pub fn hello(&self) -> Hello {
         let objects: Vec<(u32, String)> = self
             .scene
             .objects
@@ -215,6 +220,12 @@ pub enum ConnectionError {
         /// The node's store.
         method: String,
     },
+    /// A replaying node has no recorded answer to a request.
+    #[error("{0}")]
+    NotRecorded(String),
+    /// The exchange could not be recorded.
+    #[error(transparent)]
+    Record(#[from] RecordingError),
     /// A fixup request that cannot be answered.
     #[error(transparent)]
     Fixup(#[from] FixupError),
@@ -442,12 +453,19 @@ async fn serve_requests(
             RequestKind::Fixup(ref mask) => {
                 let mask = mask.clone();
                 let recent = recent.clone();
-                let reply = tokio::task::spawn_blocking(move || fixup(&recent, &request, &mask))
-                    .await
-                    .map_err(|e| ConnectionError::Panicked {
-                        stage: "fixup",
-                        message: e.to_string(),
-                    })??;
+                let record = config.record.clone();
+                let reply = tokio::task::spawn_blocking(move || {
+                    let reply = fixup(&recent, &request, &mask)?;
+                    if let Some(r) = record {
+                        r.record(&request, &reply)?;
+                    }
+                    Ok::<_, ConnectionError>(reply)
+                })
+                .await
+                .map_err(|e| ConnectionError::Panicked {
+                    stage: "fixup",
+                    message: e.to_string(),
+                })??;
                 if out.send(reply).await.is_err() {
                     return Err(ConnectionError::StageStopped("writer"));
                 }
@@ -722,6 +740,11 @@ fn encode_thread(
             fixup: false,
         };
         append_stats(&mut bytes, &stats);
+        if let Some(r) = &config.record
+            && let Err(e) = r.record(&request, &bytes)
+        {
+            return send_error(&out, &e.to_string());
+        }
         keep_recent(&recent, request.frame_number, frame);
         if out.blocking_send(bytes).is_err() {
             return;

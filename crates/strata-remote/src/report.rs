@@ -337,6 +337,9 @@ pub struct Summary {
     pub bad_pixel_threshold: u8,
     /// Faults and reconnections.
     pub incidents: Vec<NodeIncident>,
+    /// The frames were dropped on arrival, undecoded (`strata display --discard`): the rate is
+    /// the nodes' alone, and the display's stages read 0.
+    pub discarded: bool,
     /// Every frame.
     pub per_frame: Vec<FrameStats>,
 }
@@ -392,6 +395,7 @@ impl Summary {
             max_bad_pixels: checked.iter().copied().max().unwrap_or(0),
             bad_pixel_threshold,
             incidents,
+            discarded: false,
             per_frame,
         }
     }
@@ -438,12 +442,23 @@ impl Summary {
             self.nodes.len(),
             self.frames
         );
+        if self.discarded {
+            let _ = writeln!(
+                s,
+                "  discarded         every frame on arrival, undecoded: the rate is the nodes' alone"
+            );
+        }
         let _ = writeln!(s, "  outcome           {}", self.outcome_line());
         for n in &self.shortfalls {
             let _ = writeln!(s, "  node {}: {}", n.node, shortfall_text(n, self.frames));
         }
         if let Some(f) = &self.figures {
-            write_figures(&mut s, f, self.delivered_frames, self.frames);
+            write_figures(
+                &mut s,
+                f,
+                (self.delivered_frames, self.frames),
+                self.discarded,
+            );
         }
         if self.checked_frames > 0 {
             let _ = writeln!(
@@ -476,7 +491,13 @@ fn shortfall_text(n: &NodeShortfall, frames: usize) -> String {
 }
 
 /// The rate, bytes and time lines of the table.
-fn write_figures(s: &mut String, f: &Figures, delivered: usize, frames: usize) {
+/// `discarded`: the rate is the nodes' (`--discard`), and the display's stages did not run.
+fn write_figures(
+    s: &mut String,
+    f: &Figures,
+    (delivered, frames): (usize, usize),
+    discarded: bool,
+) {
     use std::fmt::Write;
     let mb = |b: f64| b / 1e6;
     let of = if delivered < frames {
@@ -484,17 +505,22 @@ fn write_figures(s: &mut String, f: &Figures, delivered: usize, frames: usize) {
     } else {
         String::new()
     };
+    let rate = if discarded {
+        "node rate   "
+    } else {
+        "display rate"
+    };
     match (f.display_fps, f.interval_ms) {
         (Some(fps), Some(interval)) => {
             let _ = writeln!(
                 s,
-                "  display rate      {fps:8.2} fps   (median interval {interval:.1} ms){of}"
+                "  {rate}      {fps:8.2} fps   (median interval {interval:.1} ms){of}"
             );
         }
         _ => {
             let _ = writeln!(
                 s,
-                "  display rate           n/a   (fewer than two frames delivered)"
+                "  {rate}           n/a   (fewer than two frames delivered)"
             );
         }
     }
@@ -523,11 +549,15 @@ fn write_figures(s: &mut String, f: &Figures, delivered: usize, frames: usize) {
         "  node ms (median)  render {:.1}, select {:.1}, encode {:.1}",
         f.render_ms, f.select_ms, f.encode_ms
     );
-    let _ = writeln!(
-        s,
-        "  display ms        transfer {:.1}, decode {:.1}, merge {:.1}, resolve {:.1}",
-        f.transfer_ms, f.decode_ms, f.merge_ms, f.resolve_ms
-    );
+    if discarded {
+        let _ = writeln!(s, "  display ms        transfer {:.1}", f.transfer_ms);
+    } else {
+        let _ = writeln!(
+            s,
+            "  display ms        transfer {:.1}, decode {:.1}, merge {:.1}, resolve {:.1}",
+            f.transfer_ms, f.decode_ms, f.merge_ms, f.resolve_ms
+        );
+    }
 }
 
 #[cfg(test)]

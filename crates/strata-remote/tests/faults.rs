@@ -49,6 +49,7 @@ fn real_node_for(scene: &Arc<Scene>, objects: &[usize]) -> (String, tokio::runti
         method: "abuffer".into(),
         method_options: MethodOptions::default(),
         limits: DecodeOptions::default(),
+        record: None,
     };
     runtime.spawn(serve(listener, config, |_| {}));
     (addr, runtime)
@@ -271,6 +272,7 @@ fn bad_configurations_are_errors() {
         method: "wboit".into(),
         method_options: MethodOptions::default(),
         limits: DecodeOptions::default(),
+        record: None,
     };
     let e = bad.check().unwrap_err().to_string();
     assert!(e.contains("wboit"), "{e}");

@@ -61,6 +61,7 @@ impl Node {
             method: "abuffer".into(),
             method_options: MethodOptions::default(),
             limits: DecodeOptions::default(),
+            record: None,
         };
         runtime.spawn(serve(listener, config, |_| {}));
         Node {
@@ -522,6 +523,7 @@ fn a_node_whose_store_drops_fragments_refuses_reprojection() {
         method: "kbuffer".into(),
         method_options: MethodOptions::default(),
         limits: DecodeOptions::default(),
+        record: None,
     };
     runtime.spawn(serve(listener, config, |_| {}));
     let mut cfg = config_for(&s, vec![addr], Transfer::Reprojection, 2);

@@ -106,6 +106,11 @@ pub(crate) struct Args {
     #[arg(long, requires = "out_dir")]
     pub(crate) save_deep: bool,
 
+    /// Measure the nodes alone: drop every frame as soon as it has arrived, without decoding,
+    /// merging or resolving it (no check against the exact render, nothing to save).
+    #[arg(long, conflicts_with_all = ["save_frames", "save_deep"])]
+    pub(crate) discard: bool,
+
     /// Extra directory to look for mesh files in (repeatable).
     #[arg(long = "models", value_name = "DIR")]
     pub(crate) model_dirs: Vec<PathBuf>,
@@ -232,6 +237,22 @@ pub(crate) fn run(args: Args) -> Result<()> {
         },
         limits: DecodeOptions::default(),
     };
+    if args.discard {
+        let result = strata_remote::sink::discard(config)?;
+        let mut summary = Summary::new(
+            scene.name.clone(),
+            width,
+            height,
+            transfer_label(t, tolerance),
+            args.codec.to_string(),
+            args.nodes.clone(),
+            args.threshold,
+            result.incidents,
+            result.per_frame,
+        );
+        summary.discarded = true;
+        return report(&summary, args.out_dir.as_deref());
+    }
     let bar = ProgressBar::new(args.frames).with_style(
         ProgressStyle::with_template("{spinner} {pos}/{len} frames [{elapsed_precise}] {wide_msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
@@ -275,9 +296,14 @@ pub(crate) fn run(args: Args) -> Result<()> {
         result.incidents,
         per_frame,
     );
+    report(&summary, args.out_dir.as_deref())
+}
+
+/// Prints the summary, writes it into `out_dir`, and turns its outcome into the exit status.
+fn report(summary: &Summary, out_dir: Option<&std::path::Path>) -> Result<()> {
     let table = summary.to_table();
     out!("{table}")?;
-    if let Some(dir) = &args.out_dir {
+    if let Some(dir) = out_dir {
         let json = dir.join("summary.json");
         fs::write(&json, summary.to_json())
             .with_context(|| format!("writing {}", json.display()))?;
@@ -285,7 +311,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         fs::write(&txt, &table).with_context(|| format!("writing {}", txt.display()))?;
         eprintln!("wrote {} and {}", json.display(), txt.display());
     }
-    exit_status(&summary)
+    exit_status(summary)
 }
 
 /// Counts each kept frame's bad pixels against the exact local render of the whole scene.

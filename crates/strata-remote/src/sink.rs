@@ -1,0 +1,240 @@
+//! A display that discards: it asks the nodes for frames exactly as the display does and drops
+//! every message as soon as its last byte has arrived — no decoding, merging or resolving — so
+//! the rate it measures is the nodes' own (render, select and encode overlapped) plus the
+//! socket. It is how a node is measured alone on a machine too small to host a node and a real
+//! display side by side (the issue's "null display").
+//!
+//! # Tasks
+//!
+//! ```text
+//!        ┌─ node 0: connect ─ hello ─ [request t+in_flight ◄─ read frame t + stats, drop] ─┐
+//! run ───┤                                                                               ├─► per-frame stats
+//!        └─ node n: …                                                                    ┘
+//! ```
+//!
+//! Each node gets its own task and keeps `in_flight` requests outstanding, as the display's
+//! driver does; a node is never waited for by another. A node that fails (refuses, stalls past
+//! the timeout, reports an error, serves another scene) is recorded as an incident and misses
+//! the rest of the run; there is no reconnection, because a benchmark with a reconnect in it
+//! measures the reconnect.
+//!
+//! The frames' [`FrameStats`] are the display's, with nothing on the display's side: decode,
+//! merge and resolve are 0, and a frame's interval is the time between the arrivals of the last
+//! node's message for it and for the frame before.
+
+use std::time::Instant;
+
+use strata_wire::{NodeStats, RequestKind};
+use tokio::io::AsyncWriteExt;
+use tokio::time::timeout;
+
+use crate::display::{
+    DisplayConfig, DisplayError, RunResult, check_config, connect, encode_request,
+    read_frame_and_stats, request_camera,
+};
+use crate::report::{FrameStats, NodeFrame, NodeIncident, NodeStatus};
+
+/// What arrived from one node for one frame.
+struct Got {
+    at: Instant,
+    bytes: u64,
+    stats: NodeStats,
+    transfer_ms: f64,
+}
+
+/// What one node's task brought back: a slot per frame of the run, and why it stopped early.
+struct Drained {
+    got: Vec<Option<Got>>,
+    incident: Option<(u64, String)>,
+}
+
+/// Requests `config.frames` frames from every node and drops them on arrival; the result has
+/// the display's shape, so the same summary reports it.
+///
+/// An error means the run could not start; a node that fails is an incident.
+pub fn discard(config: DisplayConfig) -> Result<RunResult, DisplayError> {
+    check_config(&config)?;
+    let camera = request_camera(&config);
+    // Every request of the run, encoded before anything is timed.
+    let mut requests = Vec::with_capacity(config.nodes.len());
+    for node in 0..config.nodes.len() {
+        let end = config.first_frame + config.frames;
+        let per_node = (config.first_frame..end)
+            .map(|t| {
+                let reset = t == config.first_frame;
+                encode_request(
+                    &config,
+                    (&camera.0, &camera.1),
+                    t,
+                    node,
+                    RequestKind::Render { reset },
+                )
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        requests.push(per_node);
+    }
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let drained: Vec<Drained> = runtime.block_on(async {
+        let tasks: Vec<_> = requests
+            .into_iter()
+            .enumerate()
+            .map(|(i, r)| tokio::spawn(drain(config.clone(), i, r)))
+            .collect();
+        let mut out = Vec::with_capacity(tasks.len());
+        for (i, task) in tasks.into_iter().enumerate() {
+            out.push(task.await.unwrap_or_else(|e| Drained {
+                got: Vec::new(),
+                incident: Some((config.first_frame, format!("node {i}'s task failed: {e}"))),
+            }));
+        }
+        out
+    });
+    Ok(result(&config, drained))
+}
+
+/// One node: connect, keep `in_flight` requests outstanding, read and drop every frame.
+async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Drained {
+    let mut got: Vec<Option<Got>> = Vec::with_capacity(requests.len());
+    let first = config.first_frame;
+    let stop = |got: Vec<Option<Got>>, t: u64, what: String| Drained {
+        got,
+        incident: Some((t, what)),
+    };
+    let addr = &config.nodes[node];
+    let (mut rd, mut wr, hello) = match connect(addr, &config.limits, config.timeout).await {
+        Ok(c) => c,
+        Err(e) => return stop(got, first, format!("down: {e}")),
+    };
+    if hello.scene != config.scene.name {
+        let what = format!(
+            "serves scene '{}', not '{}': left out",
+            hello.scene, config.scene.name
+        );
+        return stop(got, first, what);
+    }
+    let mut sent = 0;
+    for t in 0..requests.len() {
+        let frame = first + t as u64;
+        while sent < requests.len() && sent < t + config.in_flight {
+            if let Err(e) = wr.write_all(&requests[sent]).await {
+                return stop(got, frame, format!("sending a request: {e}"));
+            }
+            sent += 1;
+        }
+        let (bytes, stats, transfer) = match timeout(
+            config.timeout,
+            read_frame_and_stats(&mut rd, &config.limits),
+        )
+        .await
+        {
+            Ok(Ok(raw)) => raw,
+            Ok(Err(e)) => return stop(got, frame, format!("down: {e}")),
+            Err(_) => {
+                let what = format!(
+                    "no frame within {:.1} s: stalled",
+                    config.timeout.as_secs_f64()
+                );
+                return stop(got, frame, what);
+            }
+        };
+        let at = Instant::now();
+        if stats.frame_number != frame || stats.fixup {
+            let what = format!(
+                "sent frame {} (fixup: {}) where frame {frame} was due",
+                stats.frame_number, stats.fixup
+            );
+            return stop(got, frame, what);
+        }
+        got.push(Some(Got {
+            at,
+            bytes: bytes.len() as u64,
+            stats,
+            transfer_ms: transfer.as_secs_f64() * 1e3,
+        }));
+    }
+    // The node may already have closed its end; the run is over either way.
+    let _ = wr.shutdown().await;
+    Drained {
+        got,
+        incident: None,
+    }
+}
+
+/// The per-frame statistics of a discarding run.
+fn result(config: &DisplayConfig, mut drained: Vec<Drained>) -> RunResult {
+    let frames = config.frames as usize;
+    let ms = |us: u64| us as f64 / 1e3;
+    let mut per_frame = Vec::with_capacity(frames);
+    let mut last_arrival: Option<Instant> = None;
+    let mut first_arrival: Option<Instant> = None;
+    for t in 0..frames {
+        let mut arrival: Option<Instant> = None;
+        let nodes = drained
+            .iter_mut()
+            .enumerate()
+            .map(|(i, d)| {
+                let node = config.nodes[i].clone();
+                match d.got.get_mut(t).and_then(Option::take) {
+                    Some(g) => {
+                        arrival = Some(arrival.map_or(g.at, |a| a.max(g.at)));
+                        NodeFrame {
+                            node,
+                            status: NodeStatus::Ok,
+                            bytes: g.bytes,
+                            raw_bytes: g.stats.raw_bytes,
+                            fragments_rendered: g.stats.fragments_rendered,
+                            fragments_sent: g.stats.fragments_sent,
+                            render_ms: ms(g.stats.render_us),
+                            select_ms: ms(g.stats.select_us),
+                            encode_ms: ms(g.stats.encode_us),
+                            transfer_ms: g.transfer_ms,
+                            ..NodeFrame::default()
+                        }
+                    }
+                    None => NodeFrame {
+                        node,
+                        status: NodeStatus::Dropped,
+                        ..NodeFrame::default()
+                    },
+                }
+            })
+            .collect();
+        let interval_ms = match (arrival, last_arrival) {
+            (Some(a), Some(b)) => a.saturating_duration_since(b).as_secs_f64() * 1e3,
+            _ => 0.0,
+        };
+        if arrival.is_some() {
+            last_arrival = arrival;
+            first_arrival = first_arrival.or(arrival);
+        }
+        per_frame.push(FrameStats {
+            frame: config.first_frame + t as u64,
+            nodes,
+            interval_ms,
+            ..FrameStats::default()
+        });
+    }
+    let incidents = drained
+        .iter()
+        .enumerate()
+        .filter_map(|(i, d)| {
+            d.incident.as_ref().map(|(frame, what)| NodeIncident {
+                frame: *frame,
+                node: config.nodes[i].clone(),
+                what: what.clone(),
+            })
+        })
+        .collect();
+    let elapsed_s = match (first_arrival, last_arrival) {
+        (Some(a), Some(b)) => (b - a).as_secs_f64(),
+        _ => 0.0,
+    };
+    RunResult {
+        per_frame,
+        incidents,
+        elapsed_s,
+    }
+}
