@@ -12,7 +12,7 @@
 
 use rayon::prelude::*;
 use strata_core::composite::{background_pixel, resolve_pixel};
-use strata_core::{DeepFrame, Fragment, Rgb8Image, Rgba8};
+use strata_core::{DeepFrame, Fragment, Rgb8Image};
 
 /// Pixels per parallel task.
 const CHUNK: usize = 8 * 1024;
@@ -99,12 +99,13 @@ fn resolve_merged(
             only = i;
         }
     }
-    let colors: &mut dyn Iterator<Item = Rgba8> = match covering {
-        0 => return bg,
-        1 => &mut frames[only].run(p).color.iter().copied(),
+    match covering {
+        0 => bg,
+        // Most pixels: one node's run, composited straight from its colours.
+        1 => resolve_pixel(frames[only].run(p).color.iter().copied(), background),
         _ => {
             heads[..frames.len()].fill(0);
-            &mut std::iter::from_fn(|| {
+            let merged = std::iter::from_fn(|| {
                 let mut best: Option<(usize, (u64, u32))> = None;
                 for (i, f) in frames.iter().enumerate() {
                     if let Some(frag) = f.run(p).get(heads[i]) {
@@ -118,16 +119,16 @@ fn resolve_merged(
                 let c = frames[i].run(p).color[heads[i]];
                 heads[i] += 1;
                 Some(c)
-            })
+            });
+            resolve_pixel(merged, background)
         }
-    };
-    resolve_pixel(colors, background)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use strata_core::ObjectId;
+    use strata_core::{ObjectId, Rgba8};
 
     #[test]
     fn merged_frame_resolves_to_the_merged_image() {
