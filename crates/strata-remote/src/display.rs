@@ -44,10 +44,10 @@ use tokio::sync::mpsc;
 use tokio::time::{timeout, timeout_at};
 
 use crate::difference::{NodeCopy, stale_shared};
-use crate::merge::{MAX_NODES, merge_frames, merge_resolve};
+use crate::merge::{MAX_NODES, merge_frames, merge_resolve_into};
 use crate::report::{FrameStats, NodeFrame, NodeIncident, NodeStatus};
 use crate::reprojection::{ReprojCopy, View, ambiguous};
-use crate::stream::{ReadError, read_message};
+use crate::stream::{ReadError, read_message, read_message_into};
 use crate::{FrameOutOfRange, Transfer, animation_frame};
 
 /// What to compose with when a node's frame is missing.
@@ -355,7 +355,7 @@ struct NodeState {
     /// Left out for good (it serves another scene).
     refused: bool,
     /// Where frames this node sent go once applied, for its decoder to reuse.
-    spare: Spare,
+    spare: Spare<DeepFrame>,
 }
 
 /// Arrivals not yet applied, by node, frame number and whether they answer a fixup request.
@@ -395,6 +395,8 @@ struct Driver<'o> {
     projection: [f32; 16],
     /// Every object of the scene (the reprojection view shades any node's fragments).
     all_objects: Vec<ObjectId>,
+    /// The composed image, resolved into again for every frame (no fresh pages per frame).
+    image: Rgb8Image,
 }
 
 impl<'o> Driver<'o> {
@@ -444,6 +446,7 @@ impl<'o> Driver<'o> {
             view,
             projection,
             all_objects,
+            image: Rgb8Image::filled(0, 0, [0; 3]),
         }
     }
 
@@ -812,14 +815,14 @@ impl<'o> Driver<'o> {
         let config = &self.config;
         let resolve_start = Instant::now();
         let copies: Vec<&DeepFrame> = self.nodes.iter().map(|n| n.copy.frame()).collect();
-        let image = tokio::task::block_in_place(|| {
-            merge_resolve(
-                &copies,
-                config.width,
-                config.height,
-                config.scene.background,
-            )
+        let image = &mut self.image;
+        if (image.width(), image.height()) != (config.width, config.height) {
+            *image = Rgb8Image::filled(config.width, config.height, [0; 3]);
+        }
+        tokio::task::block_in_place(|| {
+            merge_resolve_into(&copies, config.scene.background, image);
         });
+        let image = &self.image;
         let resolve_ms = resolve_start.elapsed().as_secs_f64() * 1e3;
         let now = Instant::now();
         let interval_ms = self
@@ -837,7 +840,7 @@ impl<'o> Driver<'o> {
             bad_pixels: None,
         };
         let observer = &mut *self.observer;
-        tokio::task::block_in_place(|| observer.frame(&fs, &image));
+        tokio::task::block_in_place(|| observer.frame(&fs, image));
         if observer.wants_deep_frames() {
             tokio::task::block_in_place(|| {
                 let merged = merge_frames(&copies, config.width, config.height);
@@ -973,7 +976,7 @@ async fn link(
     events: mpsc::Sender<LinkEvent>,
     limits: DecodeOptions,
     wait: Duration,
-    spare: Spare,
+    spare: Spare<DeepFrame>,
 ) {
     let mut generation = 0u64;
     let mut backoff = Duration::from_millis(100);
@@ -1037,7 +1040,7 @@ enum ConnectionEnd {
 async fn carry(
     node: usize,
     generation: u64,
-    (rd, mut wr, spare): (OwnedReadHalf, OwnedWriteHalf, &Spare),
+    (rd, mut wr, spare): (OwnedReadHalf, OwnedWriteHalf, &Spare<DeepFrame>),
     cmds: &mut mpsc::Receiver<LinkCmd>,
     events: &mpsc::Sender<LinkEvent>,
     limits: &DecodeOptions,
@@ -1154,18 +1157,26 @@ pub(crate) async fn connect(
 /// arrive.
 pub(crate) type RawFrame = (Vec<u8>, NodeStats, Duration);
 
-/// A frame the driver is done with, handed back to its node's decoder so that the next frame
-/// decodes into its memory instead of fresh pages ([`FrameDecoder::recycle`]).
-#[derive(Clone, Default)]
-struct Spare(Arc<std::sync::Mutex<Option<DeepFrame>>>);
+/// Memory a later stage is done with, handed back to an earlier one so that the next frame
+/// lands in it instead of fresh pages: the frames the driver has applied go back to their
+/// node's decoder ([`FrameDecoder::recycle`]), and the message buffers the decoder has read go
+/// back to the reader.
+#[derive(Clone)]
+struct Spare<T>(Arc<std::sync::Mutex<Option<T>>>);
 
-impl Spare {
-    fn put(&self, frame: DeepFrame) {
+impl<T> Default for Spare<T> {
+    fn default() -> Self {
+        Spare(Arc::new(std::sync::Mutex::new(None)))
+    }
+}
+
+impl<T> Spare<T> {
+    fn put(&self, value: T) {
         // A poisoned lock only means a panic elsewhere; the slot itself is always valid.
-        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(frame);
+        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(value);
     }
 
-    fn take(&self) -> Option<DeepFrame> {
+    fn take(&self) -> Option<T> {
         self.0.lock().unwrap_or_else(|e| e.into_inner()).take()
     }
 }
@@ -1175,12 +1186,19 @@ async fn read_frames(
     mut rd: OwnedReadHalf,
     limits: DecodeOptions,
     out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
-    spare: Spare,
+    spare: Spare<DeepFrame>,
 ) {
     let (raw_tx, raw_rx) = mpsc::channel::<RawFrame>(2);
-    let decoder = tokio::spawn(decode_frames(raw_rx, limits.clone(), out.clone(), spare));
+    let buffers = Spare::default();
+    let decoder = tokio::spawn(decode_frames(
+        raw_rx,
+        limits.clone(),
+        out.clone(),
+        (spare, buffers.clone()),
+    ));
     let failed = loop {
-        match read_frame_and_stats(&mut rd, &limits).await {
+        let buffer = buffers.take().unwrap_or_default();
+        match read_frame_and_stats(&mut rd, &limits, buffer).await {
             Ok(raw) => {
                 if raw_tx.send(raw).await.is_err() {
                     break None;
@@ -1202,11 +1220,13 @@ async fn read_frames(
 }
 
 /// Reads the next frame message and the stats message that follows it.
+/// `buffer` is reused for the frame message (see [`read_message_into`]).
 pub(crate) async fn read_frame_and_stats(
     rd: &mut OwnedReadHalf,
     limits: &DecodeOptions,
+    buffer: Vec<u8>,
 ) -> Result<RawFrame, LinkError> {
-    let m = match read_message(rd, limits).await {
+    let m = match read_message_into(rd, limits, buffer).await {
         Ok(m) => m,
         Err(ReadError::Closed) => return Err(LinkError::Closed),
         Err(e) => return Err(LinkError::Read(e)),
@@ -1232,7 +1252,7 @@ async fn decode_frames(
     mut raw: mpsc::Receiver<RawFrame>,
     limits: DecodeOptions,
     out: mpsc::Sender<Result<Box<Arrival>, LinkError>>,
-    spare: Spare,
+    (spare, buffers): (Spare<DeepFrame>, Spare<Vec<u8>>),
 ) {
     // Kept across frames: its buffers, and the frames the driver hands back, are reused
     // instead of fresh pages.
@@ -1248,11 +1268,12 @@ async fn decode_frames(
                 d.recycle(old);
             }
             let msg = d.decode_frame(&bytes, &limits);
-            (d, msg)
+            (d, msg, bytes)
         })
         .await
-        .map(|(d, msg)| {
+        .map(|(d, msg, bytes)| {
             decoder = d;
+            buffers.put(bytes);
             msg
         });
         let decode = start.elapsed();

@@ -30,6 +30,18 @@ pub fn merge_resolve(
     height: u32,
     background: [f32; 3],
 ) -> Rgb8Image {
+    let mut image = Rgb8Image::filled(width, height, [0; 3]);
+    merge_resolve_into(frames, background, &mut image);
+    image
+}
+
+/// [`merge_resolve`] into `image`, whose size is the frames'; every pixel is written, so a
+/// display resolves each frame into the same image instead of fresh memory.
+///
+/// # Panics
+/// When the frames differ from `image` in size or there are more than [`MAX_NODES`].
+pub fn merge_resolve_into(frames: &[&DeepFrame], background: [f32; 3], image: &mut Rgb8Image) {
+    let (width, height) = (image.width(), image.height());
     assert!(frames.len() <= MAX_NODES, "at most {MAX_NODES} nodes");
     assert!(
         frames
@@ -37,7 +49,6 @@ pub fn merge_resolve(
             .all(|f| f.width() == width && f.height() == height),
         "every frame is {width}x{height}"
     );
-    let mut image = Rgb8Image::filled(width, height, [0; 3]);
     let bg = background_pixel(background);
     image
         .as_bytes_mut()
@@ -50,7 +61,6 @@ pub fn merge_resolve(
                 px.copy_from_slice(&resolve_merged(frames, p, background, bg, &mut heads));
             }
         });
-    image
 }
 
 /// The per-pixel merge of `frames` as one DeepFrame (for saving what the display composed).
@@ -187,5 +197,9 @@ mod tests {
             merge_resolve(&[], 2, 2, bg),
             DeepFrame::empty(2, 2).resolve(bg)
         );
+        // Into an image that holds an older frame: every pixel is overwritten.
+        let mut reused = Rgb8Image::filled(2, 2, [9, 99, 199]);
+        merge_resolve_into(&[&fa, &fb], bg, &mut reused);
+        assert_eq!(reused, fu.resolve(bg));
     }
 }

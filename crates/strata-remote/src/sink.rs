@@ -116,6 +116,8 @@ async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Dr
         return stop(got, first, what);
     }
     let mut sent = 0;
+    // Each message is read into the last one's memory, as a display does.
+    let mut buffer = Vec::new();
     for t in 0..requests.len() {
         let frame = first + t as u64;
         while sent < requests.len() && sent < t + config.in_flight {
@@ -126,7 +128,7 @@ async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Dr
         }
         let (bytes, stats, transfer) = match timeout(
             config.timeout,
-            read_frame_and_stats(&mut rd, &config.limits),
+            read_frame_and_stats(&mut rd, &config.limits, std::mem::take(&mut buffer)),
         )
         .await
         {
@@ -154,6 +156,7 @@ async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Dr
             stats,
             transfer_ms: transfer.as_secs_f64() * 1e3,
         }));
+        buffer = bytes;
     }
     // The node may already have closed its end; the run is over either way.
     let _ = wr.shutdown().await;

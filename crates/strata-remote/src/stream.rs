@@ -21,6 +21,17 @@ pub(crate) async fn read_message(
     r: &mut (impl AsyncRead + Unpin),
     limits: &DecodeOptions,
 ) -> Result<Incoming, ReadError> {
+    read_message_into(r, limits, Vec::new()).await
+}
+
+/// [`read_message`] into `bytes` (cleared first), whose capacity is reused: a reader of a stream
+/// of large messages hands back each buffer once done with it, so no message lands in fresh
+/// pages.
+pub(crate) async fn read_message_into(
+    r: &mut (impl AsyncRead + Unpin),
+    limits: &DecodeOptions,
+    mut bytes: Vec<u8>,
+) -> Result<Incoming, ReadError> {
     let mut prefix = [0u8; PREFIX_LEN];
     let n = r.read(&mut prefix).await?;
     if n == 0 {
@@ -31,7 +42,8 @@ pub(crate) async fn read_message(
     let p = parse_prefix(&prefix, limits)?;
     let len = PREFIX_LEN + p.body_len as usize;
     // Grow with what arrives rather than trusting the announced length with an allocation.
-    let mut bytes = Vec::with_capacity(len.min(1 << 20));
+    bytes.clear();
+    bytes.reserve(len.min(1 << 20));
     bytes.extend_from_slice(&prefix);
     r.take(p.body_len).read_to_end(&mut bytes).await?;
     if bytes.len() != len {
