@@ -20,16 +20,14 @@ struct NodeProcess {
 
 impl NodeProcess {
     fn start(scene: &str, objects: &str) -> NodeProcess {
+        Self::start_with(&["--scene", scene, "--objects", objects])
+    }
+
+    /// `strata node --listen 127.0.0.1:0 ARGS`.
+    fn start_with(args: &[&str]) -> NodeProcess {
         let mut child = StdCommand::new(cargo_bin("strata"))
-            .args([
-                "node",
-                "--listen",
-                "127.0.0.1:0",
-                "--scene",
-                scene,
-                "--objects",
-                objects,
-            ])
+            .args(["node", "--listen", "127.0.0.1:0"])
+            .args(args)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
@@ -209,6 +207,108 @@ fn node_errors_are_clear() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot listen on not-an-address"));
+}
+
+#[test]
+fn recording_and_replay_errors_are_clear() {
+    let dir = TempDir::new().unwrap();
+    let garbage = dir.path().join("garbage.rec");
+    std::fs::write(&garbage, b"these are not the bytes you are looking for").unwrap();
+    let missing = dir.path().join("missing.rec");
+    let unwritable = dir.path().join("no-such-folder").join("out.rec");
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec![], "--scene"),
+        (
+            vec!["--replay".into(), missing.display().to_string()],
+            "reading",
+        ),
+        (
+            vec!["--replay".into(), garbage.display().to_string()],
+            "is not a strata recording",
+        ),
+        (
+            vec![
+                "--scene".into(),
+                "mixed".into(),
+                "--replay".into(),
+                garbage.display().to_string(),
+            ],
+            "cannot be used with",
+        ),
+        (
+            vec![
+                "--scene".into(),
+                "mixed".into(),
+                "--record".into(),
+                unwritable.display().to_string(),
+            ],
+            "creating",
+        ),
+    ];
+    for (args, want) in cases {
+        let out = strata()
+            .args(["node", "--listen", "127.0.0.1:0"])
+            .args(&args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(want), "{args:?}: want {want:?} in {stderr}");
+    }
+    let out = strata()
+        .args(["display", "--scene", "mixed", "--nodes", "127.0.0.1:9"])
+        .args(["--discard", "--save-frames", "--out-dir"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with"));
+}
+
+#[test]
+fn a_recorded_node_replays_to_a_display_and_serves_a_discarding_one() {
+    let dir = TempDir::new().unwrap();
+    let rec = dir.path().join("mixed.rec");
+    let rec_arg = rec.display().to_string();
+    let run = |node: &NodeProcess, extra: &[&str], out: &str| {
+        let out_dir = dir.path().join(out);
+        let o = strata()
+            .args(["display", "--scene", "mixed", "--nodes", &node.addr])
+            .args(["--frames", "3", "--size", "64x36", "--timeout", "20"])
+            .args(extra)
+            .arg("--out-dir")
+            .arg(&out_dir)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{extra:?}: {stdout}{stderr}");
+        let json: Value =
+            serde_json::from_slice(&std::fs::read(out_dir.join("summary.json")).unwrap()).unwrap();
+        (stdout, json)
+    };
+    let (_, live) = {
+        let node = NodeProcess::start_with(&["--scene", "mixed", "--record", &rec_arg]);
+        run(&node, &[], "live")
+    };
+    let replay = NodeProcess::start_with(&["--replay", &rec_arg]);
+    let (_, replayed) = run(&replay, &[], "replayed");
+    // The same frames, bytes and exactness as when the node rendered them.
+    for key in [
+        "bytes_per_frame",
+        "frames_with_bad_pixels",
+        "checked_frames",
+    ] {
+        assert_eq!(live[key], replayed[key], "{key}");
+    }
+    assert_eq!(replayed["checked_frames"], 3);
+    assert_eq!(replayed["frames_with_bad_pixels"], 0);
+    let (stdout, discarded) = run(&replay, &["--discard"], "discarded");
+    assert_eq!(discarded["discarded"], true);
+    assert_eq!(discarded["bytes_per_frame"], live["bytes_per_frame"]);
+    assert_eq!(discarded["decode_ms"], 0.0);
+    assert!(stdout.contains("node rate"), "{stdout}");
+    assert_eq!(live["discarded"], false);
 }
 
 /// `strata display --scene SCENE --nodes NODES --frames FRAMES --size 64x36 --timeout
