@@ -279,6 +279,96 @@ impl DeepFrame {
         })
     }
 
+    /// Builds a frame in one pass over the pixels, for stores whose per-pixel counts cost as much
+    /// as their fragments (a linked list walks a list to count it): `fill(p, out)` pushes pixel
+    /// `p`'s fragments into the empty `out`, in any order (runs are sorted here), for every
+    /// pixel. The result equals [`DeepFrame::build`]'s with the counts `fill` implies.
+    ///
+    /// Tasks of consecutive pixels gather into columns of their own in parallel; the offsets are
+    /// then summed over the tasks' counts and the columns copied into place — one streaming copy
+    /// instead of a second walk over the store.
+    pub fn gather<F>(width: u32, height: u32, fill: F) -> Result<Self, DeepFrameError>
+    where
+        F: Fn(usize, &mut Vec<Fragment>) + Sync,
+    {
+        /// One task's pixels: their counts and their fragments, column by column.
+        #[derive(Default)]
+        struct Gathered {
+            counts: Vec<u32>,
+            depth: Vec<f32>,
+            color: Vec<Rgba8>,
+            object: Vec<ObjectId>,
+        }
+        let pixels = pixel_count(width, height);
+        let gathered: Vec<Gathered> = (0..pixels.div_ceil(PIXELS_PER_TASK))
+            .into_par_iter()
+            .map_init(
+                || Vec::with_capacity(64),
+                |scratch, task| {
+                    let first = task * PIXELS_PER_TASK;
+                    let pixels = first..(first + PIXELS_PER_TASK).min(pixels);
+                    let mut g = Gathered {
+                        counts: Vec::with_capacity(pixels.len()),
+                        ..Gathered::default()
+                    };
+                    for p in pixels {
+                        scratch.clear();
+                        fill(p, scratch);
+                        for f in scratch.iter_mut() {
+                            normalise_depth(&mut f.depth, p)?;
+                        }
+                        sort_front_to_back(scratch);
+                        let n = u32::try_from(scratch.len())
+                            .map_err(|_| DeepFrameError::TooManyFragments(scratch.len() as u64))?;
+                        g.counts.push(n);
+                        g.depth.extend(scratch.iter().map(|f| f.depth));
+                        g.color.extend(scratch.iter().map(|f| f.color));
+                        g.object.extend(scratch.iter().map(|f| f.object));
+                    }
+                    Ok(g)
+                },
+            )
+            .collect::<Result<_, DeepFrameError>>()?;
+        let mut offsets = Vec::with_capacity(pixels + 1);
+        let mut total: u64 = 0;
+        offsets.push(0u32);
+        for &c in gathered.iter().flat_map(|g| &g.counts) {
+            total += u64::from(c);
+            let t = u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
+            offsets.push(t);
+        }
+        let n = total as usize;
+        let mut depth = vec![0f32; n];
+        let mut color = vec![Rgba8::default(); n];
+        let mut object = vec![ObjectId::default(); n];
+        // Each task's columns go to the disjoint slices its pixels own.
+        let mut places = Vec::with_capacity(gathered.len());
+        {
+            let (mut d, mut c, mut o) = (&mut depth[..], &mut color[..], &mut object[..]);
+            for g in &gathered {
+                let len = g.depth.len();
+                let (dh, dt) = std::mem::take(&mut d).split_at_mut(len);
+                let (ch, ct) = std::mem::take(&mut c).split_at_mut(len);
+                let (oh, ot) = std::mem::take(&mut o).split_at_mut(len);
+                places.push((g, dh, ch, oh));
+                (d, c, o) = (dt, ct, ot);
+            }
+        }
+        places.into_par_iter().for_each(|(g, d, c, o)| {
+            d.copy_from_slice(&g.depth);
+            c.copy_from_slice(&g.color);
+            o.copy_from_slice(&g.object);
+        });
+        Ok(DeepFrame {
+            width,
+            height,
+            offsets,
+            depth,
+            color,
+            object,
+        })
+    }
+
     /// Builds a frame from one fragment list per pixel (row-major), sorting each. For tests and
     /// small tools; stores use [`DeepFrame::build`].
     pub fn from_pixel_lists(
@@ -589,6 +679,44 @@ fn normalise_depth(d: &mut f32, pixel: usize) -> Result<(), DeepFrameError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gather_equals_build_across_tasks_and_refuses_what_build_refuses() {
+        // More pixels than one task holds, unsorted runs, empty pixels, -0.0 depths.
+        let (w, h) = (150u32, 120u32);
+        let lists: Vec<Vec<Fragment>> = (0..(w * h) as usize)
+            .map(|p| {
+                (0..(p * 7 + p / 13) % 5)
+                    .map(|k| Fragment {
+                        depth: if k == 0 && p % 3 == 0 {
+                            -0.0
+                        } else {
+                            ((p * 31 + k * 17) % 97) as f32 / 97.0
+                        },
+                        color: Rgba8([k as u8, p as u8, (p >> 8) as u8, 200]),
+                        object: ObjectId((p % 4) as u32),
+                    })
+                    .collect()
+            })
+            .collect();
+        let built = DeepFrame::from_pixel_lists(w, h, &lists).unwrap();
+        let gathered = DeepFrame::gather(w, h, |p, out| out.extend_from_slice(&lists[p])).unwrap();
+        assert_eq!(gathered, built);
+        assert!(gathered.fragment_count() > 20_000);
+        let nan = DeepFrame::gather(w, h, |p, out| {
+            out.extend_from_slice(&lists[p]);
+            if p == 12_345 {
+                out.push(Fragment {
+                    depth: f32::NAN,
+                    ..lists[1][0]
+                });
+            }
+        });
+        assert!(
+            matches!(nan, Err(DeepFrameError::BadDepth { index: 12_345, .. })),
+            "{nan:?}"
+        );
+    }
 
     fn frag(depth: f32, rgba: [u8; 4], object: u32) -> Fragment {
         Fragment {

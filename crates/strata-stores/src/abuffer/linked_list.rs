@@ -153,12 +153,10 @@ impl LinkedListABuffer {
         if !rect.fits(self.width, self.height) {
             return None;
         }
-        let counts = self.counts_in(rect);
-        let inside: u64 = counts.iter().map(|&c| u64::from(c)).sum();
-        if inside != self.stored.load(Relaxed) {
-            return None;
+        match self.export(rect) {
+            Ok(f) if f.fragment_count() as u64 != self.stored.load(Relaxed) => None,
+            exported => Some(exported),
         }
-        Some(self.export(rect, &counts))
     }
 
     /// The fragments of rows `rows` (full width), as a frame of the band's size, whatever the
@@ -176,22 +174,15 @@ impl LinkedListABuffer {
             height: rows.end.checked_sub(rows.start)?,
         };
         rect.fits(self.width, self.height)
-            .then(|| self.export(rect, &self.counts_in(rect)))
+            .then(|| self.export(rect))
     }
 
-    /// Fragments per pixel of `rect` (row-major within it).
-    fn counts_in(&self, rect: PixelRect) -> Vec<u32> {
+    /// The pixels of `rect` as a frame of the rectangle's size: one walk of each list
+    /// ([`DeepFrame::gather`]) — walking them once to count and again to copy cost as much as
+    /// the capture's scan on the dragon.
+    fn export(&self, rect: PixelRect) -> Result<DeepFrame, DeepFrameError> {
         let width = self.width;
-        (0..rect.pixel_count())
-            .into_par_iter()
-            .map(|q| self.list(rect.frame_index(q, width)).count() as u32)
-            .collect()
-    }
-
-    /// The pixels of `rect`, holding `counts`, as a frame of the rectangle's size.
-    fn export(&self, rect: PixelRect, counts: &[u32]) -> Result<DeepFrame, DeepFrameError> {
-        let width = self.width;
-        DeepFrame::build(rect.width, rect.height, counts, |q, out| {
+        DeepFrame::gather(rect.width, rect.height, |q, out| {
             out.extend(self.list(rect.frame_index(q, width)));
         })
     }
@@ -510,7 +501,7 @@ impl Method for LinkedListABuffer {
 
     fn deep_frame(&self) -> Option<Result<DeepFrame, DeepFrameError>> {
         let all = PixelRect::full(self.width, self.height);
-        Some(self.export(all, &self.counts_in(all)))
+        Some(self.export(all))
     }
 }
 
