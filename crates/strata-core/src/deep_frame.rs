@@ -205,35 +205,22 @@ impl DeepFrame {
                 found: counts.len() as u64,
             });
         }
-        let mut offsets = Vec::with_capacity(pixels + 1);
-        let mut total: u64 = 0;
-        offsets.push(0u32);
-        for &c in counts {
-            total += u64::from(c);
-            let t = u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
-            offsets.push(t);
-        }
-        let n = total as usize;
-        let mut depth = vec![0f32; n];
-        let mut color = vec![Rgba8::default(); n];
-        let mut object = vec![ObjectId::default(); n];
-
+        let offsets = offsets_of(counts.iter().copied(), pixels)?;
+        let (mut depth, mut color, mut object) = columns(offsets[pixels] as usize);
         // Cut the columns at pixel-chunk boundaries so every task owns disjoint slices.
-        let mut tasks = Vec::with_capacity(pixels / PIXELS_PER_TASK + 1);
-        {
-            let (mut d, mut c, mut o) = (&mut depth[..], &mut color[..], &mut object[..]);
-            let mut p0 = 0;
-            while p0 < pixels {
-                let p1 = (p0 + PIXELS_PER_TASK).min(pixels);
-                let len = (offsets[p1] - offsets[p0]) as usize;
-                let (dh, dt) = std::mem::take(&mut d).split_at_mut(len);
-                let (ch, ct) = std::mem::take(&mut c).split_at_mut(len);
-                let (oh, ot) = std::mem::take(&mut o).split_at_mut(len);
-                tasks.push((p0..p1, dh, ch, oh));
-                (d, c, o) = (dt, ct, ot);
-                p0 = p1;
-            }
-        }
+        let chunks: Vec<std::ops::Range<usize>> = (0..pixels)
+            .step_by(PIXELS_PER_TASK)
+            .map(|p0| p0..(p0 + PIXELS_PER_TASK).min(pixels))
+            .collect();
+        let lens = chunks
+            .iter()
+            .map(|r| (offsets[r.end] - offsets[r.start]) as usize);
+        let slices = split_columns((&mut depth, &mut color, &mut object), lens);
+        let tasks: Vec<_> = chunks
+            .into_iter()
+            .zip(slices)
+            .map(|(r, (d, c, o))| (r, d, c, o))
+            .collect();
         let offsets_ref = &offsets;
         tasks.into_par_iter().try_for_each_init(
             || Vec::with_capacity(64),
@@ -329,32 +316,14 @@ impl DeepFrame {
                 },
             )
             .collect::<Result<_, DeepFrameError>>()?;
-        let mut offsets = Vec::with_capacity(pixels + 1);
-        let mut total: u64 = 0;
-        offsets.push(0u32);
-        for &c in gathered.iter().flat_map(|g| &g.counts) {
-            total += u64::from(c);
-            let t = u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
-            offsets.push(t);
-        }
-        let n = total as usize;
-        let mut depth = vec![0f32; n];
-        let mut color = vec![Rgba8::default(); n];
-        let mut object = vec![ObjectId::default(); n];
+        let counts = gathered.iter().flat_map(|g| g.counts.iter().copied());
+        let offsets = offsets_of(counts, pixels)?;
+        let (mut depth, mut color, mut object) = columns(offsets[pixels] as usize);
         // Each task's columns go to the disjoint slices its pixels own.
-        let mut places = Vec::with_capacity(gathered.len());
-        {
-            let (mut d, mut c, mut o) = (&mut depth[..], &mut color[..], &mut object[..]);
-            for g in &gathered {
-                let len = g.depth.len();
-                let (dh, dt) = std::mem::take(&mut d).split_at_mut(len);
-                let (ch, ct) = std::mem::take(&mut c).split_at_mut(len);
-                let (oh, ot) = std::mem::take(&mut o).split_at_mut(len);
-                places.push((g, dh, ch, oh));
-                (d, c, o) = (dt, ct, ot);
-            }
-        }
-        places.into_par_iter().for_each(|(g, d, c, o)| {
+        let lens = gathered.iter().map(|g| g.depth.len());
+        let slices = split_columns((&mut depth, &mut color, &mut object), lens);
+        let places: Vec<_> = gathered.iter().zip(slices).collect();
+        places.into_par_iter().for_each(|(g, (d, c, o))| {
             d.copy_from_slice(&g.depth);
             c.copy_from_slice(&g.color);
             o.copy_from_slice(&g.object);
@@ -660,6 +629,51 @@ fn first_failing(
 
 fn valid_depth(d: f32) -> bool {
     (0.0..=1.0).contains(&d) && !(d == 0.0 && d.is_sign_negative())
+}
+
+/// The offsets of runs of `counts` fragments (`pixels` of them): `[0, c0, c0 + c1, …]`, refusing
+/// a total beyond `u32`.
+fn offsets_of(
+    counts: impl Iterator<Item = u32>,
+    pixels: usize,
+) -> Result<Vec<u32>, DeepFrameError> {
+    let mut offsets = Vec::with_capacity(pixels + 1);
+    let mut total: u64 = 0;
+    offsets.push(0u32);
+    for c in counts {
+        total += u64::from(c);
+        let t = u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
+        offsets.push(t);
+    }
+    Ok(offsets)
+}
+
+/// The three columns of `n` fragments, zeroed.
+fn columns(n: usize) -> (Vec<f32>, Vec<Rgba8>, Vec<ObjectId>) {
+    (
+        vec![0f32; n],
+        vec![Rgba8::default(); n],
+        vec![ObjectId::default(); n],
+    )
+}
+
+/// Mutable column slices to fill in parallel: consecutive pieces of `lens` fragments each.
+type ColumnSlices<'a> = (&'a mut [f32], &'a mut [Rgba8], &'a mut [ObjectId]);
+
+/// Cuts the columns into consecutive disjoint pieces of `lens` fragments.
+fn split_columns<'a>(
+    (depth, color, object): (&'a mut [f32], &'a mut [Rgba8], &'a mut [ObjectId]),
+    lens: impl Iterator<Item = usize>,
+) -> Vec<ColumnSlices<'a>> {
+    let (mut d, mut c, mut o) = (depth, color, object);
+    lens.map(|len| {
+        let (dh, dt) = std::mem::take(&mut d).split_at_mut(len);
+        let (ch, ct) = std::mem::take(&mut c).split_at_mut(len);
+        let (oh, ot) = std::mem::take(&mut o).split_at_mut(len);
+        (d, c, o) = (dt, ct, ot);
+        (dh, ch, oh)
+    })
+    .collect()
 }
 
 fn normalise_depth(d: &mut f32, pixel: usize) -> Result<(), DeepFrameError> {

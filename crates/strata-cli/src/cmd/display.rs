@@ -237,9 +237,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
         },
         limits: DecodeOptions::default(),
     };
-    if args.discard {
-        let result = strata_remote::sink::discard(config)?;
-        let mut summary = Summary::new(
+    let summary = |incidents, per_frame| {
+        Summary::new(
             scene.name.clone(),
             width,
             height,
@@ -247,9 +246,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
             args.codec.to_string(),
             args.nodes.clone(),
             args.threshold,
-            result.incidents,
-            result.per_frame,
-        );
+            incidents,
+            per_frame,
+        )
+    };
+    if args.discard {
+        let result = strata_remote::sink::discard(config)?;
+        let mut summary = summary(result.incidents, result.per_frame);
         summary.discarded = true;
         return report(&summary, args.out_dir.as_deref());
     }
@@ -285,18 +288,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
             args.threshold,
         )?;
     }
-    let summary = Summary::new(
-        scene.name.clone(),
-        width,
-        height,
-        transfer_label(t, tolerance),
-        args.codec.to_string(),
-        args.nodes.clone(),
-        args.threshold,
-        result.incidents,
-        per_frame,
-    );
-    report(&summary, args.out_dir.as_deref())
+    report(
+        &summary(result.incidents, per_frame),
+        args.out_dir.as_deref(),
+    )
 }
 
 /// Prints the summary, writes it into `out_dir`, and turns its outcome into the exit status.
