@@ -279,7 +279,6 @@ impl DeepFrame {
         F: Fn(usize, &mut Vec<Fragment>) + Sync,
     {
         /// One task's pixels: their counts and their fragments, column by column.
-        #[derive(Default)]
         struct Gathered {
             counts: Vec<u32>,
             depth: Vec<f32>,
@@ -294,9 +293,12 @@ impl DeepFrame {
                 |scratch, task| {
                     let first = task * PIXELS_PER_TASK;
                     let pixels = first..(first + PIXELS_PER_TASK).min(pixels);
+                    // Room for a fragment a pixel: most tasks never grow.
                     let mut g = Gathered {
                         counts: Vec::with_capacity(pixels.len()),
-                        ..Gathered::default()
+                        depth: Vec::with_capacity(pixels.len()),
+                        color: Vec::with_capacity(pixels.len()),
+                        object: Vec::with_capacity(pixels.len()),
                     };
                     for p in pixels {
                         scratch.clear();
@@ -320,9 +322,10 @@ impl DeepFrame {
         let offsets = offsets_of(counts, pixels)?;
         let (mut depth, mut color, mut object) = columns(offsets[pixels] as usize);
         // Each task's columns go to the disjoint slices its pixels own.
-        let lens = gathered.iter().map(|g| g.depth.len());
-        let slices = split_columns((&mut depth, &mut color, &mut object), lens);
-        let places: Vec<_> = gathered.iter().zip(slices).collect();
+        let lens: Vec<usize> = gathered.iter().map(|g| g.depth.len()).collect();
+        let slices = split_columns((&mut depth, &mut color, &mut object), lens.into_iter());
+        // Consumed, so each task's columns are freed as soon as they are in place.
+        let places: Vec<_> = gathered.into_iter().zip(slices).collect();
         places.into_par_iter().for_each(|(g, (d, c, o))| {
             d.copy_from_slice(&g.depth);
             c.copy_from_slice(&g.color);

@@ -138,22 +138,24 @@ impl Recorder {
     /// Appends one exchange: `request` and the `reply` the node sent (its frame message and
     /// stats message).
     pub fn record(&self, request: &Request, reply: &[u8]) -> Result<(), RecordingError> {
-        let mut bytes = Vec::with_capacity(256 + reply.len());
+        let mut req = Vec::with_capacity(256);
         request
-            .encode_into(&mut bytes)
+            .encode_into(&mut req)
             .map_err(|source| RecordingError::Encode {
                 path: self.path.clone(),
                 source,
             })?;
-        bytes.extend_from_slice(reply);
         // A poisoned lock only means another connection panicked mid-write; the file is what
         // it is, and the loader reports a torn exchange.
         let mut file = self.file.lock().unwrap_or_else(|e| e.into_inner());
-        file.write_all(&bytes).map_err(|source| RecordingError::Io {
-            what: "writing",
-            path: self.path.clone(),
-            source,
-        })
+        // The reply goes straight from the node's buffer to the file, uncopied.
+        file.write_all(&req)
+            .and_then(|()| file.write_all(reply))
+            .map_err(|source| RecordingError::Io {
+                what: "writing",
+                path: self.path.clone(),
+                source,
+            })
     }
 }
 
@@ -233,7 +235,7 @@ impl Recording {
                         format!(
                             "{expected} of {} bytes, but only {} bytes are left (the file was \
                              cut short, perhaps while the node was writing it)",
-                            prefix.body_len + PREFIX_LEN as u64,
+                            prefix.body_len.saturating_add(PREFIX_LEN as u64),
                             rest.len()
                         ),
                     )
@@ -264,19 +266,23 @@ impl Recording {
             let stats = expect(frame.end, MessageType::Stats, "the reply's stats")?;
             let decoded = NodeStats::decode(&bytes[stats.clone()], limits)
                 .map_err(|e| malformed(stats.start, format!("the reply's stats: {e}")))?;
-            if decoded.frame_number != request.frame_number {
+            let fixup = matches!(request.kind, RequestKind::Fixup(_));
+            if decoded.frame_number != request.frame_number || decoded.fixup != fixup {
                 return Err(malformed(
                     stats.start,
                     format!(
-                        "stats of frame {} answer a request for frame {}",
-                        decoded.frame_number, request.frame_number
+                        "stats of frame {} (fixup: {}) answer a request for frame {} (fixup: {fixup})",
+                        decoded.frame_number, decoded.fixup, request.frame_number
                     ),
                 ));
             }
+            // Keyed as `reply` looks requests up: decoded and encoded again.
+            let mut key = Vec::new();
+            request
+                .encode_into(&mut key)
+                .map_err(|e| malformed(req.start, format!("a request: {e}")))?;
             // The first answer to a request stands (a repeated run answers it identically).
-            replies
-                .entry(bytes[req.clone()].to_vec())
-                .or_insert(frame.start..stats.end);
+            replies.entry(key).or_insert(frame.start..stats.end);
             exchanges += 1;
             at = stats.end;
         }

@@ -1,8 +1,13 @@
-//! A display that discards: it asks the nodes for frames exactly as the display does and drops
-//! every message as soon as its last byte has arrived — no decoding, merging or resolving — so
-//! the rate it measures is the nodes' own (render, select and encode overlapped) plus the
-//! socket. It is how a node is measured alone on a machine too small to host a node and a real
-//! display side by side (the "null display").
+//! A display that discards: it asks the nodes for frames as the display does and drops every
+//! message as soon as its last byte has arrived — no decoding, merging or resolving — so the
+//! rate it measures is the nodes' own (render, select and encode overlapped) plus the socket.
+//! It is how a node is measured alone on a machine too small to host a node and a real display
+//! side by side.
+//!
+//! It sends the display's render requests, not its fixup requests: under the difference and
+//! reprojection transfers with nodes whose objects overlap on screen, the display also asks
+//! for exact runs of the shared pixels after each frame, and that work of the nodes is left
+//! out here. With one node, or nodes that do not overlap, the requests are the display's.
 //!
 //! # Tasks
 //!
@@ -15,8 +20,8 @@
 //! Each node gets its own task and keeps `in_flight` requests outstanding, as the display's
 //! driver does; a node is never waited for by another. A node that fails (refuses, stalls past
 //! the timeout, reports an error, serves another scene) is recorded as an incident and misses
-//! the rest of the run; there is no reconnection, because a benchmark with a reconnect in it
-//! measures the reconnect.
+//! the rest of the run, its frames counted as dropped whatever `on_fault` says; there is no
+//! reconnection, because a benchmark with a reconnect in it measures the reconnect.
 //!
 //! The frames' [`FrameStats`] are the display's, with nothing on the display's side: decode,
 //! merge and resolve are 0, and a frame's interval is the time between the arrivals of the last
@@ -122,7 +127,8 @@ async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Dr
         let frame = first + t as u64;
         while sent < requests.len() && sent < t + config.in_flight {
             if let Err(e) = wr.write_all(&requests[sent]).await {
-                return stop(got, frame, format!("sending a request: {e}"));
+                let what = format!("sending the request for frame {}: {e}", first + sent as u64);
+                return stop(got, frame, what);
             }
             sent += 1;
         }

@@ -133,11 +133,11 @@ impl Observer for Keep {
     }
 }
 
-/// A fresh path in the system's temporary folder for this test.
-fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("strata-stages-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A temporary folder, removed when dropped, and a path in it.
+fn temp(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::TempDir::new().unwrap();
+    let path = dir.path().join(name);
+    (dir, path)
 }
 
 #[test]
@@ -161,8 +161,6 @@ fn a_discarding_display_receives_every_frame_of_every_node_in_order() {
             assert_eq!(n.status, NodeStatus::Ok);
             assert!(n.bytes > 0 && n.render_ms > 0.0);
             assert_eq!(n.fragments_sent, n.fragments_rendered);
-            // Nothing on the display's side ran.
-            assert_eq!((n.decode_ms, f.merge_ms, f.resolve_ms), (0.0, 0.0, 0.0));
         }
     }
     assert!(r.per_frame[1..].iter().all(|f| f.interval_ms > 0.0));
@@ -197,7 +195,8 @@ fn a_discarding_display_reports_a_node_that_is_not_there_and_keeps_the_others() 
 /// must compose the same frames from the same bytes.
 fn record_then_replay(transfer: Transfer, frames: u64, tag: &str) {
     let s = scene();
-    let paths = [temp(&format!("{tag}-a.rec")), temp(&format!("{tag}-b.rec"))];
+    let (_dir, a) = temp(&format!("{tag}-a.rec"));
+    let paths = [a.clone(), a.with_file_name(format!("{tag}-b.rec"))];
     // The torus (1) pierces the cube (0) and the glass sphere (4): the nodes overlap.
     let live = (
         Service::node(&s, &[0, 3], Some(&paths[0])),
@@ -242,9 +241,6 @@ fn record_then_replay(transfer: Transfer, frames: u64, tag: &str) {
             "overlapping nodes need fixups, and the replay must answer them"
         );
     }
-    for p in &paths {
-        let _ = std::fs::remove_file(p);
-    }
 }
 
 #[test]
@@ -260,7 +256,7 @@ fn a_replayed_difference_transfer_with_fixups_composes_the_recorded_frames() {
 #[test]
 fn a_replaying_node_answers_what_it_did_not_record_with_an_error_that_says_so() {
     let s = scene();
-    let path = temp("short.rec");
+    let (_dir, path) = temp("short.rec");
     {
         let live = Service::node(&s, &[0, 1, 2, 3, 4], Some(&path));
         let r = display::run(config(&s, &[&live], Transfer::Full, 2), &mut ()).unwrap();
@@ -280,21 +276,23 @@ fn a_replaying_node_answers_what_it_did_not_record_with_an_error_that_says_so() 
     other_size.width = W + 1;
     let r = display::run(other_size, &mut ()).unwrap();
     assert_ne!(r.per_frame[0].nodes[0].status, NodeStatus::Ok);
-    let _ = std::fs::remove_file(&path);
+    let what = &r.incidents.first().expect("an incident").what;
+    assert!(
+        what.contains(&format!("holds no answer to the request for frame 0 (render (reset), Full, codec deep-lz4, {}x{H}", W + 1)),
+        "{what}"
+    );
 }
 
 /// A recording of two frames of the full transfer, as bytes.
 fn small_recording() -> Vec<u8> {
     let s = scene();
-    let path = temp("small.rec");
+    let (_dir, path) = temp("small.rec");
     {
         let live = Service::node(&s, &[0, 1], Some(&path));
         let r = display::run(config(&s, &[&live], Transfer::Full, 2), &mut ()).unwrap();
         assert!(r.incidents.is_empty());
     }
-    let bytes = std::fs::read(&path).unwrap();
-    let _ = std::fs::remove_file(&path);
-    bytes
+    std::fs::read(&path).unwrap()
 }
 
 #[test]

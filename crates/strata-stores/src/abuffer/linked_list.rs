@@ -154,8 +154,12 @@ impl LinkedListABuffer {
             return None;
         }
         match self.export(rect) {
-            Ok(f) if f.fragment_count() as u64 != self.stored.load(Relaxed) => None,
-            exported => Some(exported),
+            Ok(f) if f.fragment_count() as u64 == self.stored.load(Relaxed) => Some(Ok(f)),
+            // Fragments outside: the caller exports the whole frame.
+            Ok(_) => None,
+            // A bad fragment inside is the frame's error only when the rectangle is the frame;
+            // otherwise the whole export reports it, with the frame's pixel index.
+            Err(e) => (rect == PixelRect::full(self.width, self.height)).then_some(Err(e)),
         }
     }
 
