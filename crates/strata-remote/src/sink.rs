@@ -60,33 +60,18 @@ struct Drained {
 pub fn discard(config: DisplayConfig) -> Result<RunResult, DisplayError> {
     check_config(&config)?;
     let camera = request_camera(&config);
-    // Every request of the run, encoded before anything is timed.
-    let mut requests = Vec::with_capacity(config.nodes.len());
+    // A request that cannot be encoded is refused before anything connects; the rest are
+    // encoded as they are sent, so a long run holds no more than its statistics.
     for node in 0..config.nodes.len() {
-        let end = config.first_frame + config.frames;
-        let per_node = (config.first_frame..end)
-            .map(|t| {
-                let reset = t == config.first_frame;
-                encode_request(
-                    &config,
-                    (&camera.0, &camera.1),
-                    t,
-                    node,
-                    RequestKind::Render { reset },
-                )
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        requests.push(per_node);
+        request(&config, &camera, config.first_frame, node)?;
     }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()?;
     let drained: Vec<Drained> = runtime.block_on(async {
-        let tasks: Vec<_> = requests
-            .into_iter()
-            .enumerate()
-            .map(|(i, r)| tokio::spawn(drain(config.clone(), i, r)))
+        let tasks: Vec<_> = (0..config.nodes.len())
+            .map(|i| tokio::spawn(drain(config.clone(), camera, i)))
             .collect();
         let mut out = Vec::with_capacity(tasks.len());
         for (i, task) in tasks.into_iter().enumerate() {
@@ -100,9 +85,27 @@ pub fn discard(config: DisplayConfig) -> Result<RunResult, DisplayError> {
     Ok(result(&config, drained))
 }
 
+/// Node `node`'s render request for frame `t` of the run, encoded.
+fn request(
+    config: &DisplayConfig,
+    (view, projection): &([f32; 16], [f32; 16]),
+    t: u64,
+    node: usize,
+) -> Result<Vec<u8>, DisplayError> {
+    let reset = t == config.first_frame;
+    encode_request(
+        config,
+        (view, projection),
+        t,
+        node,
+        RequestKind::Render { reset },
+    )
+}
+
 /// One node: connect, keep `in_flight` requests outstanding, read and drop every frame.
-async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Drained {
-    let mut got: Vec<Option<Got>> = Vec::with_capacity(requests.len());
+async fn drain(config: DisplayConfig, camera: ([f32; 16], [f32; 16]), node: usize) -> Drained {
+    let frames = config.frames as usize;
+    let mut got: Vec<Option<Got>> = Vec::new();
     let first = config.first_frame;
     let stop = |got: Vec<Option<Got>>, t: u64, what: String| Drained {
         got,
@@ -123,10 +126,14 @@ async fn drain(config: DisplayConfig, node: usize, requests: Vec<Vec<u8>>) -> Dr
     let mut sent = 0;
     // Each message is read into the last one's memory, as a display does.
     let mut buffer = Vec::new();
-    for t in 0..requests.len() {
+    for t in 0..frames {
         let frame = first + t as u64;
-        while sent < requests.len() && sent < t + config.in_flight {
-            if let Err(e) = wr.write_all(&requests[sent]).await {
+        while sent < frames && sent < t.saturating_add(config.in_flight) {
+            let bytes = match request(&config, &camera, first + sent as u64, node) {
+                Ok(b) => b,
+                Err(e) => return stop(got, frame, format!("encoding a request: {e}")),
+            };
+            if let Err(e) = wr.write_all(&bytes).await {
                 let what = format!("sending the request for frame {}: {e}", first + sent as u64);
                 return stop(got, frame, what);
             }
