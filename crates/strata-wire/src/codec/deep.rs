@@ -457,12 +457,13 @@ pub(crate) fn decode(
             .into_par_iter()
             .for_each(|(band, residuals, out)| decode_band(&offsets, w, band, &residuals, out));
     }
-    let depth = bits.into_iter().map(f32::from_bits).collect();
-    let color = colors.into_iter().map(Rgba8).collect();
-    let object = objects.into_iter().map(ObjectId).collect();
-    Ok(DeepFrame::from_parts(
-        width, height, offsets, depth, color, object,
-    )?)
+    Columns {
+        offsets,
+        bits,
+        colors,
+        objects,
+    }
+    .into_frame(width, height)
 }
 
 /// The four planes of `n` bytes of `v` (whose length the caller checked).

@@ -379,6 +379,28 @@ pub(crate) struct Columns {
     pub(crate) objects: Vec<u32>,
 }
 
+impl Columns {
+    /// The frame these columns hold, its invariants checked: the inverse of
+    /// [`Scratch::recycle`], converting in place (the allocations become the frame's columns).
+    pub(crate) fn into_frame(self, width: u32, height: u32) -> Result<DeepFrame, WireError> {
+        let depth = self.bits.into_iter().map(f32::from_bits).collect();
+        let color = self.colors.into_iter().map(strata_core::Rgba8).collect();
+        let object = self
+            .objects
+            .into_iter()
+            .map(strata_core::ObjectId)
+            .collect();
+        Ok(DeepFrame::from_parts(
+            width,
+            height,
+            self.offsets,
+            depth,
+            color,
+            object,
+        )?)
+    }
+}
+
 impl Scratch {
     /// Keeps `frame`'s allocations for the next decode (the conversions reuse them in place).
     pub(crate) fn recycle(&mut self, frame: DeepFrame) {

@@ -14,7 +14,7 @@
 //! count and the node's third word carries the object id instead of the link — the same 4 + 12
 //! bytes the thesis sends (before its driver pads nodes to 16).
 
-use strata_core::{DeepFrame, ObjectId, Rgba8};
+use strata_core::DeepFrame;
 
 use crate::codec::Columns;
 use crate::error::WireError;
@@ -110,10 +110,11 @@ pub(crate) fn decode(
         objects.push(u32::from_le_bytes([node[8], node[9], node[10], node[11]]));
     }
     // In place: the allocations become the frame's columns.
-    let depth = bits.into_iter().map(f32::from_bits).collect();
-    let color = colors.into_iter().map(Rgba8).collect();
-    let object = objects.into_iter().map(ObjectId).collect();
-    Ok(DeepFrame::from_parts(
-        width, height, offsets, depth, color, object,
-    )?)
+    Columns {
+        offsets,
+        bits,
+        colors,
+        objects,
+    }
+    .into_frame(width, height)
 }
