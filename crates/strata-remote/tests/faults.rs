@@ -20,9 +20,9 @@ use strata_wire::{
     decode_error, decode_frame, encode_frame, encode_reprojection_into, parse_prefix,
 };
 
-fn scene() -> Arc<Scene> {
-    Arc::new(open_scene("mixed", &SearchPath::new([])).expect("built-in scene"))
-}
+mod common;
+
+use common::{mixed as scene, node_config, serve_at};
 
 /// A real node for objects 0 and 1 on a loopback port.
 fn real_node(scene: &Arc<Scene>) -> (String, tokio::runtime::Runtime) {
@@ -31,28 +31,8 @@ fn real_node(scene: &Arc<Scene>) -> (String, tokio::runtime::Runtime) {
 
 /// A real node for `objects` (indices) of `scene` on a loopback port.
 fn real_node_for(scene: &Arc<Scene>, objects: &[usize]) -> (String, tokio::runtime::Runtime) {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
-    let l = TcpListener::bind("127.0.0.1:0").unwrap();
-    l.set_nonblocking(true).unwrap();
-    let addr = l.local_addr().unwrap().to_string();
-    let listener = {
-        let _g = runtime.enter();
-        tokio::net::TcpListener::from_std(l).unwrap()
-    };
-    let config = NodeConfig {
-        scene: scene.clone(),
-        objects: objects.iter().map(|&i| scene.objects[i].id).collect(),
-        method: "abuffer".into(),
-        method_options: MethodOptions::default(),
-        limits: DecodeOptions::default(),
-        record: None,
-    };
-    runtime.spawn(serve(listener, config, |_| {}));
-    (addr, runtime)
+    let config = node_config(scene, objects);
+    serve_at("127.0.0.1:0", move |l| serve(l, config, |_| {}))
 }
 
 /// A fake node: greets every connection properly, then does `then` with the socket.

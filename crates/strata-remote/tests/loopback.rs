@@ -4,7 +4,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use strata_core::{ObjectId, Rgb8Image};
+use strata_core::Rgb8Image;
 use strata_raster::Rasterizer;
 use strata_remote::Transfer;
 use strata_remote::display::{self, DisplayConfig, Observer, OnFault};
@@ -12,22 +12,16 @@ use strata_remote::merge::merge_resolve;
 use strata_remote::node::{NodeConfig, serve};
 use strata_remote::reference::{exact_frame, exact_image};
 use strata_remote::report::{FrameStats, NodeIncident, NodeStatus};
-use strata_scene::{Animation, Scene, SearchPath, open_scene};
+use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
-use strata_wire::{Codec, DecodeOptions};
+use strata_wire::DecodeOptions;
 
 const W: u32 = 256;
 const H: u32 = 144;
 
-/// `mixed` (opaque and translucent objects intersecting), turning 5° per frame.
-fn scene() -> Arc<Scene> {
-    let mut s = open_scene("mixed", &SearchPath::new([])).expect("built-in scene");
-    s.animation = Some(Animation {
-        frames: 72,
-        rotate_deg_per_frame: glam::Vec3::new(0.0, 5.0, 0.0),
-    });
-    Arc::new(s)
-}
+mod common;
+
+use common::{display_config, node_config, serve_at, turning_mixed as scene};
 
 /// A node serving `objects` (indices) of the scene on a loopback port, alive until dropped.
 struct Node {
@@ -41,29 +35,8 @@ impl Node {
     }
 
     fn start_at(scene: &Arc<Scene>, objects: &[usize], addr: &str) -> Node {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .unwrap();
-        // Bound without block_on, so a node can be started from inside the display's observer.
-        let std_listener = std::net::TcpListener::bind(addr).unwrap();
-        std_listener.set_nonblocking(true).unwrap();
-        let listener = {
-            let _guard = runtime.enter();
-            tokio::net::TcpListener::from_std(std_listener).unwrap()
-        };
-        let addr = listener.local_addr().unwrap().to_string();
-        let ids: Vec<ObjectId> = objects.iter().map(|&i| scene.objects[i].id).collect();
-        let config = NodeConfig {
-            scene: scene.clone(),
-            objects: ids,
-            method: "abuffer".into(),
-            method_options: MethodOptions::default(),
-            limits: DecodeOptions::default(),
-            record: None,
-        };
-        runtime.spawn(serve(listener, config, |_| {}));
+        let config = node_config(scene, objects);
+        let (addr, runtime) = serve_at(addr, move |l| serve(l, config, |_| {}));
         Node {
             addr,
             runtime: Some(runtime),
@@ -85,21 +58,8 @@ impl Drop for Node {
 }
 
 fn config(scene: &Arc<Scene>, nodes: &[&Node], transfer: Transfer, frames: u64) -> DisplayConfig {
-    DisplayConfig {
-        scene: scene.clone(),
-        nodes: nodes.iter().map(|n| n.addr.clone()).collect(),
-        transfer,
-        codec: Codec::ALL[3],
-        tolerance: 0,
-        first_frame: 0,
-        frames,
-        width: W,
-        height: H,
-        in_flight: 2,
-        timeout: Duration::from_secs(10),
-        on_fault: OnFault::Hold,
-        limits: DecodeOptions::default(),
-    }
+    let nodes = nodes.iter().map(|n| n.addr.clone()).collect();
+    display_config(scene, nodes, transfer, frames, (W, H))
 }
 
 /// Keeps every frame's image.

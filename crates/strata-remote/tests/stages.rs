@@ -10,33 +10,26 @@ use std::time::Duration;
 use strata_core::Rgb8Image;
 use strata_raster::Rasterizer;
 use strata_remote::Transfer;
-use strata_remote::display::{self, DisplayConfig, Observer, OnFault};
-use strata_remote::node::{NodeConfig, serve};
+use strata_remote::display::{self, DisplayConfig, Observer};
+use strata_remote::node::serve;
 use strata_remote::recording::{Recorder, Recording, RecordingError, serve_recording};
 use strata_remote::reference::{exact_frame, exact_image};
 use strata_remote::report::{FrameStats, NodeStatus};
 use strata_remote::sink;
-use strata_scene::{Animation, Scene, SearchPath, open_scene};
-use strata_stores::MethodOptions;
-use strata_wire::{Codec, DecodeOptions};
+use strata_scene::Scene;
+use strata_wire::DecodeOptions;
 
 const W: u32 = 192;
 const H: u32 = 108;
 
-/// `mixed` (opaque and translucent objects intersecting), turning 5° per frame.
-fn scene() -> Arc<Scene> {
-    let mut s = open_scene("mixed", &SearchPath::new([])).expect("built-in scene");
-    s.animation = Some(Animation {
-        frames: 72,
-        rotate_deg_per_frame: glam::Vec3::new(0.0, 5.0, 0.0),
-    });
-    Arc::new(s)
-}
+mod common;
+
+use common::{display_config, node_config, serve_at, turning_mixed as scene};
 
 /// A service on a loopback port, alive until dropped.
 struct Service {
     addr: String,
-    runtime: tokio::runtime::Runtime,
+    runtime: Option<tokio::runtime::Runtime>,
 }
 
 impl Service {
@@ -45,32 +38,16 @@ impl Service {
         F: FnOnce(tokio::net::TcpListener) -> Fut,
         Fut: std::future::Future<Output = std::io::Result<()>> + Send + 'static,
     {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .unwrap();
-        let std_listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        std_listener.set_nonblocking(true).unwrap();
-        let listener = {
-            let _guard = runtime.enter();
-            tokio::net::TcpListener::from_std(std_listener).unwrap()
-        };
-        let addr = listener.local_addr().unwrap().to_string();
-        runtime.spawn(serve_on(listener));
-        Service { addr, runtime }
+        let (addr, runtime) = serve_at("127.0.0.1:0", serve_on);
+        Service {
+            addr,
+            runtime: Some(runtime),
+        }
     }
 
     /// A render node serving `objects` (indices) of the scene, recording into `record`.
     fn node(scene: &Arc<Scene>, objects: &[usize], record: Option<&Path>) -> Service {
-        let mut config = NodeConfig {
-            scene: scene.clone(),
-            objects: objects.iter().map(|&i| scene.objects[i].id).collect(),
-            method: "abuffer".into(),
-            method_options: MethodOptions::default(),
-            limits: DecodeOptions::default(),
-            record: None,
-        };
+        let mut config = node_config(scene, objects);
         if let Some(path) = record {
             config.record = Some(Arc::new(Recorder::create(path, &config.hello()).unwrap()));
         }
@@ -88,13 +65,9 @@ impl Service {
 impl Drop for Service {
     fn drop(&mut self) {
         // Nothing to wait for: the connections go with the runtime.
-        let rt = std::mem::replace(
-            &mut self.runtime,
-            tokio::runtime::Builder::new_current_thread()
-                .build()
-                .unwrap(),
-        );
-        rt.shutdown_background();
+        if let Some(r) = self.runtime.take() {
+            r.shutdown_background();
+        }
     }
 }
 
@@ -104,21 +77,8 @@ fn config(
     transfer: Transfer,
     frames: u64,
 ) -> DisplayConfig {
-    DisplayConfig {
-        scene: scene.clone(),
-        nodes: nodes.iter().map(|n| n.addr.clone()).collect(),
-        transfer,
-        codec: Codec::ALL[3],
-        tolerance: 0,
-        first_frame: 0,
-        frames,
-        width: W,
-        height: H,
-        in_flight: 2,
-        timeout: Duration::from_secs(10),
-        on_fault: OnFault::Hold,
-        limits: DecodeOptions::default(),
-    }
+    let nodes = nodes.iter().map(|n| n.addr.clone()).collect();
+    display_config(scene, nodes, transfer, frames, (W, H))
 }
 
 /// Keeps every frame's image.
