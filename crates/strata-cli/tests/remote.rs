@@ -192,14 +192,7 @@ fn node_errors_are_clear() {
         (&["--scene", "no-such-scene"], "no-such-scene"),
     ];
     for (args, want) in cases {
-        let out = strata()
-            .args(["node", "--listen", "127.0.0.1:0"])
-            .args(*args)
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
-        assert!(stderr.contains(want), "{args:?}: want {want:?} in {stderr}");
+        assert_node_refuses(args, want);
     }
     let out = strata()
         .args(["node", "--listen", "not-an-address", "--scene", "spheres"])
@@ -209,6 +202,18 @@ fn node_errors_are_clear() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot listen on not-an-address"));
 }
 
+/// `strata node --listen 127.0.0.1:0 ARGS` exits with status 2 and says `want`.
+fn assert_node_refuses(args: &[&str], want: &str) {
+    let out = strata()
+        .args(["node", "--listen", "127.0.0.1:0"])
+        .args(args)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    assert!(stderr.contains(want), "{args:?}: want {want:?} in {stderr}");
+}
+
 #[test]
 fn recording_and_replay_errors_are_clear() {
     let dir = TempDir::new().unwrap();
@@ -216,44 +221,23 @@ fn recording_and_replay_errors_are_clear() {
     std::fs::write(&garbage, b"these are not the bytes you are looking for").unwrap();
     let missing = dir.path().join("missing.rec");
     let unwritable = dir.path().join("no-such-folder").join("out.rec");
-    let cases: Vec<(Vec<String>, &str)> = vec![
-        (vec![], "--scene"),
+    let (garbage, missing, unwritable) = (
+        garbage.display().to_string(),
+        missing.display().to_string(),
+        unwritable.display().to_string(),
+    );
+    let cases: &[(&[&str], &str)] = &[
+        (&[], "--scene"),
+        (&["--replay", &missing], "reading"),
+        (&["--replay", &garbage], "is not a strata recording"),
         (
-            vec!["--replay".into(), missing.display().to_string()],
-            "reading",
-        ),
-        (
-            vec!["--replay".into(), garbage.display().to_string()],
-            "is not a strata recording",
-        ),
-        (
-            vec![
-                "--scene".into(),
-                "mixed".into(),
-                "--replay".into(),
-                garbage.display().to_string(),
-            ],
+            &["--scene", "mixed", "--replay", &garbage],
             "cannot be used with",
         ),
-        (
-            vec![
-                "--scene".into(),
-                "mixed".into(),
-                "--record".into(),
-                unwritable.display().to_string(),
-            ],
-            "creating",
-        ),
+        (&["--scene", "mixed", "--record", &unwritable], "creating"),
     ];
     for (args, want) in cases {
-        let out = strata()
-            .args(["node", "--listen", "127.0.0.1:0"])
-            .args(&args)
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
-        assert!(stderr.contains(want), "{args:?}: want {want:?} in {stderr}");
+        assert_node_refuses(args, want);
     }
     let out = strata()
         .args(["display", "--scene", "mixed", "--nodes", "127.0.0.1:9"])

@@ -410,6 +410,31 @@ fn join_stages(
     result
 }
 
+/// The display's next request, or `None` when it closed the connection.
+pub(crate) async fn next_request(
+    reader: &mut OwnedReadHalf,
+    limits: &DecodeOptions,
+) -> Result<Option<Request>, ConnectionError> {
+    let msg = match read_message(reader, limits).await {
+        Ok(m) => m,
+        Err(ReadError::Closed) => return Ok(None),
+        Err(ReadError::Io(source)) => {
+            return Err(ConnectionError::Io {
+                what: "reading a request",
+                source,
+            });
+        }
+        Err(ReadError::Wire(e)) => return Err(ConnectionError::Wire(e)),
+        Err(other) => return Err(ConnectionError::Read(other)),
+    };
+    if msg.kind != MessageType::Request {
+        return Err(ConnectionError::NotARequest(msg.kind));
+    }
+    Request::decode(&msg.bytes, limits)
+        .map(Some)
+        .map_err(ConnectionError::Request)
+}
+
 /// Reads the display's requests and hands them to the stages until the display closes the
 /// connection (`Ok`) or something goes wrong.
 async fn serve_requests(
@@ -420,23 +445,9 @@ async fn serve_requests(
     recent: &Recent,
 ) -> Result<(), ConnectionError> {
     loop {
-        let msg = match read_message(reader, &config.limits).await {
-            Ok(m) => m,
-            Err(ReadError::Closed) => return Ok(()),
-            Err(ReadError::Io(source)) => {
-                return Err(ConnectionError::Io {
-                    what: "reading a request",
-                    source,
-                });
-            }
-            Err(ReadError::Wire(e)) => return Err(ConnectionError::Wire(e)),
-            Err(other) => return Err(ConnectionError::Read(other)),
+        let Some(request) = next_request(reader, &config.limits).await? else {
+            return Ok(());
         };
-        if msg.kind != MessageType::Request {
-            return Err(ConnectionError::NotARequest(msg.kind));
-        }
-        let request =
-            Request::decode(&msg.bytes, &config.limits).map_err(ConnectionError::Request)?;
         if request.transfer == TransferMethod::Reprojection
             && !EXACT_STORES.contains(&config.method.as_str())
         {

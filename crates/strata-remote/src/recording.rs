@@ -38,8 +38,7 @@ use strata_wire::{
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::node::{ConnectionError, NodeEvent};
-use crate::stream::{ReadError, read_message};
+use crate::node::{ConnectionError, NodeEvent, next_request};
 
 /// The first 16 bytes of a recording.
 pub const MAGIC: [u8; 16] = *b"strata-recording";
@@ -355,24 +354,10 @@ pub async fn replay_connection(
         .await
         .map_err(io("sending the hello"))?;
     let result = loop {
-        let msg = match read_message(&mut reader, limits).await {
-            Ok(m) => m,
-            Err(ReadError::Closed) => break Ok(()),
-            Err(ReadError::Io(source)) => {
-                break Err(ConnectionError::Io {
-                    what: "reading a request",
-                    source,
-                });
-            }
-            Err(ReadError::Wire(e)) => break Err(ConnectionError::Wire(e)),
-            Err(other) => break Err(ConnectionError::Read(other)),
-        };
-        if msg.kind != MessageType::Request {
-            break Err(ConnectionError::NotARequest(msg.kind));
-        }
-        let request = match Request::decode(&msg.bytes, limits) {
-            Ok(r) => r,
-            Err(e) => break Err(ConnectionError::Request(e)),
+        let request = match next_request(&mut reader, limits).await {
+            Ok(Some(r)) => r,
+            Ok(None) => break Ok(()),
+            Err(e) => break Err(e),
         };
         match recording.reply(&request) {
             Some(reply) => {
