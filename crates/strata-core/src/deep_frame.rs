@@ -293,7 +293,7 @@ impl DeepFrame {
                 |scratch, task| {
                     let first = task * PIXELS_PER_TASK;
                     let pixels = first..(first + PIXELS_PER_TASK).min(pixels);
-                    // Room for a fragment a pixel: most tasks never grow.
+                    // Room for a fragment a pixel; only denser tasks grow.
                     let mut g = Gathered {
                         counts: Vec::with_capacity(pixels.len()),
                         depth: Vec::with_capacity(pixels.len()),
