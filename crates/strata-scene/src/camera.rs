@@ -35,7 +35,78 @@ impl Default for Camera {
     }
 }
 
+/// Why a camera cannot be used: the scene-file key at fault and what is wrong with it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CameraError {
+    /// The key, as a scene file names it (`camera.up`).
+    pub key: &'static str,
+    /// What is wrong, e.g. "is zero or parallel to the viewing direction".
+    pub message: String,
+}
+
+impl std::fmt::Display for CameraError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: {}", self.key, self.message)
+    }
+}
+
+impl std::error::Error for CameraError {}
+
 impl Camera {
+    /// Checks the rules of a scene file's `[camera]` table (docs/scene-format.md): finite
+    /// vectors, a target apart from the eye, an up not parallel to the view, `fovy_deg` in
+    /// (0, 180), `0 < near < far`, both finite. Every camera strata renders passes this, whether
+    /// it comes from a file or from the viewer.
+    pub fn check(&self) -> Result<(), CameraError> {
+        let fail = |key, message: String| Err(CameraError { key, message });
+        for (key, v) in [
+            ("camera.eye", self.eye),
+            ("camera.target", self.target),
+            ("camera.up", self.up),
+        ] {
+            if let Some(c) = v.to_array().iter().find(|c| !c.is_finite()) {
+                return fail(key, format!("{c} is not a finite number"));
+            }
+        }
+        let dir = self.target - self.eye;
+        if dir.length_squared() == 0.0 {
+            return fail(
+                "camera.target",
+                "equals camera.eye; the camera must look somewhere".into(),
+            );
+        }
+        if self.up.cross(dir).length_squared()
+            <= 1e-12 * self.up.length_squared() * dir.length_squared()
+        {
+            return fail(
+                "camera.up",
+                "is zero or parallel to the viewing direction".into(),
+            );
+        }
+        if !(self.fovy_deg > 0.0 && self.fovy_deg < 180.0) {
+            return fail(
+                "camera.fovy_deg",
+                format!("{} is outside (0, 180) degrees", self.fovy_deg),
+            );
+        }
+        if !(self.near > 0.0 && self.near.is_finite()) {
+            return fail(
+                "camera.near",
+                format!("{} must be a finite distance greater than 0", self.near),
+            );
+        }
+        if !(self.far > self.near && self.far.is_finite()) {
+            return fail(
+                "camera.far",
+                format!(
+                    "{} must be finite and greater than near ({})",
+                    self.far, self.near
+                ),
+            );
+        }
+        Ok(())
+    }
+
     /// World → eye space.
     pub fn view(&self) -> Mat4 {
         Mat4::look_at_rh(self.eye, self.target, self.up)
@@ -68,6 +139,24 @@ mod tests {
         // The target lies on the optical axis.
         let t = p * Vec4::new(0.0, 0.0, 0.0, 1.0);
         assert!(t.x.abs() < 1e-6 && t.y.abs() < 1e-6);
+    }
+
+    #[test]
+    fn check_names_the_key_at_fault() {
+        assert_eq!(Camera::default().check(), Ok(()));
+        let bad = |f: fn(&mut Camera)| {
+            let mut c = Camera::default();
+            f(&mut c);
+            c.check().map_err(|e| e.key)
+        };
+        assert_eq!(bad(|c| c.eye.x = f32::NAN), Err("camera.eye"));
+        assert_eq!(bad(|c| c.target = c.eye), Err("camera.target"));
+        assert_eq!(bad(|c| c.up = Vec3::Z), Err("camera.up"));
+        assert_eq!(bad(|c| c.up = Vec3::ZERO), Err("camera.up"));
+        assert_eq!(bad(|c| c.fovy_deg = 180.0), Err("camera.fovy_deg"));
+        assert_eq!(bad(|c| c.near = 0.0), Err("camera.near"));
+        assert_eq!(bad(|c| c.far = c.near), Err("camera.far"));
+        assert_eq!(bad(|c| c.far = f32::INFINITY), Err("camera.far"));
     }
 
     #[test]

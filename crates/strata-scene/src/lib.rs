@@ -19,7 +19,7 @@ pub mod search_path;
 
 use std::path::Path;
 
-pub use camera::Camera;
+pub use camera::{Camera, CameraError};
 pub use mesh::{Aabb, Mesh, MeshError};
 pub use scene::{Animation, Scene, SceneError, SceneErrorKind, SceneObject, TextPosition};
 pub use search_path::SearchPath;

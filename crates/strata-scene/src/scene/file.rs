@@ -386,42 +386,7 @@ impl Resolver<'_> {
             near: c.near.unwrap_or(d.near),
             far: c.far.unwrap_or(d.far),
         };
-        self.finite("camera.eye", &cam.eye.to_array())?;
-        self.finite("camera.target", &cam.target.to_array())?;
-        self.finite("camera.up", &cam.up.to_array())?;
-        let dir = cam.target - cam.eye;
-        if dir.length_squared() == 0.0 {
-            return Err(self.invalid(
-                "camera.target",
-                "equals camera.eye; the camera must look somewhere",
-            ));
-        }
-        if cam.up.cross(dir).length_squared()
-            <= 1e-12 * cam.up.length_squared() * dir.length_squared()
-        {
-            return Err(self.invalid("camera.up", "is zero or parallel to the viewing direction"));
-        }
-        if !(cam.fovy_deg > 0.0 && cam.fovy_deg < 180.0) {
-            return Err(self.invalid(
-                "camera.fovy_deg",
-                format!("{} is outside (0, 180) degrees", cam.fovy_deg),
-            ));
-        }
-        if !(cam.near > 0.0 && cam.near.is_finite()) {
-            return Err(self.invalid(
-                "camera.near",
-                format!("{} must be a finite distance greater than 0", cam.near),
-            ));
-        }
-        if !(cam.far > cam.near && cam.far.is_finite()) {
-            return Err(self.invalid(
-                "camera.far",
-                format!(
-                    "{} must be finite and greater than near ({})",
-                    cam.far, cam.near
-                ),
-            ));
-        }
+        cam.check().map_err(|e| self.invalid(e.key, e.message))?;
         Ok(cam)
     }
 
