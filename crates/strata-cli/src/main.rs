@@ -126,6 +126,8 @@ enum Command {
     Mfr(cmd::mfr::Args),
     // About: `cmd::mfr_slow::Args`'s doc comment.
     MfrSlow(cmd::mfr_slow::Args),
+    // About: `cmd::view::Args`'s doc comment.
+    View(cmd::view::Args),
 }
 
 impl Command {
@@ -198,6 +200,7 @@ fn main() -> ExitCode {
             Command::Display(a) => cmd::display::run(a),
             Command::Composite(a) => cmd::composite::run(a),
             Command::Inspect(a) => cmd::inspect::run(a),
+            Command::View(a) => cmd::view::run(a),
             Command::Mfr(a) => cmd::mfr::run(a),
             Command::MfrSlow(a) => cmd::mfr_slow::run(a),
         });

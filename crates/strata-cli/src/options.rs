@@ -101,6 +101,27 @@ pub(crate) struct MethodParams {
     pub(crate) given: Vec<&'static str>,
 }
 
+/// Sets `settings` (an option's name and its value; a flag may have none) on top of `base` for
+/// `method`, refusing an unknown option, a bad value, and any option that `method` does not
+/// read once every option is set (`k-from` decides whether the importance options are read).
+/// Method specs (`compare --methods kbuffer:k=8`) and the viewer's form both come through here.
+pub(crate) fn configure<'s>(
+    method: &str,
+    base: &MethodOptions,
+    settings: impl IntoIterator<Item = (&'s str, Option<&'s str>)>,
+) -> Result<MethodOptions> {
+    let mut options = base.clone();
+    let mut set = Vec::new();
+    for (key, value) in settings {
+        let option = options.set(key, value)?;
+        set.push((option, key.trim()));
+    }
+    for (option, shown) in set {
+        strata_stores::check_option(method, option, shown, &options)?;
+    }
+    Ok(options)
+}
+
 /// Reads `--weights FILE`.
 fn parse_weights(s: &str) -> Result<std::sync::Arc<strata_stores::kbuffer::LearnedModel>, String> {
     strata_stores::kbuffer::LearnedModel::read(std::path::Path::new(s))

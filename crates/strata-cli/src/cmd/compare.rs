@@ -101,23 +101,12 @@ fn parse_spec(spec: &str, base: &MethodOptions) -> Result<Spec> {
         bail!("'{spec}': a method spec starts with the method's name (strata methods lists them)");
     }
     let info = strata_stores::find(&method)?;
-    let mut options = base.clone();
-    let mut set = Vec::new();
-    for part in parts {
-        let (key, value) = match part.split_once('=') {
-            Some((k, v)) => (k, Some(v)),
-            None => (part, None),
-        };
-        let option = options
-            .set(key, value)
-            .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
-        set.push((option, key.trim()));
-    }
-    // After every option is set: `k-from` decides whether the importance options are read.
-    for (option, shown) in set {
-        strata_stores::check_option(&method, option, shown, &options)
-            .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
-    }
+    let settings = parts.map(|part| match part.split_once('=') {
+        Some((k, v)) => (k, Some(v)),
+        None => (part, None),
+    });
+    let options = crate::options::configure(&method, base, settings)
+        .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
     let file: String = spec
         .chars()
         .map(|c| {

@@ -17,3 +17,4 @@ pub(crate) mod node;
 pub(crate) mod render;
 pub(crate) mod scenes;
 pub(crate) mod tfss_sim;
+pub(crate) mod view;

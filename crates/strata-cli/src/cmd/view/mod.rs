@@ -1,0 +1,257 @@
+//! `strata view`: a web viewer served by strata itself — orbit a scene, switch methods and their
+//! options, read each frame's statistics.
+//!
+//! ```text
+//! browser ── GET /            page.html, page.js, page.css (compiled into the binary)
+//!         ── GET /ws ───────▶ session::run, one per page:
+//!                              requests (JSON text) → render on the shared workers → PNG frames
+//! ```
+//!
+//! The server is axum on tokio; rendering runs on one rayon pool shared by every page
+//! (`--threads`), outside the async workers. The messages are in [`protocol`], a page's
+//! connection in [`session`]. The page does the navigation itself (orbit, pan and zoom change
+//! the camera it sends) and asks for frames the size of its canvas, or of `?size=WxH`.
+//!
+//! What the page offers is read from the same places the command line reads: the methods from
+//! `strata_stores::METHODS`, each option's help and default from the `--k`, `--budget`, …
+//! arguments of [`crate::options::MethodParams`], and every request is checked by the functions
+//! `strata render` and `compare --methods` use.
+
+mod protocol;
+mod session;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anyhow::{Context, Result};
+use axum::Router;
+use axum::extract::{State, WebSocketUpgrade};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use clap::Args as _;
+use serde_json::{Value, json};
+use strata_scene::Scene;
+use strata_stores::MethodOptions;
+
+use crate::options::{open_scene, search_path, thread_pool};
+
+/// Serve a web page that shows a scene rendered by strata: orbit, pan and zoom with the mouse or
+/// touch, switch the method and its options, and read each frame's statistics.
+///
+/// Open the printed address in a browser (on a remote machine, forward the port: `ssh -L
+/// 7300:localhost:7300 host`). The page asks for frames the size of its window; add
+/// `?size=1280x720` to the address to fix the size. The camera panel shows the view as lines to
+/// paste into a scene file. Stop with Ctrl-C.
+#[derive(clap::Args, Debug)]
+pub(crate) struct Args {
+    /// Scene file (TOML) or built-in scene name (`strata scenes` lists them).
+    pub(crate) scene: String,
+
+    /// Address to listen on. The default accepts only this machine; `0.0.0.0:7300` accepts
+    /// anyone who can reach it. Port 0 picks a free port (printed).
+    #[arg(long, default_value = "127.0.0.1:7300")]
+    pub(crate) listen: SocketAddr,
+
+    /// The method a page starts with, as `compare --methods` writes it: a name and options,
+    /// `kbuffer:k=8` or `vkbuffer:budget=25%:k-from=optimal` (`strata methods` lists them).
+    #[arg(long, short, default_value = "abuffer")]
+    pub(crate) method: String,
+
+    /// Pages served at once; more are refused with a message until one closes.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub(crate) max_pages: u16,
+
+    /// Worker threads, shared by every page (default: every available core).
+    #[arg(long, short = 'j')]
+    pub(crate) threads: Option<usize>,
+
+    /// Extra directory to look for mesh files in, searched before STRATA_MODEL_PATH (repeatable).
+    #[arg(long = "models", value_name = "DIR")]
+    pub(crate) model_dirs: Vec<PathBuf>,
+}
+
+/// What every page's connection shares.
+pub(crate) struct Shared {
+    scene: Arc<Scene>,
+    pool: rayon::ThreadPool,
+    /// The hello message, the same for every page.
+    hello: String,
+    pages: AtomicUsize,
+    max_pages: usize,
+}
+
+/// A page's place among the `--max-pages`; given back when dropped.
+struct Seat<'a>(&'a AtomicUsize);
+
+impl Drop for Seat<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+impl Shared {
+    /// A seat for one more page, or `None` if every seat is taken.
+    fn enter(&self) -> Option<Seat<'_>> {
+        self.pages
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < self.max_pages).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Seat(&self.pages))
+    }
+}
+
+const PAGE_HTML: &str = include_str!("page/page.html");
+const PAGE_JS: &str = include_str!("page/page.js");
+const PAGE_CSS: &str = include_str!("page/page.css");
+
+/// The method options a page may set: name, help, default and whether it is a flag, read from
+/// the command line's own arguments. `--weights` names a file on the server, so it is left out.
+fn option_specs() -> Vec<Value> {
+    let command = crate::options::MethodParams::augment_args(clap::Command::new("options"));
+    command
+        .get_arguments()
+        .filter_map(|a| {
+            let name = a.get_long()?;
+            if name == "weights" || !strata_stores::options::OPTION_NAMES.contains(&name) {
+                return None;
+            }
+            let flag = matches!(a.get_action(), clap::ArgAction::SetTrue);
+            let default = a
+                .get_default_values()
+                .first()
+                .map(|v| v.to_string_lossy().into_owned());
+            Some(json!({
+                "name": name,
+                "help": a.get_help().map(|h| h.to_string()).unwrap_or_default(),
+                "default": if flag { Some("false".to_owned()) } else { default },
+                "flag": flag,
+            }))
+        })
+        .collect()
+}
+
+/// Splits a method spec (`kbuffer:k=8`) into its method, checked options and option strings.
+fn initial_method(spec: &str) -> Result<(String, serde_json::Map<String, Value>)> {
+    let mut parts = spec.split(':');
+    let method = parts.next().unwrap_or_default().trim().to_owned();
+    strata_stores::find(&method)?;
+    let mut settings = serde_json::Map::new();
+    let mut pairs = Vec::new();
+    for part in parts {
+        let (key, value) = match part.split_once('=') {
+            Some((k, v)) => (k.trim(), v.trim()),
+            None => (part.trim(), "true"),
+        };
+        pairs.push((key, Some(value)));
+        settings.insert(key.to_owned(), json!(value));
+    }
+    if settings.contains_key("weights") {
+        anyhow::bail!("--method '{spec}': the viewer uses the weights built into strata");
+    }
+    crate::options::configure(&method, &MethodOptions::default(), pairs)
+        .with_context(|| format!("--method '{spec}'"))?;
+    Ok((method, settings))
+}
+
+/// The hello message: the scene, the methods and their options, the first view.
+fn hello(scene: &Scene, method: &str, settings: serde_json::Map<String, Value>) -> String {
+    let methods: Vec<Value> = strata_stores::METHODS
+        .iter()
+        .map(|m| {
+            json!({
+                "name": m.name,
+                "summary": m.summary,
+                "fidelity": m.fidelity(&MethodOptions::default()).describe(),
+                "options": m.options,
+            })
+        })
+        .collect();
+    json!({
+        "type": "hello",
+        "strata": env!("CARGO_PKG_VERSION"),
+        "scene": scene.name,
+        "origin": scene.origin,
+        "width": scene.width,
+        "height": scene.height,
+        "frames": scene.frame_count(),
+        "triangles": scene.triangle_count(),
+        "camera": protocol::camera_json(&scene.camera),
+        "methods": methods,
+        "options": option_specs(),
+        "method": method,
+        "method_options": settings,
+        "max_side": protocol::MAX_SIDE,
+    })
+    .to_string()
+}
+
+/// Runs `strata view`.
+pub(crate) fn run(args: Args) -> Result<()> {
+    let (method, settings) = initial_method(&args.method)?;
+    let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
+    let pool = thread_pool(args.threads)?;
+    let shared = Arc::new(Shared {
+        hello: hello(&scene, &method, settings),
+        scene: Arc::new(scene),
+        pool,
+        pages: AtomicUsize::new(0),
+        max_pages: usize::from(args.max_pages),
+    });
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the server's runtime")?;
+    runtime.block_on(serve(args.listen, shared))
+}
+
+async fn serve(listen: SocketAddr, shared: Arc<Shared>) -> Result<()> {
+    let listener = tokio::net::TcpListener::bind(listen)
+        .await
+        .with_context(|| format!("cannot listen on {listen}"))?;
+    let local = listener
+        .local_addr()
+        .context("cannot read the bound address")?;
+    eprintln!(
+        "strata view: serving {} at http://{local}/ (Ctrl-C to stop)",
+        shared.scene.name
+    );
+    let app = Router::new()
+        .route(
+            "/",
+            get(|| async { asset("text/html; charset=utf-8", PAGE_HTML) }),
+        )
+        .route(
+            "/page.js",
+            get(|| async { asset("text/javascript; charset=utf-8", PAGE_JS) }),
+        )
+        .route(
+            "/page.css",
+            get(|| async { asset("text/css; charset=utf-8", PAGE_CSS) }),
+        )
+        .route("/ws", get(socket))
+        .with_state(shared);
+    axum::serve(listener, app)
+        .await
+        .context("the server stopped")
+}
+
+fn asset(kind: &'static str, body: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, kind),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+async fn socket(ws: WebSocketUpgrade, State(shared): State<Arc<Shared>>) -> Response {
+    ws.max_message_size(1 << 20)
+        .on_upgrade(move |socket| session::run(socket, shared))
+}

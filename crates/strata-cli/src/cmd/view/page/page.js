@@ -1,0 +1,375 @@
+// strata view: the page. Plain JavaScript, no build step; served by `strata view`.
+//
+// The page owns the view (camera, size, method and options) and sends it whole on every change;
+// the server renders the newest view it has and sends back a frame: a u32 little-endian header
+// length, a JSON header (request id, `strata render --stats` statistics, the camera as scene-file
+// lines) and a PNG. See crates/strata-cli/src/cmd/view/protocol.rs.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+
+// Everything the page knows, exposed for people debugging and for the browser tests.
+const S = {
+  hello: null,          // the server's hello message
+  camera: null,         // {eye, target, up, fovy_deg, near, far}, scene-file terms
+  method: null,
+  options: {},          // option name -> value string, only those set away from the default
+  nextId: 1,
+  sent: new Map(),      // request id -> performance.now() when sent
+  lastSentId: 0,
+  frame: null,          // the header of the frame on the canvas
+  framesShown: 0,
+  shownTimes: [],       // when recent frames were shown, for the rate
+  latencyMs: null,      // request sent -> its frame drawn, of the last frame
+  errors: [],           // {id, message}
+  socket: null,
+  connects: 0,
+};
+window.strataView = S;
+
+const canvas = $("frame");
+const ctx = canvas.getContext("2d");
+const fixedSize = (() => {
+  const m = /^(\d+)x(\d+)$/.exec(new URLSearchParams(location.search).get("size") || "");
+  return m ? [Number(m[1]), Number(m[2])] : null;
+})();
+
+// ---- vectors -------------------------------------------------------------------------------
+const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const scale = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const len = (a) => Math.sqrt(dot(a, a));
+const norm = (a) => scale(a, 1 / len(a));
+// Rodrigues: v rotated by angle about the unit axis k.
+const rotate = (v, k, angle) => {
+  const c = Math.cos(angle), s = Math.sin(angle);
+  return add(add(scale(v, c), scale(cross(k, v), s)), scale(k, dot(k, v) * (1 - c)));
+};
+
+// ---- navigation ----------------------------------------------------------------------------
+function orbit(dx, dy) {
+  const c = S.camera;
+  const up = norm(c.up);
+  let offset = sub(c.eye, c.target);
+  offset = rotate(offset, up, -dx * 0.008);
+  const right = norm(cross(up, offset));
+  // Pitch, stopping short of the poles so that up never becomes parallel to the view.
+  const polar = Math.acos(Math.max(-1, Math.min(1, dot(norm(offset), up))));
+  const limit = 0.02;
+  const pitch = Math.max(polar - (Math.PI - limit), Math.min(polar - limit, -dy * 0.008));
+  offset = rotate(offset, right, pitch);
+  c.eye = add(c.target, offset);
+}
+
+function pan(dx, dy) {
+  const c = S.camera;
+  const offset = sub(c.eye, c.target);
+  const forward = norm(scale(offset, -1));
+  const right = norm(cross(forward, c.up));
+  const upv = cross(right, forward);
+  const h = canvas.clientHeight || 1;
+  const perPixel = (2 * len(offset) * Math.tan((c.fovy_deg * Math.PI) / 360)) / h;
+  const move = add(scale(right, -dx * perPixel), scale(upv, dy * perPixel));
+  c.eye = add(c.eye, move);
+  c.target = add(c.target, move);
+}
+
+function zoom(factor) {
+  const c = S.camera;
+  const offset = sub(c.eye, c.target);
+  const d = len(offset);
+  const next = Math.min(c.far * 0.9, Math.max(c.near * 2, d * factor));
+  c.eye = add(c.target, scale(offset, next / d));
+}
+
+const pointers = new Map(); // pointerId -> {x, y}
+canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+canvas.addEventListener("pointerdown", (e) => {
+  if (!S.camera) return;
+  canvas.setPointerCapture(e.pointerId);
+  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, button: e.button, shift: e.shiftKey });
+  canvas.classList.add("dragging");
+});
+canvas.addEventListener("pointermove", (e) => {
+  const p = pointers.get(e.pointerId);
+  if (!p || !S.camera) return;
+  const dx = e.clientX - p.x, dy = e.clientY - p.y;
+  if (pointers.size === 2) {
+    // Pinch: the change of the distance between the two pointers zooms, their midpoint pans.
+    const [a, b] = [...pointers.values()];
+    const before = Math.hypot(a.x - b.x, a.y - b.y);
+    p.x = e.clientX; p.y = e.clientY;
+    const after = Math.hypot(a.x - b.x, a.y - b.y);
+    if (before > 0 && after > 0) zoom(before / after);
+    pan(dx / 2, dy / 2);
+  } else {
+    p.x = e.clientX; p.y = e.clientY;
+    if (p.button === 2 || p.shift || e.shiftKey) pan(dx, dy);
+    else orbit(dx, dy);
+  }
+  requestView();
+});
+const release = (e) => {
+  pointers.delete(e.pointerId);
+  if (pointers.size === 0) canvas.classList.remove("dragging");
+};
+canvas.addEventListener("pointerup", release);
+canvas.addEventListener("pointercancel", release);
+canvas.addEventListener("wheel", (e) => {
+  if (!S.camera) return;
+  e.preventDefault();
+  zoom(Math.exp(e.deltaY * 0.001));
+  requestView();
+}, { passive: false });
+
+$("reset").addEventListener("click", () => {
+  if (!S.hello) return;
+  S.camera = structuredClone(S.hello.camera);
+  requestView();
+});
+
+// ---- requests ------------------------------------------------------------------------------
+let scheduled = false;
+// Coalesces the changes of one animation frame into one request.
+function requestView() {
+  if (scheduled) return;
+  scheduled = true;
+  requestAnimationFrame(() => {
+    scheduled = false;
+    sendView();
+  });
+}
+
+function frameSize() {
+  const max = S.hello ? S.hello.max_side : 4096;
+  if (fixedSize) return fixedSize.map((v) => Math.max(1, Math.min(max, v)));
+  const r = canvas.getBoundingClientRect();
+  return [Math.max(1, Math.min(max, Math.round(r.width))), Math.max(1, Math.min(max, Math.round(r.height)))];
+}
+
+function sendView() {
+  if (!S.socket || S.socket.readyState !== WebSocket.OPEN || !S.camera) return;
+  const [width, height] = frameSize();
+  const id = S.nextId++;
+  S.sent.set(id, performance.now());
+  if (S.sent.size > 256) S.sent.delete(S.sent.keys().next().value);
+  S.lastSentId = id;
+  S.socket.send(JSON.stringify({
+    type: "view", id, width, height, frame: 0,
+    camera: S.camera, method: S.method, options: S.options,
+  }));
+}
+
+new ResizeObserver(() => { if (!fixedSize) requestView(); }).observe(canvas);
+
+// ---- method and options --------------------------------------------------------------------
+function buildMethods() {
+  const select = $("method");
+  select.replaceChildren(...S.hello.methods.map((m) => new Option(m.name, m.name)));
+  select.value = S.method;
+  select.onchange = () => {
+    S.method = select.value;
+    S.options = {};
+    buildOptions();
+    requestView();
+  };
+  buildOptions();
+}
+
+function buildOptions() {
+  const info = S.hello.methods.find((m) => m.name === S.method);
+  $("method-summary").textContent = info ? `${info.summary} (${info.fidelity})` : "";
+  const box = $("options");
+  box.replaceChildren();
+  if (!info) return;
+  for (const name of info.options) {
+    const spec = S.hello.options.find((o) => o.name === name);
+    if (!spec) continue; // --weights: a file on the server, not offered here
+    const row = document.createElement("div");
+    row.className = "option";
+    const label = document.createElement("label");
+    label.append(name);
+    const input = document.createElement("input");
+    input.name = name;
+    input.dataset.option = name;
+    if (spec.flag) {
+      input.type = "checkbox";
+      input.checked = (S.options[name] ?? spec.default) === "true";
+    } else {
+      input.type = "text";
+      input.value = S.options[name] ?? spec.default ?? "";
+      input.placeholder = spec.default ?? "";
+    }
+    input.title = spec.help;
+    const method = S.method;
+    input.onchange = () => {
+      // A field edited and left by switching the method fires after the switch: it is gone.
+      if (S.method !== method || !input.isConnected) return;
+      const value = spec.flag ? String(input.checked) : input.value.trim();
+      if (value === (spec.default ?? "")) delete S.options[name];
+      else S.options[name] = value;
+      input.classList.toggle("changed", name in S.options);
+      requestView();
+    };
+    input.classList.toggle("changed", name in S.options);
+    label.append(input);
+    const help = document.createElement("p");
+    help.className = "note";
+    help.textContent = spec.help;
+    row.append(label, help);
+    box.append(row);
+  }
+}
+
+// ---- frames --------------------------------------------------------------------------------
+let drawing = Promise.resolve();
+
+async function showFrame(buffer) {
+  const view = new DataView(buffer);
+  const n = view.getUint32(0, true);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, n)));
+  const png = new Blob([new Uint8Array(buffer, 4 + n)], { type: "image/png" });
+  const bitmap = await createImageBitmap(png, { colorSpaceConversion: "none", premultiplyAlpha: "none" });
+  if (S.frame && header.id < S.frame.id) return; // an older frame decoded late
+  canvas.width = bitmap.width;
+  canvas.height = bitmap.height;
+  ctx.drawImage(bitmap, 0, 0);
+  bitmap.close();
+  S.frame = header;
+  S.framesShown++;
+  const now = performance.now();
+  const sent = S.sent.get(header.id);
+  if (sent !== undefined) S.latencyMs = now - sent;
+  S.shownTimes.push(now);
+  while (S.shownTimes.length && S.shownTimes[0] < now - 1000) S.shownTimes.shift();
+  // A frame answers every request before it: their errors are settled.
+  if (S.errors.length && S.errors[S.errors.length - 1].id !== null
+      && S.errors[S.errors.length - 1].id <= header.id) {
+    $("error").hidden = true;
+  }
+  showStats(header);
+  showStatus();
+}
+
+function row(tbody, label, value, cls) {
+  const tr = tbody.insertRow();
+  if (cls) tr.className = cls;
+  tr.insertCell().textContent = label;
+  tr.insertCell().textContent = value;
+}
+
+const fmt = (n) => (typeof n === "number" ? n.toLocaleString("en-US", { maximumFractionDigits: 2 }) : String(n));
+const mib = (b) => `${(b / 1048576).toFixed(1)} MiB`;
+
+function showStats(h) {
+  const s = h.stats;
+  const tbody = $("stats").tBodies[0];
+  tbody.replaceChildren();
+  row(tbody, "method", s.method);
+  row(tbody, "size", `${s.width} × ${s.height}`);
+  row(tbody, "fragments kept", fmt(s.fragments));
+  row(tbody, "fragments rasterised", fmt(s.fragments_rasterized));
+  row(tbody, "lost (dropped)", fmt(s.dropped_fragments));
+  row(tbody, "covered pixels", fmt(s.covered_pixels));
+  row(tbody, "depth max / mean", `${fmt(s.max_depth_complexity)} / ${fmt(s.mean_depth_complexity)}`);
+  row(tbody, "memory used / allocated", `${mib(s.used_memory_bytes)} / ${mib(s.memory_bytes)}`);
+  row(tbody, "render ms", fmt(h.render_ms));
+  for (const [pass, ms] of Object.entries(s.timings_ms)) row(tbody, pass, fmt(ms), "pass");
+  row(tbody, "PNG encode ms", fmt(h.encode_ms));
+  row(tbody, "PNG KiB", fmt(h.png_bytes / 1024));
+  $("camera").value = h.camera_toml;
+  const hist = s.depth_histogram || [];
+  const max = Math.max(1, ...hist.slice(1));
+  $("histogram").replaceChildren(...hist.slice(1).map((count, i) => {
+    const bar = document.createElement("div");
+    bar.style.height = `${(100 * count) / max}%`;
+    bar.title = `${i + 1} fragment(s): ${count} pixels`;
+    return bar;
+  }));
+}
+
+function showStatus() {
+  const el = $("status");
+  const up = S.socket && S.socket.readyState === WebSocket.OPEN;
+  el.classList.toggle("down", !up);
+  if (!up) {
+    el.textContent = "disconnected: reconnecting…";
+    return;
+  }
+  const parts = [`${S.shownTimes.length} fps`];
+  if (S.frame) parts.push(`render ${fmt(S.frame.render_ms)} ms`);
+  if (S.latencyMs !== null) parts.push(`latency ${Math.round(S.latencyMs)} ms`);
+  el.textContent = parts.join(" · ");
+}
+
+function showError(id, message) {
+  S.errors.push({ id, message });
+  const el = $("error");
+  el.textContent = message;
+  el.hidden = false;
+}
+
+// ---- connection ----------------------------------------------------------------------------
+let retryMs = 250;
+
+function connect() {
+  const socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  socket.binaryType = "arraybuffer";
+  S.socket = socket;
+  socket.onopen = () => {
+    S.connects++;
+    retryMs = 250;
+    showStatus();
+  };
+  socket.onmessage = (e) => {
+    if (typeof e.data !== "string") {
+      const buffer = e.data;
+      drawing = drawing.then(() => showFrame(buffer)).catch((err) => showError(null, `cannot show the frame: ${err}`));
+      return;
+    }
+    const m = JSON.parse(e.data);
+    if (m.type === "hello") {
+      const first = S.hello === null;
+      S.hello = m;
+      if (first) {
+        S.camera = structuredClone(m.camera);
+        S.method = m.method;
+        S.options = { ...m.method_options };
+        $("scene").textContent = `${m.scene}: ${fmt(m.triangles)} triangles (${m.origin})`;
+        document.title = `strata view: ${m.scene}`;
+        buildMethods();
+      }
+      sendView(); // the view as it is, also after a reconnection
+    } else if (m.type === "error") {
+      showError(m.id, m.message);
+    }
+  };
+  socket.onclose = () => {
+    if (S.socket !== socket) return;
+    showStatus();
+    setTimeout(connect, retryMs);
+    retryMs = Math.min(2000, retryMs * 2);
+  };
+}
+
+$("copy").addEventListener("click", () => {
+  const text = $("camera").value;
+  if (navigator.clipboard) navigator.clipboard.writeText(text).catch(() => {});
+  $("camera").select();
+});
+
+$("screenshot").addEventListener("click", () => {
+  canvas.toBlob((blob) => {
+    if (!blob) return;
+    const a = document.createElement("a");
+    a.href = URL.createObjectURL(blob);
+    a.download = `${S.hello ? S.hello.scene : "strata"}-${S.method}.png`;
+    a.click();
+    setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+  }, "image/png");
+});
+
+setInterval(showStatus, 500);
+connect();

@@ -1,0 +1,298 @@
+//! The viewer's messages, and the checks that turn a page's request into a render job.
+//!
+//! One WebSocket per page. Text messages are JSON objects with a `type`:
+//!
+//! ```text
+//! page → server   {"type": "view", "id": 7, "width": 800, "height": 450, "frame": 0,
+//!                  "camera": {"eye": [x, y, z], "target": […], "up": […],
+//!                             "fovy_deg": 45, "near": 0.01, "far": 100},
+//!                  "method": "kbuffer", "options": {"k": "2", "tail-blend": "true"}}
+//! server → page   {"type": "hello", …}        once, on connecting: the scene, its camera and
+//!                                             size, the methods and their options (see `hello`)
+//!                 {"type": "error", "id": 7, "message": "…"}   a request refused or failed
+//! ```
+//!
+//! A frame is one binary message: a `u32` little-endian header length, the header (JSON:
+//! `{"type": "frame", "id", "stats", "camera_toml", "render_ms", "encode_ms"}`, where `stats` is
+//! exactly what `strata render --stats` writes) and the PNG. The header and the image travel
+//! together, so a page never pairs an image with another frame's numbers.
+//!
+//! Every field of a request is checked here, with the rules the command line and the scene
+//! file use: the camera by [`Camera::check`], the size against [`MAX_SIDE`], the frame against
+//! the scene's animation, and the method's options by [`crate::options::configure`], so the page
+//! refuses what `strata render` refuses, with the same words.
+
+use std::collections::BTreeMap;
+
+use anyhow::{Result, anyhow, bail};
+use serde::Deserialize;
+use serde_json::{Value, json};
+use strata_scene::{Camera, Scene};
+use strata_stores::MethodOptions;
+
+/// The largest side of a frame the viewer renders, in pixels.
+pub(crate) const MAX_SIDE: u32 = 4096;
+
+/// A camera as a page sends it: scene-file terms.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct CameraMessage {
+    eye: [f64; 3],
+    target: [f64; 3],
+    up: [f64; 3],
+    fovy_deg: f64,
+    near: f64,
+    far: f64,
+}
+
+/// What a page may send.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub(crate) enum PageMessage {
+    /// Render this view; it replaces any view not yet rendered.
+    View {
+        /// The page's number for the request; frames and errors carry it back.
+        id: u64,
+        width: u32,
+        height: u32,
+        #[serde(default)]
+        frame: u32,
+        camera: CameraMessage,
+        method: String,
+        /// Option name → value, as `compare --methods` specs write them; a flag's value is
+        /// `"true"` or `"false"`.
+        #[serde(default)]
+        options: BTreeMap<String, String>,
+    },
+}
+
+/// A checked request: everything a render needs.
+#[derive(Clone, Debug)]
+pub(crate) struct Job {
+    /// The page's request number.
+    pub(crate) id: u64,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) frame: u32,
+    pub(crate) camera: Camera,
+    pub(crate) method: String,
+    pub(crate) options: MethodOptions,
+    /// The method and its settings in one string: a store is rebuilt only when this changes.
+    pub(crate) method_key: String,
+}
+
+/// The request number of a text message, if it has one, so an error about it can carry it.
+pub(crate) fn request_id(text: &str) -> Option<u64> {
+    serde_json::from_str::<Value>(text)
+        .ok()?
+        .get("id")?
+        .as_u64()
+}
+
+/// Parses and checks one text message from a page.
+pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Job> {
+    let message: PageMessage =
+        serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
+    let PageMessage::View {
+        id,
+        width,
+        height,
+        frame,
+        camera,
+        method,
+        options,
+    } = message;
+    for (name, side) in [("width", width), ("height", height)] {
+        if !(1..=MAX_SIDE).contains(&side) {
+            bail!("{name} {side} is outside 1..={MAX_SIDE} pixels");
+        }
+    }
+    scene.check_frame(frame)?;
+    let v = |a: [f64; 3]| glam::Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
+    let camera = Camera {
+        eye: v(camera.eye),
+        target: v(camera.target),
+        up: v(camera.up),
+        fovy_deg: camera.fovy_deg as f32,
+        near: camera.near as f32,
+        far: camera.far as f32,
+    };
+    camera.check()?;
+    strata_stores::find(&method)?;
+    if options.contains_key("weights") {
+        bail!(
+            "weights: the viewer uses the weights built into strata; a weights file is read by \
+             `strata render --weights`"
+        );
+    }
+    let settings = options.iter().map(|(k, v)| (k.as_str(), Some(v.as_str())));
+    let checked = crate::options::configure(&method, &MethodOptions::default(), settings)?;
+    let method_key = std::iter::once(method.clone())
+        .chain(options.iter().map(|(k, v)| format!("{k}={v}")))
+        .collect::<Vec<_>>()
+        .join(":");
+    Ok(Job {
+        id,
+        width,
+        height,
+        frame,
+        camera,
+        method,
+        options: checked,
+        method_key,
+    })
+}
+
+/// A camera in scene-file terms, as a page shows and sends it.
+pub(crate) fn camera_json(c: &Camera) -> Value {
+    json!({
+        "eye": c.eye.to_array(),
+        "target": c.target.to_array(),
+        "up": c.up.to_array(),
+        "fovy_deg": c.fovy_deg,
+        "near": c.near,
+        "far": c.far,
+    })
+}
+
+/// The size and `[camera]` table of a view, as lines to paste into a scene file. Numbers are
+/// written in the shortest form that reads back to the same `f32`, so the pasted scene renders
+/// the very same image.
+pub(crate) fn view_toml(c: &Camera, width: u32, height: u32) -> String {
+    let v = |a: glam::Vec3| format!("[{}, {}, {}]", a.x, a.y, a.z);
+    format!(
+        "width = {width}\nheight = {height}\n\n[camera]\neye = {}\ntarget = {}\nup = {}\n\
+         fovy_deg = {}\nnear = {}\nfar = {}\n",
+        v(c.eye),
+        v(c.target),
+        v(c.up),
+        c.fovy_deg,
+        c.near,
+        c.far
+    )
+}
+
+/// An error message for a page.
+pub(crate) fn error_json(id: Option<u64>, message: &str) -> String {
+    json!({"type": "error", "id": id, "message": message}).to_string()
+}
+
+/// A frame message: header length, header, PNG.
+pub(crate) fn frame_message(header: &Value, png: &[u8]) -> Vec<u8> {
+    let header = header.to_string();
+    let mut out = Vec::with_capacity(4 + header.len() + png.len());
+    out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out.extend_from_slice(png);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene() -> Scene {
+        strata_scene::open_scene("spheres", &strata_scene::SearchPath::default())
+            .expect("built-in scene")
+    }
+
+    fn request(patch: impl FnOnce(&mut Value)) -> String {
+        let mut v = json!({
+            "type": "view", "id": 3, "width": 64, "height": 48,
+            "camera": {"eye": [0, 0, 2], "target": [0, 0, 0], "up": [0, 1, 0],
+                       "fovy_deg": 45, "near": 0.01, "far": 100},
+            "method": "kbuffer", "options": {"k": "2"}
+        });
+        patch(&mut v);
+        v.to_string()
+    }
+
+    fn refused(text: &str) -> String {
+        match parse(text, &scene()) {
+            Ok(job) => panic!("accepted {text}: {job:?}"),
+            Err(e) => format!("{e:#}"),
+        }
+    }
+
+    #[test]
+    fn a_good_request_becomes_a_job() {
+        let job = parse(&request(|_| {}), &scene()).expect("valid");
+        assert_eq!((job.id, job.width, job.height, job.frame), (3, 64, 48, 0));
+        assert_eq!(job.options.k, 2);
+        assert_eq!(job.method_key, "kbuffer:k=2");
+        assert_eq!(job.camera.eye, glam::Vec3::new(0.0, 0.0, 2.0));
+    }
+
+    #[test]
+    fn bad_requests_say_what_is_wrong() {
+        let cases: [(String, &str); 10] = [
+            ("not json".into(), "malformed message"),
+            (r#"{"type": "shout"}"#.into(), "unknown variant"),
+            (request(|v| v["width"] = json!(0)), "width 0 is outside"),
+            (
+                request(|v| v["height"] = json!(5000)),
+                "height 5000 is outside",
+            ),
+            (request(|v| v["frame"] = json!(999)), "frame 999"),
+            (
+                request(|v| v["camera"]["up"] = json!([0, 0, 1])),
+                "camera.up",
+            ),
+            (request(|v| v["camera"]["near"] = json!(-1)), "camera.near"),
+            (request(|v| v["method"] = json!("nope")), "nope"),
+            (
+                request(|v| v["options"] = json!({"budget": "50%"})),
+                "budget",
+            ),
+            (request(|v| v["options"] = json!({"k": "0"})), "k"),
+        ];
+        for (text, expected) in cases {
+            let e = refused(&text);
+            assert!(e.contains(expected), "{text}: {e}");
+        }
+        assert!(
+            refused(&request(
+                |v| v["options"] = json!({"weights": "/etc/passwd"})
+            ))
+            .contains("built into strata")
+        );
+        assert!(refused(&request(|v| v["extra"] = json!(1))).contains("unknown field"));
+    }
+
+    #[test]
+    fn request_ids_are_found_in_refused_messages() {
+        assert_eq!(request_id(&request(|v| v["width"] = json!(0))), Some(3));
+        assert_eq!(request_id("garbage"), None);
+    }
+
+    #[test]
+    fn view_toml_reads_back_as_the_same_camera() {
+        let c = Camera {
+            eye: glam::Vec3::new(0.1, -2.0 / 3.0, 1e-7),
+            target: glam::Vec3::new(1.0 / 3.0, 0.0, -0.25),
+            up: glam::Vec3::Y,
+            fovy_deg: 37.5,
+            near: 0.01,
+            far: 100.0,
+        };
+        let text = view_toml(&c, 320, 200) + "\n[[objects]]\nbuiltin = \"cube\"\n";
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("v.toml");
+        std::fs::write(&path, text).expect("write");
+        let scene = strata_scene::open_scene(
+            path.to_str().expect("utf-8"),
+            &strata_scene::SearchPath::default(),
+        )
+        .expect("the pasted view is a valid scene");
+        assert_eq!(scene.camera, c);
+        assert_eq!((scene.width, scene.height), (320, 200));
+    }
+
+    #[test]
+    fn frame_messages_put_the_header_first() {
+        let m = frame_message(&json!({"type": "frame"}), b"PNG");
+        let n = u32::from_le_bytes(m[..4].try_into().expect("4 bytes")) as usize;
+        assert_eq!(&m[4..4 + n], br#"{"type":"frame"}"#);
+        assert_eq!(&m[4 + n..], b"PNG");
+    }
+}

@@ -1,0 +1,205 @@
+//! One page's connection: read its requests, render the latest, send each frame as it is done.
+//!
+//! ```text
+//!  socket ──text──▶ protocol::parse ──Job──▶ watch (latest request) ──▶ render loop
+//!    ▲                    │ refused                                          │ spawn_blocking:
+//!    │                    ▼                                                  │ store → PNG
+//!    └──── error text ◀───┘            watch (latest frame) ◀── frame message┘
+//!    └──── frame binary ◀──────────────────────┘
+//! ```
+//!
+//! Both hand-overs are `tokio::sync::watch` channels, which hold one value: a request that
+//! arrives while a frame renders replaces any request still waiting, and a frame done while the
+//! socket is still sending the previous one replaces any frame still waiting. So a page that
+//! moves the camera quickly, or reads slowly over a slow link, gets the newest view next instead
+//! of a queue of stale ones. Refusals are answered at once by the connection's own task.
+//!
+//! Each connection has its own store and rasterizer (their buffers reused from frame to frame);
+//! all share the server's worker threads. A render that fails or panics becomes an error
+//! message for the page; the server and the other pages go on.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use axum::extract::ws::{Message, WebSocket};
+use serde_json::json;
+use strata_raster::{FrameInput, Rasterizer};
+use strata_stores::{Method, render_frame};
+use tokio::sync::watch;
+
+use super::Shared;
+use super::protocol::{self, Job};
+use crate::report::{ms, stats_json};
+
+/// Serves one page until it goes away.
+pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
+    let Some(_seat) = shared.enter() else {
+        let message = format!(
+            "too many pages are open ({} at most); close one and reload",
+            shared.max_pages
+        );
+        let _ = socket
+            .send(Message::Text(protocol::error_json(None, &message).into()))
+            .await;
+        return;
+    };
+    if socket
+        .send(Message::Text(shared.hello.clone().into()))
+        .await
+        .is_err()
+    {
+        return;
+    }
+    let (job_tx, job_rx) = watch::channel::<Option<Job>>(None);
+    let (frame_tx, mut frame_rx) = watch::channel::<Option<Message>>(None);
+    let renderer = tokio::spawn(render_loop(job_rx, frame_tx, shared.clone()));
+    loop {
+        tokio::select! {
+            incoming = socket.recv() => {
+                let reply = match incoming {
+                    Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene) {
+                        Ok(job) => {
+                            job_tx.send_replace(Some(job));
+                            None
+                        }
+                        Err(e) => Some(protocol::error_json(
+                            protocol::request_id(&text),
+                            &format!("{e:#}"),
+                        )),
+                    },
+                    Some(Ok(Message::Binary(_))) => Some(protocol::error_json(
+                        None,
+                        "binary messages are not understood; send JSON text",
+                    )),
+                    Some(Ok(Message::Ping(_) | Message::Pong(_))) => None,
+                    Some(Ok(Message::Close(_)) | Err(_)) | None => break,
+                };
+                if let Some(reply) = reply
+                    && socket.send(Message::Text(reply.into())).await.is_err()
+                {
+                    break;
+                }
+            }
+            changed = frame_rx.changed() => {
+                if changed.is_err() {
+                    break; // the render loop ended
+                }
+                let message = frame_rx.borrow_and_update().clone();
+                if let Some(message) = message
+                    && socket.send(message).await.is_err()
+                {
+                    break;
+                }
+            }
+        }
+    }
+    // The render loop sees the request channel close and ends after its current frame.
+    drop(job_tx);
+    let _ = renderer.await;
+}
+
+/// Renders the latest request whenever there is a new one.
+async fn render_loop(
+    mut jobs: watch::Receiver<Option<Job>>,
+    frames: watch::Sender<Option<Message>>,
+    shared: Arc<Shared>,
+) {
+    let mut renderer = Renderer::new(shared);
+    while jobs.changed().await.is_ok() {
+        let Some(job) = jobs.borrow_and_update().clone() else {
+            continue;
+        };
+        let id = job.id;
+        let done = tokio::task::spawn_blocking(move || {
+            let message = renderer.frame(&job);
+            (renderer, message)
+        })
+        .await;
+        let message = match done {
+            Ok((r, message)) => {
+                renderer = r;
+                message
+            }
+            Err(e) => {
+                let why = if e.is_panic() {
+                    "the render failed (a bug in strata: please report it with the scene and \
+                     the view); reload the page to go on"
+                } else {
+                    "the render was cancelled"
+                };
+                let _ = frames.send(Some(Message::Text(
+                    protocol::error_json(Some(id), why).into(),
+                )));
+                return;
+            }
+        };
+        if frames.send(Some(message)).is_err() {
+            return;
+        }
+    }
+}
+
+/// A page's store and rasterizer, kept from frame to frame.
+struct Renderer {
+    shared: Arc<Shared>,
+    raster: Rasterizer,
+    /// The store and the method key it was built for.
+    store: Option<(String, Box<dyn Method>)>,
+}
+
+impl Renderer {
+    fn new(shared: Arc<Shared>) -> Self {
+        Renderer {
+            shared,
+            raster: Rasterizer::default(),
+            store: None,
+        }
+    }
+
+    /// The frame message for `job`, or an error message.
+    fn frame(&mut self, job: &Job) -> Message {
+        match self.render(job) {
+            Ok(bytes) => Message::Binary(bytes.into()),
+            Err(e) => Message::Text(protocol::error_json(Some(job.id), &format!("{e:#}")).into()),
+        }
+    }
+
+    fn render(&mut self, job: &Job) -> Result<Vec<u8>> {
+        // Taken out for the frame and put back once it succeeds: a store that failed mid-frame
+        // is rebuilt for the next.
+        let mut store = match self.store.take() {
+            Some((key, store)) if key == job.method_key => store,
+            _ => strata_stores::create(&job.method, &job.options)?,
+        };
+        let mut scene = (*self.shared.scene).clone();
+        scene.width = job.width;
+        scene.height = job.height;
+        scene.camera = job.camera;
+        let input = FrameInput::from_scene(&scene, job.frame);
+        let start = Instant::now();
+        let pool = &self.shared.pool;
+        let raster = &mut self.raster;
+        let result =
+            pool.install(|| render_frame(store.as_mut(), raster, &input, scene.background))?;
+        let render_ms = ms(start.elapsed());
+        let start = Instant::now();
+        let mut png = Vec::new();
+        result
+            .image
+            .encode_png(&mut png)
+            .context("cannot encode the frame as PNG")?;
+        let header = json!({
+            "type": "frame",
+            "id": job.id,
+            "stats": stats_json(&scene, store.name(), job.frame, pool.current_num_threads(), &result),
+            "camera": protocol::camera_json(&job.camera),
+            "camera_toml": protocol::view_toml(&job.camera, job.width, job.height),
+            "render_ms": render_ms,
+            "encode_ms": ms(start.elapsed()),
+            "png_bytes": png.len(),
+        });
+        self.store = Some((job.method_key.clone(), store));
+        Ok(protocol::frame_message(&header, &png))
+    }
+}

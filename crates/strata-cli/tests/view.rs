@@ -1,0 +1,282 @@
+//! `strata view` as a process: the page and its assets over HTTP, and the WebSocket protocol
+//! spoken by a plain client (the browser tests in tests/browser drive the page itself).
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::process::{Child, Command as StdCommand, Stdio};
+
+use assert_cmd::Command;
+use assert_cmd::cargo::CommandCargoExt;
+use serde_json::{Value, json};
+use tempfile::TempDir;
+use tungstenite::Message;
+
+/// A `strata view` process on a free port, killed when dropped.
+struct Viewer {
+    child: Child,
+    addr: String,
+}
+
+impl Viewer {
+    fn start(args: &[&str]) -> Viewer {
+        let mut child = StdCommand::cargo_bin("strata")
+            .expect("the strata binary")
+            .args(["view", "spheres", "--listen", "127.0.0.1:0", "-j", "2"])
+            .args(args)
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("strata view starts");
+        let mut line = String::new();
+        BufReader::new(child.stderr.take().expect("stderr"))
+            .read_line(&mut line)
+            .expect("a first line");
+        let addr = line
+            .split("http://")
+            .nth(1)
+            .and_then(|rest| rest.split('/').next())
+            .unwrap_or_else(|| panic!("the first line names the address: {line:?}"))
+            .to_owned();
+        Viewer { child, addr }
+    }
+
+    fn get(&self, path: &str) -> (String, String) {
+        let mut s = TcpStream::connect(&self.addr).expect("connect");
+        write!(
+            s,
+            "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .expect("send");
+        let mut text = String::new();
+        s.read_to_string(&mut text).expect("read");
+        let (head, body) = text.split_once("\r\n\r\n").expect("a header and a body");
+        (head.to_owned(), body.to_owned())
+    }
+
+    fn socket(&self) -> tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>> {
+        tungstenite::connect(format!("ws://{}/ws", self.addr))
+            .expect("WebSocket handshake")
+            .0
+    }
+}
+
+impl Drop for Viewer {
+    fn drop(&mut self) {
+        self.child.kill().ok();
+        self.child.wait().ok();
+    }
+}
+
+fn text(m: Message) -> Value {
+    match m {
+        Message::Text(t) => serde_json::from_str(&t).expect("JSON"),
+        other => panic!("expected text, got {other:?}"),
+    }
+}
+
+/// Splits a frame message into its header and PNG.
+fn frame(m: Message) -> (Value, Vec<u8>) {
+    let Message::Binary(b) = m else {
+        panic!("expected a frame, got {m:?}");
+    };
+    let n = u32::from_le_bytes(b[..4].try_into().expect("length")) as usize;
+    let header = serde_json::from_slice(&b[4..4 + n]).expect("header JSON");
+    (header, b[4 + n..].to_vec())
+}
+
+fn pixels(png_bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
+        .read_info()
+        .expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size().expect("size")];
+    let info = reader.next_frame(&mut buf).expect("a frame");
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+#[test]
+fn the_page_and_its_assets_are_served() {
+    let v = Viewer::start(&[]);
+    for (path, kind, needle) in [
+        ("/", "text/html", "<canvas id=\"frame\""),
+        ("/page.js", "text/javascript", "new WebSocket"),
+        ("/page.css", "text/css", "#panel"),
+    ] {
+        let (head, body) = v.get(path);
+        assert!(head.starts_with("HTTP/1.1 200"), "{path}: {head}");
+        assert!(head.contains(kind), "{path}: {head}");
+        assert!(body.contains(needle), "{path}");
+    }
+    let (head, _) = v.get("/nothing-here");
+    assert!(head.starts_with("HTTP/1.1 404"), "{head}");
+}
+
+#[test]
+fn a_view_request_gets_the_frame_strata_render_makes() {
+    let v = Viewer::start(&["--method", "kbuffer:k=3"]);
+    let mut ws = v.socket();
+    let hello = text(ws.read().expect("hello"));
+    assert_eq!(hello["type"], "hello");
+    assert_eq!(hello["scene"], "spheres");
+    assert_eq!(hello["method"], "kbuffer");
+    assert_eq!(hello["method_options"], json!({"k": "3"}));
+    let kbuffer = hello["methods"]
+        .as_array()
+        .expect("methods")
+        .iter()
+        .find(|m| m["name"] == "kbuffer")
+        .expect("kbuffer is offered");
+    assert_eq!(kbuffer["options"], json!(["k", "tail-blend"]));
+    let k = hello["options"]
+        .as_array()
+        .expect("options")
+        .iter()
+        .find(|o| o["name"] == "k")
+        .expect("k is described");
+    assert_eq!(k["default"], "4");
+    assert!(k["help"].as_str().expect("help").contains("1 to 1024"));
+
+    let camera = json!({"eye": [0.3, 0.5, 1.7], "target": [0, 0, 0], "up": [0, 1, 0],
+                        "fovy_deg": 40, "near": 0.01, "far": 100});
+    let request = json!({"type": "view", "id": 5, "width": 96, "height": 64, "camera": camera,
+                         "method": "kbuffer", "options": {"k": "3"}});
+    ws.send(Message::text(request.to_string())).expect("send");
+    let (header, png) = frame(ws.read().expect("a frame"));
+    assert_eq!(header["id"], 5);
+    assert_eq!(header["stats"]["method"], "kbuffer");
+    let (w, h, got) = pixels(&png);
+    assert_eq!((w, h), (96, 64));
+
+    // The view the frame reports, pasted into the built-in scene's file, renders the same
+    // image and the same statistics.
+    let dir = TempDir::new().expect("temp dir");
+    let scene = dir.path().join("view.toml");
+    let out = dir.path().join("render.png");
+    let stats = dir.path().join("render.json");
+    // The built-in scene's own objects: render it with the page's view through a scene file.
+    let source = Command::cargo_bin("strata")
+        .expect("strata")
+        .args(["scenes", "--print", "spheres"])
+        .output()
+        .expect("runs");
+    let source = String::from_utf8(source.stdout).expect("utf-8");
+    let objects = &source[source.find("[[objects]]").expect("objects")..];
+    let view = header["camera_toml"].as_str().expect("camera_toml");
+    let (size, cam) = view.split_once("[camera]").expect("a camera table");
+    let background = "background = [1.0, 1.0, 1.0]\n";
+    std::fs::write(
+        &scene,
+        format!("{size}{background}\n[camera]{cam}\n{objects}"),
+    )
+    .expect("write");
+    Command::cargo_bin("strata")
+        .expect("strata")
+        .args([
+            "render",
+            scene.to_str().expect("utf-8"),
+            "-m",
+            "kbuffer",
+            "-k",
+            "3",
+            "-j",
+            "1",
+        ])
+        .arg("--out")
+        .arg(&out)
+        .arg("--stats")
+        .arg(&stats)
+        .assert()
+        .success();
+    let (_, _, expected) = pixels(&std::fs::read(&out).expect("render output"));
+    assert!(
+        got == expected,
+        "the frame differs from strata render's image"
+    );
+    let cli: Value = serde_json::from_slice(&std::fs::read(&stats).expect("stats")).expect("JSON");
+    for key in [
+        "fragments",
+        "covered_pixels",
+        "depth_histogram",
+        "memory_bytes",
+    ] {
+        assert_eq!(header["stats"][key], cli[key], "{key}");
+    }
+}
+
+#[test]
+fn bad_requests_get_errors_and_the_connection_goes_on() {
+    let v = Viewer::start(&[]);
+    let mut ws = v.socket();
+    let hello = text(ws.read().expect("hello"));
+    let camera = hello["camera"].clone();
+    for (message, expected) in [
+        ("not json".to_owned(), "malformed message"),
+        (
+            json!({"type": "view", "id": 9, "width": 0, "height": 10, "camera": camera,
+                   "method": "abuffer"})
+            .to_string(),
+            "width 0",
+        ),
+        (
+            json!({"type": "view", "id": 10, "width": 10, "height": 10, "camera": camera,
+                   "method": "abuffer", "options": {"k": "2"}})
+            .to_string(),
+            "does not take k",
+        ),
+    ] {
+        ws.send(Message::text(message)).expect("send");
+        let reply = text(ws.read().expect("a reply"));
+        assert_eq!(reply["type"], "error");
+        assert!(
+            reply["message"]
+                .as_str()
+                .expect("message")
+                .contains(expected),
+            "{reply}"
+        );
+    }
+    ws.send(Message::binary(vec![1, 2, 3])).expect("send");
+    assert!(
+        text(ws.read().expect("a reply"))["message"]
+            .as_str()
+            .expect("message")
+            .contains("binary")
+    );
+    // Still served.
+    ws.send(Message::text(
+        json!({"type": "view", "id": 11, "width": 8, "height": 8, "camera": camera,
+               "method": "abuffer"})
+        .to_string(),
+    ))
+    .expect("send");
+    let (header, _) = frame(ws.read().expect("a frame"));
+    assert_eq!(header["id"], 11);
+}
+
+fn refused(args: &[&str], expected: &str) {
+    let out = Command::cargo_bin("strata")
+        .expect("strata")
+        .args(args)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    assert!(stderr.contains(expected), "{args:?}: {stderr}");
+}
+
+#[test]
+fn a_bad_method_spec_or_address_is_refused_before_serving() {
+    refused(
+        &["view", "spheres", "--method", "kbuffer:budget=50%"],
+        "does not take budget",
+    );
+    refused(
+        &["view", "spheres", "--method", "nope"],
+        "unknown method 'nope'",
+    );
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let addr = taken.local_addr().expect("address").to_string();
+    refused(
+        &["view", "spheres", "--listen", &addr],
+        &format!("cannot listen on {addr}"),
+    );
+}

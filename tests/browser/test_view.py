@@ -1,0 +1,392 @@
+#!/usr/bin/env python3
+"""`strata view` in a real browser: headless Chromium driven by Playwright.
+
+Usage: tests/browser/test_view.py [--strata PATH] [--out DIR] [-k NAME]
+
+Starts `strata view` on free ports, opens the page in the system's Chromium (nothing is
+downloaded) and checks what a person would: the first frame is the image `strata render` makes of
+the same view; dragging orbits the camera, and the camera the page reports renders, pasted into a
+scene file, to the very image on the canvas; switching the method and its options gives the
+statistics `strata render --stats` reports; bad input of every kind gets an error in the page and
+never takes the server down; a killed socket reconnects; pages beyond --max-pages are told why.
+Screenshots of each state go to --out (default target/browser-tests).
+
+Exit status 0 if every test passed, 1 if one failed. Without Chromium or Playwright it says so and
+exits 0, unless STRATA_REQUIRE_TOOLS=1 (CI), where a missing browser is a failure.
+"""
+
+import argparse
+import base64
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENE = "spheres"
+SIZE = (320, 180)
+
+
+def find_browser():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+class Server:
+    """A `strata view` process on a free port."""
+
+    def __init__(self, strata, *args):
+        self.proc = subprocess.Popen(
+            [strata, "view", SCENE, "--listen", "127.0.0.1:0", "-j", "2", *args],
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        deadline = time.monotonic() + 60
+        self.url = None
+        while time.monotonic() < deadline:
+            line = self.proc.stderr.readline()
+            if not line:
+                break
+            m = re.search(r"at (http://127\.0\.0\.1:\d+/)", line)
+            if m:
+                self.url = m.group(1)
+                break
+        if self.url is None:
+            self.proc.kill()
+            raise RuntimeError(f"strata view did not start: {self.proc.stderr.read()}")
+
+    def alive(self):
+        return self.proc.poll() is None
+
+    def stop(self):
+        self.proc.terminate()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+def scene_with_view(strata, view_toml, path):
+    """The built-in scene's file with the page's size and camera pasted in."""
+    source = subprocess.run(
+        [strata, "scenes", "--print", SCENE], check=True, capture_output=True, text=True
+    ).stdout
+    lines = source.splitlines()
+    first_table = next(i for i, l in enumerate(lines) if l.startswith("["))
+    preamble = [l for l in lines[:first_table] if not re.match(r"(width|height)\s*=", l)]
+    tables, skipping = [], False
+    for l in lines[first_table:]:
+        if l.startswith("["):
+            skipping = l.strip() == "[camera]"
+        if not skipping:
+            tables.append(l)
+    size, camera = view_toml.split("[camera]", 1)
+    text = "\n".join([size.strip(), *preamble, "[camera]" + camera, *tables]) + "\n"
+    Path(path).write_text(text)
+    return path
+
+
+def render(strata, scene_file, out_png, *method_args):
+    stats = str(out_png) + ".json"
+    subprocess.run(
+        [strata, "render", str(scene_file), "--out", str(out_png), "--stats", stats, "-j", "2",
+         *method_args],
+        check=True,
+        capture_output=True,
+    )
+    return json.loads(Path(stats).read_text())
+
+
+COMPARE_JS = """async (b64) => {
+  const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+  const bitmap = await createImageBitmap(new Blob([bytes], {type: 'image/png'}),
+                                         {colorSpaceConversion: 'none', premultiplyAlpha: 'none'});
+  const view = document.getElementById('frame');
+  if (bitmap.width !== view.width || bitmap.height !== view.height)
+    return {size: [view.width, view.height], expected: [bitmap.width, bitmap.height]};
+  const ref = new OffscreenCanvas(bitmap.width, bitmap.height).getContext('2d');
+  ref.drawImage(bitmap, 0, 0);
+  const a = ref.getImageData(0, 0, bitmap.width, bitmap.height).data;
+  const b = view.getContext('2d').getImageData(0, 0, view.width, view.height).data;
+  let differing = 0, maxDiff = 0;
+  for (let i = 0; i < a.length; i += 4) {
+    let d = 0;
+    for (let c = 0; c < 3; c++) d = Math.max(d, Math.abs(a[i + c] - b[i + c]));
+    if (d > 0) differing++;
+    maxDiff = Math.max(maxDiff, d);
+  }
+  return {differing, maxDiff, pixels: a.length / 4};
+}"""
+
+
+class Suite:
+    def __init__(self, strata, out, browser_path):
+        self.strata = strata
+        self.out = Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.tmp = Path(tempfile.mkdtemp(prefix="strata-view-"))
+        self.browser_path = browser_path
+
+    # ---- helpers --------------------------------------------------------------------------
+    def open_page(self, url, size=SIZE):
+        page = self.browser.new_page(viewport={"width": 1200, "height": 700})
+        page.on("pageerror", lambda e: self.page_errors.append(str(e)))
+        page.goto(f"{url}?size={size[0]}x{size[1]}")
+        self.wait_frame(page, after=0)
+        return page
+
+    def wait_frame(self, page, after, timeout=30000):
+        """Waits for a frame answering a request newer than `after`; returns its header."""
+        from playwright.sync_api import TimeoutError as Timeout
+
+        try:
+            page.wait_for_function(
+                "(after) => window.strataView.frame && window.strataView.frame.id > after"
+                " && window.strataView.frame.id === window.strataView.lastSentId",
+                arg=after,
+                timeout=timeout,
+            )
+        except Timeout:
+            errors = page.evaluate("window.strataView.errors")
+            raise AssertionError(f"no frame after request {after}; errors in the page: {errors}")
+        return page.evaluate("window.strataView.frame")
+
+    def last_id(self, page):
+        return page.evaluate("window.strataView.frame ? window.strataView.frame.id : 0")
+
+    def drag(self, page, dx, dy):
+        """Drags across the canvas from its centre; returns the centre."""
+        box = page.locator("#frame").bounding_box()
+        x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        page.mouse.move(x, y)
+        page.mouse.down()
+        for i in range(1, 11):
+            page.mouse.move(x + dx * i / 10, y + dy * i / 10)
+        page.mouse.up()
+        return x, y
+
+    def shot(self, page, name):
+        page.screenshot(path=str(self.out / f"{name}.png"))
+
+    def compare_with_render(self, page, header, name, *method_args):
+        scene = scene_with_view(self.strata, header["camera_toml"], self.tmp / f"{name}.toml")
+        png = self.tmp / f"{name}.png"
+        stats = render(self.strata, scene, png, *method_args)
+        diff = page.evaluate(COMPARE_JS, base64.b64encode(png.read_bytes()).decode())
+        assert diff.get("differing") == 0, f"{name}: canvas differs from strata render: {diff}"
+        return stats
+
+    # ---- tests ----------------------------------------------------------------------------
+    def test_first_frame_is_what_render_makes(self):
+        page = self.open_page(self.server.url)
+        header = page.evaluate("window.strataView.frame")
+        hello = page.evaluate("window.strataView.hello")
+        assert header["stats"]["width"] == SIZE[0] and header["stats"]["height"] == SIZE[1]
+        assert header["camera"] == hello["camera"], (header["camera"], hello["camera"])
+        self.compare_with_render(page, header, "first")
+        assert page.locator("#stats").inner_text().count("fragments") >= 2
+        self.shot(page, "01-first-frame")
+        page.close()
+
+    def test_dragging_orbits_the_camera(self):
+        page = self.open_page(self.server.url)
+        before = page.evaluate("window.strataView.frame")
+        x, y = self.drag(page, 120, 40)
+        after = self.wait_frame(page, before["id"])
+        c0, c1 = before["camera"], after["camera"]
+        assert c1["eye"] != c0["eye"], "the eye did not move"
+        assert c1["target"] == c0["target"], "orbiting moved the target"
+        d0 = math.dist(c0["eye"], c0["target"])
+        d1 = math.dist(c1["eye"], c1["target"])
+        assert abs(d0 - d1) < 1e-4 * d0, f"orbiting changed the distance {d0} -> {d1}"
+        assert page.locator("#camera").input_value() == after["camera_toml"]
+        self.compare_with_render(page, after, "orbited")
+        self.shot(page, "02-orbited")
+        # Wheel zoom brings the eye closer to the target.
+        page.mouse.move(x, y)
+        page.mouse.wheel(0, -400)
+        zoomed = self.wait_frame(page, after["id"])
+        assert math.dist(zoomed["camera"]["eye"], zoomed["camera"]["target"]) < d1
+        # Reset returns to the scene's camera.
+        page.click("#reset")
+        reset = self.wait_frame(page, zoomed["id"])
+        assert reset["camera"] == page.evaluate("window.strataView.hello.camera")
+        page.close()
+
+    def test_method_and_options_give_the_cli_statistics(self):
+        page = self.open_page(self.server.url)
+        last = self.last_id(page)
+        page.select_option("#method", "kbuffer")
+        header = self.wait_frame(page, last)
+        assert header["stats"]["method"] == "kbuffer"
+        page.fill("input[data-option=k]", "2")
+        page.locator("input[data-option=k]").dispatch_event("change")
+        header = self.wait_frame(page, header["id"])
+        stats = self.compare_with_render(page, header, "kbuffer-k2", "--method", "kbuffer", "-k", "2")
+        for key in ("method", "fragments", "fragments_rasterized", "covered_pixels",
+                    "max_depth_complexity", "depth_histogram", "dropped_fragments",
+                    "memory_bytes", "used_memory_bytes"):
+            assert header["stats"][key] == stats[key], (key, header["stats"][key], stats[key])
+        assert header["stats"]["max_depth_complexity"] <= 2
+        text = page.locator("#stats").inner_text()
+        assert f"{stats['fragments']:,}" in text, text
+        self.shot(page, "03-kbuffer-k2")
+        # vkbuffer with its own options: the form offers exactly the options the method reads.
+        last = header["id"]
+        page.select_option("#method", "vkbuffer")
+        header = self.wait_frame(page, last)
+        offered = page.eval_on_selector_all("#options input", "els => els.map(e => e.dataset.option)")
+        hello = page.evaluate("window.strataView.hello")
+        reads = next(m["options"] for m in hello["methods"] if m["name"] == "vkbuffer")
+        assert offered == [o for o in reads if o != "weights"], (offered, reads)
+        page.close()
+
+    def test_bad_option_shows_an_error_and_the_page_recovers(self):
+        page = self.open_page(self.server.url)
+        page.select_option("#method", "kbuffer")
+        page.fill("input[data-option=k]", "0")
+        page.locator("input[data-option=k]").dispatch_event("change")
+        page.wait_for_selector("#error:not([hidden])")
+        message = page.locator("#error").inner_text()
+        assert "k" in message and "1" in message, message
+        self.shot(page, "04-bad-option")
+        last = self.last_id(page)
+        page.fill("input[data-option=k]", "3")
+        page.locator("input[data-option=k]").dispatch_event("change")
+        header = self.wait_frame(page, last)
+        assert header["stats"]["max_depth_complexity"] <= 3
+        assert page.locator("#error").is_hidden()
+        page.close()
+
+    def test_malformed_messages_never_take_the_server_down(self):
+        page = self.open_page(self.server.url)
+        replies = page.evaluate("""async () => {
+          const ws = new WebSocket(`ws://${location.host}/ws`);
+          ws.binaryType = 'arraybuffer';
+          const errors = [];
+          ws.onmessage = (e) => { if (typeof e.data === 'string') {
+            const m = JSON.parse(e.data); if (m.type === 'error') errors.push(m.message); } };
+          await new Promise((r) => ws.onopen = r);
+          const cam = window.strataView.hello.camera;
+          const view = (patch) => JSON.stringify(Object.assign({type: 'view', id: 1, width: 64,
+              height: 36, camera: cam, method: 'abuffer', options: {}}, patch));
+          const bad = ['garbage', '{"type": "view"}', '{"type": "dance"}', '[1, 2, 3]',
+            view({width: 100000}), view({method: 'nope'}), view({options: {k: '2'}}),
+            view({camera: Object.assign({}, cam, {up: [0, 0, 0]})}),
+            view({camera: Object.assign({}, cam, {eye: cam.target})}), view({frame: 99}),
+            view({options: {weights: '/etc/passwd'}})];
+          for (const m of bad) ws.send(m);
+          ws.send(new Uint8Array([1, 2, 3]));
+          const want = bad.length + 1;
+          for (let i = 0; i < 100 && errors.length < want; i++) await new Promise((r) => setTimeout(r, 50));
+          // A client that asks for a big frame and goes away before it is done.
+          ws.send(view({width: 2048, height: 2048}));
+          ws.close();
+          return errors;
+        }""")
+        assert len(replies) == 12, replies
+        assert all(r for r in replies), replies
+        assert any("abuffer does not take k" in r for r in replies), replies
+        assert self.server.alive(), "the server died"
+        # The page is still served.
+        last = self.last_id(page)
+        self.drag(page, 40, 0)
+        self.wait_frame(page, last)
+        page.close()
+
+    def test_a_killed_socket_reconnects(self):
+        page = self.open_page(self.server.url)
+        last = self.last_id(page)
+        page.evaluate("window.strataView.socket.close()")
+        page.wait_for_function("window.strataView.connects >= 2", timeout=15000)
+        self.wait_frame(page, last)
+        self.shot(page, "05-reconnected")
+        page.close()
+
+    def test_many_pages_at_once_and_a_limit(self):
+        pages = [self.browser.new_page() for _ in range(4)]
+        for p in pages:
+            p.goto(f"{self.server.url}?size=160x90")
+        for p in pages:
+            self.wait_frame(p, 0)
+        for p in pages:
+            p.close()
+        limited = Server(self.strata, "--max-pages", "1")
+        try:
+            first = self.open_page(limited.url)
+            second = self.browser.new_page()
+            second.goto(limited.url)
+            second.wait_for_selector("#error:not([hidden])")
+            assert "too many pages" in second.locator("#error").inner_text()
+            self.shot(second, "06-too-many-pages")
+            second.close()
+            first.close()
+        finally:
+            limited.stop()
+
+    # ---- driver ---------------------------------------------------------------------------
+    def run(self, only):
+        from playwright.sync_api import sync_playwright
+
+        tests = [n for n in dir(self) if n.startswith("test_") and (not only or only in n)]
+        failed = []
+        self.server = Server(self.strata)
+        try:
+            with sync_playwright() as pw:
+                self.browser = pw.chromium.launch(
+                    executable_path=self.browser_path, args=["--no-sandbox"]
+                )
+                for name in sorted(tests, key=lambda n: getattr(Suite, n).__code__.co_firstlineno):
+                    self.page_errors = []
+                    start = time.monotonic()
+                    try:
+                        getattr(self, name)()
+                        assert not self.page_errors, f"errors in the page: {self.page_errors}"
+                        print(f"ok    {name} ({time.monotonic() - start:.1f} s)")
+                    except Exception:
+                        failed.append(name)
+                        print(f"FAIL  {name}\n{traceback.format_exc()}")
+                self.browser.close()
+        finally:
+            self.server.stop()
+        print(f"{len(tests) - len(failed)} passed, {len(failed)} failed; screenshots in {self.out}")
+        return 1 if failed else 0
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--strata", default=str(ROOT / "target" / "debug" / "strata"))
+    parser.add_argument("--out", default=str(ROOT / "target" / "browser-tests"))
+    parser.add_argument("-k", dest="only", default="", help="run only tests whose name contains this")
+    args = parser.parse_args()
+    required = os.environ.get("STRATA_REQUIRE_TOOLS") == "1"
+    browser = find_browser()
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        browser = None
+    if browser is None:
+        message = "browser tests: Chromium or Playwright is missing (apt: chromium; pip: playwright)"
+        if required:
+            print(f"{message}; STRATA_REQUIRE_TOOLS=1, so this is a failure", file=sys.stderr)
+            return 1
+        print(f"{message}: SKIPPED", file=sys.stderr)
+        return 0
+    if not Path(args.strata).exists():
+        print(f"browser tests: no strata binary at {args.strata}; build it first (cargo build)", file=sys.stderr)
+        return 1
+    return Suite(args.strata, args.out, browser).run(args.only)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
