@@ -22,6 +22,7 @@ import math
 import os
 import re
 import shutil
+import struct
 import subprocess
 import sys
 import tempfile
@@ -251,6 +252,36 @@ class Suite:
         assert offered == [o for o in reads if o != "weights"], (offered, reads)
         page.close()
 
+    def test_the_pixel_inspector_lists_the_deep_frame(self):
+        page = self.open_page(self.server.url)
+        header = page.evaluate("window.strataView.frame")
+        box = page.locator("#frame").bounding_box()
+        page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        page.wait_for_function("window.strataView.pixel !== null", timeout=15000)
+        pixel = page.evaluate("window.strataView.pixel")
+        assert pixel["frame"] == header["id"], "clicking must not move the camera"
+        assert (pixel["x"], pixel["y"]) == (SIZE[0] // 2, SIZE[1] // 2), pixel
+        assert len(pixel["fragments"]) >= 2, pixel
+        # The same pixel of `strata render --deep`, read back by `strata inspect`.
+        scene = scene_with_view(self.strata, header["camera_toml"], self.tmp / "pixel.toml")
+        deep = self.tmp / "pixel.exr"
+        subprocess.run([self.strata, "render", str(scene), "--out", str(self.tmp / "pixel.png"),
+                        "--deep", str(deep), "-j", "2"], check=True, capture_output=True)
+        listed = json.loads(subprocess.run(
+            [self.strata, "inspect", str(deep), "--pixel", f"{pixel['x']},{pixel['y']}", "--json"],
+            check=True, capture_output=True, text=True).stdout)["pixel"]["samples"]
+        f32 = lambda v: struct.unpack("f", struct.pack("f", v))[0]
+        assert len(listed) == len(pixel["fragments"]), (listed, pixel)
+        for got, want in zip(pixel["fragments"], listed):
+            assert f32(got["depth"]) == f32(want["strata.depth"]), (got, want)
+            assert got["object"] == int(want["objectid"]), (got, want)
+            assert abs(got["rgba"][3] / 255 - want["A"]) < 1e-6, (got, want)
+            assert got["name"], got
+        rows = page.locator("#pixel tbody tr").count()
+        assert rows == len(listed), rows
+        self.shot(page, "04-pixel-inspector")
+        page.close()
+
     def test_bad_option_shows_an_error_and_the_page_recovers(self):
         page = self.open_page(self.server.url)
         page.select_option("#method", "kbuffer")
@@ -259,7 +290,7 @@ class Suite:
         page.wait_for_selector("#error:not([hidden])")
         message = page.locator("#error").inner_text()
         assert "k" in message and "1" in message, message
-        self.shot(page, "04-bad-option")
+        self.shot(page, "05-bad-option")
         last = self.last_id(page)
         page.fill("input[data-option=k]", "3")
         page.locator("input[data-option=k]").dispatch_event("change")
@@ -310,7 +341,7 @@ class Suite:
         page.evaluate("window.strataView.socket.close()")
         page.wait_for_function("window.strataView.connects >= 2", timeout=15000)
         self.wait_frame(page, last)
-        self.shot(page, "05-reconnected")
+        self.shot(page, "06-reconnected")
         page.close()
 
     def test_many_pages_at_once_and_a_limit(self):
@@ -328,7 +359,7 @@ class Suite:
             second.goto(limited.url)
             second.wait_for_selector("#error:not([hidden])")
             assert "too many pages" in second.locator("#error").inner_text()
-            self.shot(second, "06-too-many-pages")
+            self.shot(second, "07-too-many-pages")
             second.close()
             first.close()
         finally:

@@ -208,6 +208,15 @@ fn bad_requests_get_errors_and_the_connection_goes_on() {
     let mut ws = v.socket();
     let hello = text(ws.read().expect("hello"));
     let camera = hello["camera"].clone();
+    let inspect =
+        |x: u32, y: u32| Message::text(json!({"type": "inspect", "x": x, "y": y}).to_string());
+    ws.send(inspect(0, 0)).expect("send");
+    assert!(
+        text(ws.read().expect("a reply"))["message"]
+            .as_str()
+            .expect("message")
+            .contains("no frame yet")
+    );
     for (message, expected) in [
         ("not json".to_owned(), "malformed message"),
         (
@@ -250,6 +259,26 @@ fn bad_requests_get_errors_and_the_connection_goes_on() {
     .expect("send");
     let (header, _) = frame(ws.read().expect("a frame"));
     assert_eq!(header["id"], 11);
+    ws.send(inspect(8, 0)).expect("send");
+    let reply = text(ws.read().expect("a reply"));
+    assert!(
+        reply["message"]
+            .as_str()
+            .expect("message")
+            .contains("outside the 8x8 frame"),
+        "{reply}"
+    );
+    ws.send(inspect(7, 7)).expect("send");
+    let reply = text(ws.read().expect("a reply"));
+    assert_eq!(
+        (reply["type"].as_str(), reply["frame"].as_u64()),
+        (Some("pixel"), Some(11)),
+        "{reply}"
+    );
+    assert_eq!(
+        (reply["x"].as_u64(), reply["y"].as_u64()),
+        (Some(7), Some(7))
+    );
 }
 
 fn refused(args: &[&str], expected: &str) {

@@ -7,9 +7,13 @@
 //!                  "camera": {"eye": [x, y, z], "target": […], "up": […],
 //!                             "fovy_deg": 45, "near": 0.01, "far": 100},
 //!                  "method": "kbuffer", "options": {"k": "2", "tail-blend": "true"}}
+//!                 {"type": "inspect", "x": 120, "y": 40}     the fragments of one pixel of the
+//!                                                           latest frame
 //! server → page   {"type": "hello", …}        once, on connecting: the scene, its camera and
 //!                                             size, the methods and their options (see `hello`)
 //!                 {"type": "error", "id": 7, "message": "…"}   a request refused or failed
+//!                 {"type": "pixel", "frame": 7, "x", "y", "fragments": [{"depth", "rgba",
+//!                  "object", "name"}, …]}     front to back, as the frame's DeepFrame holds them
 //! ```
 //!
 //! A frame is one binary message: a `u32` little-endian header length, the header (JSON:
@@ -45,25 +49,41 @@ pub(crate) struct CameraMessage {
     far: f64,
 }
 
+/// A view request as a page sends it.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct ViewMessage {
+    /// The page's number for the request; frames and errors carry it back.
+    id: u64,
+    width: u32,
+    height: u32,
+    #[serde(default)]
+    frame: u32,
+    camera: CameraMessage,
+    method: String,
+    /// Option name → value, as `compare --methods` specs write them; a flag's value is
+    /// `"true"` or `"false"`.
+    #[serde(default)]
+    options: BTreeMap<String, String>,
+}
+
 /// What a page may send.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub(crate) enum PageMessage {
     /// Render this view; it replaces any view not yet rendered.
-    View {
-        /// The page's number for the request; frames and errors carry it back.
-        id: u64,
-        width: u32,
-        height: u32,
-        #[serde(default)]
-        frame: u32,
-        camera: CameraMessage,
-        method: String,
-        /// Option name → value, as `compare --methods` specs write them; a flag's value is
-        /// `"true"` or `"false"`.
-        #[serde(default)]
-        options: BTreeMap<String, String>,
-    },
+    View(ViewMessage),
+    /// List the fragments of one pixel of the latest frame.
+    Inspect { x: u32, y: u32 },
+}
+
+/// A checked message.
+#[derive(Clone, Debug)]
+pub(crate) enum Request {
+    /// Render this.
+    View(Box<Job>),
+    /// The pixel `(x, y)` of the latest frame (checked against its size when answered).
+    Inspect { x: u32, y: u32 },
 }
 
 /// A checked request: everything a render needs.
@@ -90,10 +110,18 @@ pub(crate) fn request_id(text: &str) -> Option<u64> {
 }
 
 /// Parses and checks one text message from a page.
-pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Job> {
+pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Request> {
     let message: PageMessage =
         serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
-    let PageMessage::View {
+    match message {
+        PageMessage::View(m) => view(m, scene).map(|job| Request::View(Box::new(job))),
+        PageMessage::Inspect { x, y } => Ok(Request::Inspect { x, y }),
+    }
+}
+
+/// Checks a view request.
+fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
+    let ViewMessage {
         id,
         width,
         height,
@@ -101,7 +129,7 @@ pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Job> {
         camera,
         method,
         options,
-    } = message;
+    } = m;
     for (name, side) in [("width", width), ("height", height)] {
         if !(1..=MAX_SIDE).contains(&side) {
             bail!("{name} {side} is outside 1..={MAX_SIDE} pixels");
@@ -209,14 +237,16 @@ mod tests {
 
     fn refused(text: &str) -> String {
         match parse(text, &scene()) {
-            Ok(job) => panic!("accepted {text}: {job:?}"),
+            Ok(request) => panic!("accepted {text}: {request:?}"),
             Err(e) => format!("{e:#}"),
         }
     }
 
     #[test]
     fn a_good_request_becomes_a_job() {
-        let job = parse(&request(|_| {}), &scene()).expect("valid");
+        let Ok(Request::View(job)) = parse(&request(|_| {}), &scene()) else {
+            panic!("a valid view request");
+        };
         assert_eq!((job.id, job.width, job.height, job.frame), (3, 64, 48, 0));
         assert_eq!(job.options.k, 2);
         assert_eq!(job.method_key, "kbuffer:k=2");

@@ -14,6 +14,10 @@
 //! moves the camera quickly, or reads slowly over a slow link, gets the newest view next instead
 //! of a queue of stale ones. Refusals are answered at once by the connection's own task.
 //!
+//! A pixel to inspect goes to the render loop through a small queue (it needs the store, which
+//! the loop owns between frames) and its answer comes back through another, so neither is ever
+//! replaced by a newer request or frame.
+//!
 //! Each connection has its own store and rasterizer (their buffers reused from frame to frame);
 //! all share the server's worker threads. A render that fails or panics becomes an error
 //! message for the page; the server and the other pages go on.
@@ -26,10 +30,10 @@ use axum::extract::ws::{Message, WebSocket};
 use serde_json::json;
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::{Method, render_frame};
-use tokio::sync::watch;
+use tokio::sync::{mpsc, watch};
 
 use super::Shared;
-use super::protocol::{self, Job};
+use super::protocol::{self, Job, Request};
 use crate::report::{ms, stats_json};
 
 /// Serves one page until it goes away.
@@ -53,16 +57,34 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
     }
     let (job_tx, job_rx) = watch::channel::<Option<Job>>(None);
     let (frame_tx, mut frame_rx) = watch::channel::<Option<Message>>(None);
-    let renderer = tokio::spawn(render_loop(job_rx, frame_tx, shared.clone()));
+    let (probe_tx, probe_rx) = mpsc::channel::<(u32, u32)>(PROBES_WAITING);
+    let (answer_tx, mut answer_rx) = mpsc::channel::<String>(PROBES_WAITING);
+    let renderer = tokio::spawn(render_loop(
+        Inbox {
+            jobs: job_rx,
+            probes: probe_rx,
+        },
+        Outbox {
+            frames: frame_tx,
+            answers: answer_tx,
+        },
+        shared.clone(),
+    ));
     loop {
         tokio::select! {
             incoming = socket.recv() => {
                 let reply = match incoming {
                     Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene) {
-                        Ok(job) => {
-                            job_tx.send_replace(Some(job));
+                        Ok(Request::View(job)) => {
+                            job_tx.send_replace(Some(*job));
                             None
                         }
+                        Ok(Request::Inspect { x, y }) => probe_tx.try_send((x, y)).err().map(|_| {
+                            protocol::error_json(
+                                None,
+                                "too many pixels asked for at once; wait for the answers",
+                            )
+                        }),
                         Err(e) => Some(protocol::error_json(
                             protocol::request_id(&text),
                             &format!("{e:#}"),
@@ -81,6 +103,11 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
                     break;
                 }
             }
+            Some(answer) = answer_rx.recv() => {
+                if socket.send(Message::Text(answer.into())).await.is_err() {
+                    break;
+                }
+            }
             changed = frame_rx.changed() => {
                 if changed.is_err() {
                     break; // the render loop ended
@@ -94,32 +121,65 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
             }
         }
     }
-    // The render loop sees the request channel close and ends after its current frame.
+    // The render loop sees the request channels close and ends after its current frame.
     drop(job_tx);
+    drop(probe_tx);
     let _ = renderer.await;
 }
 
-/// Renders the latest request whenever there is a new one.
-async fn render_loop(
-    mut jobs: watch::Receiver<Option<Job>>,
+/// Pixels a page may ask about before it has its answers.
+const PROBES_WAITING: usize = 8;
+
+/// What the render loop receives.
+struct Inbox {
+    jobs: watch::Receiver<Option<Job>>,
+    probes: mpsc::Receiver<(u32, u32)>,
+}
+
+/// Where the render loop sends.
+struct Outbox {
     frames: watch::Sender<Option<Message>>,
-    shared: Arc<Shared>,
-) {
+    answers: mpsc::Sender<String>,
+}
+
+/// Renders the latest request whenever there is a new one, and answers pixel questions between
+/// frames.
+async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
     let mut renderer = Renderer::new(shared);
-    while jobs.changed().await.is_ok() {
-        let Some(job) = jobs.borrow_and_update().clone() else {
-            continue;
+    loop {
+        let work = tokio::select! {
+            changed = inbox.jobs.changed() => {
+                if changed.is_err() {
+                    return;
+                }
+                let Some(job) = inbox.jobs.borrow_and_update().clone() else {
+                    continue;
+                };
+                Work::Frame(Box::new(job))
+            }
+            Some((x, y)) = inbox.probes.recv() => Work::Probe(x, y),
         };
-        let id = job.id;
+        let id = match &work {
+            Work::Frame(job) => Some(job.id),
+            Work::Probe(..) => None,
+        };
         let done = tokio::task::spawn_blocking(move || {
-            let message = renderer.frame(&job);
+            let message = match work {
+                Work::Frame(job) => renderer.frame(&job),
+                Work::Probe(x, y) => Message::Text(renderer.inspect(x, y).into()),
+            };
             (renderer, message)
         })
         .await;
-        let message = match done {
+        let sent = match done {
             Ok((r, message)) => {
                 renderer = r;
-                message
+                match (id, message) {
+                    (None, Message::Text(answer)) => {
+                        outbox.answers.send(answer.to_string()).await.is_ok()
+                    }
+                    (_, message) => outbox.frames.send(Some(message)).is_ok(),
+                }
             }
             Err(e) => {
                 let why = if e.is_panic() {
@@ -128,16 +188,20 @@ async fn render_loop(
                 } else {
                     "the render was cancelled"
                 };
-                let _ = frames.send(Some(Message::Text(
-                    protocol::error_json(Some(id), why).into(),
-                )));
+                let _ = outbox.answers.send(protocol::error_json(id, why)).await;
                 return;
             }
         };
-        if frames.send(Some(message)).is_err() {
+        if !sent {
             return;
         }
     }
+}
+
+/// One piece of work for the render loop.
+enum Work {
+    Frame(Box<Job>),
+    Probe(u32, u32),
 }
 
 /// A page's store and rasterizer, kept from frame to frame.
@@ -146,6 +210,8 @@ struct Renderer {
     raster: Rasterizer,
     /// The store and the method key it was built for.
     store: Option<(String, Box<dyn Method>)>,
+    /// The request id and size of the frame the store holds.
+    last: Option<(u64, u32, u32)>,
 }
 
 impl Renderer {
@@ -154,7 +220,55 @@ impl Renderer {
             shared,
             raster: Rasterizer::default(),
             store: None,
+            last: None,
         }
+    }
+
+    /// The answer to "which fragments does pixel (x, y) hold", as a `pixel` or `error` message.
+    fn inspect(&self, x: u32, y: u32) -> String {
+        let (Some((id, width, height)), Some((_, store))) = (self.last, &self.store) else {
+            return protocol::error_json(None, "no frame yet: nothing to inspect");
+        };
+        if x >= width || y >= height {
+            return protocol::error_json(
+                Some(id),
+                &format!("pixel {x},{y} is outside the {width}x{height} frame"),
+            );
+        }
+        let frame = match store.deep_frame() {
+            None => {
+                return protocol::error_json(
+                    Some(id),
+                    &format!(
+                        "method {} blends fragments without keeping them: there is no list to show",
+                        store.name()
+                    ),
+                );
+            }
+            Some(Err(e)) => {
+                return protocol::error_json(
+                    Some(id),
+                    &format!("method {} gave an invalid DeepFrame: {e}", store.name()),
+                );
+            }
+            Some(Ok(frame)) => frame,
+        };
+        let scene = &self.shared.scene;
+        let fragments: Vec<serde_json::Value> = frame
+            .pixel(x, y)
+            .iter()
+            .map(|f| {
+                let name = scene
+                    .objects
+                    .iter()
+                    .find(|o| o.id == f.object)
+                    .map(|o| o.name.as_str());
+                json!({"depth": f.depth, "rgba": f.color.0, "object": f.object.0, "name": name})
+            })
+            .collect();
+        json!({"type": "pixel", "frame": id, "x": x, "y": y, "method": store.name(),
+               "fragments": fragments})
+        .to_string()
     }
 
     /// The frame message for `job`, or an error message.
@@ -168,6 +282,7 @@ impl Renderer {
     fn render(&mut self, job: &Job) -> Result<Vec<u8>> {
         // Taken out for the frame and put back once it succeeds: a store that failed mid-frame
         // is rebuilt for the next.
+        self.last = None;
         let mut store = match self.store.take() {
             Some((key, store)) if key == job.method_key => store,
             _ => strata_stores::create(&job.method, &job.options)?,
@@ -200,6 +315,7 @@ impl Renderer {
             "png_bytes": png.len(),
         });
         self.store = Some((job.method_key.clone(), store));
+        self.last = Some((job.id, job.width, job.height));
         Ok(protocol::frame_message(&header, &png))
     }
 }

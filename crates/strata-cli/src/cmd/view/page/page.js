@@ -22,6 +22,7 @@ const S = {
   shownTimes: [],       // when recent frames were shown, for the rate
   latencyMs: null,      // request sent -> its frame drawn, of the last frame
   errors: [],           // {id, message}
+  pixel: null,          // the last pixel message: {frame, x, y, fragments}
   socket: null,
   connects: 0,
 };
@@ -89,12 +90,18 @@ canvas.addEventListener("contextmenu", (e) => e.preventDefault());
 canvas.addEventListener("pointerdown", (e) => {
   if (!S.camera) return;
   canvas.setPointerCapture(e.pointerId);
-  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, button: e.button, shift: e.shiftKey });
+  pointers.set(e.pointerId, {
+    x: e.clientX, y: e.clientY, x0: e.clientX, y0: e.clientY, moved: false,
+    button: e.button, shift: e.shiftKey,
+  });
   canvas.classList.add("dragging");
 });
 canvas.addEventListener("pointermove", (e) => {
   const p = pointers.get(e.pointerId);
   if (!p || !S.camera) return;
+  // A press that moves less than a few pixels is a click (inspect), not a drag.
+  if (!p.moved && Math.hypot(e.clientX - p.x0, e.clientY - p.y0) < 4) return;
+  p.moved = true;
   const dx = e.clientX - p.x, dy = e.clientY - p.y;
   if (pointers.size === 2) {
     // Pinch: the change of the distance between the two pointers zooms, their midpoint pans.
@@ -112,6 +119,8 @@ canvas.addEventListener("pointermove", (e) => {
   requestView();
 });
 const release = (e) => {
+  const p = pointers.get(e.pointerId);
+  if (e.type === "pointerup" && p && !p.moved && p.button === 0 && pointers.size === 1) inspect(e);
   pointers.delete(e.pointerId);
   if (pointers.size === 0) canvas.classList.remove("dragging");
 };
@@ -129,6 +138,43 @@ $("reset").addEventListener("click", () => {
   S.camera = structuredClone(S.hello.camera);
   requestView();
 });
+
+// The frame pixel under a pointer event, through the canvas's object-fit: contain.
+function framePixel(e) {
+  const r = canvas.getBoundingClientRect();
+  const s = Math.min(r.width / canvas.width, r.height / canvas.height);
+  const ox = (r.width - canvas.width * s) / 2, oy = (r.height - canvas.height * s) / 2;
+  const x = Math.floor((e.clientX - r.left - ox) / s), y = Math.floor((e.clientY - r.top - oy) / s);
+  return x >= 0 && y >= 0 && x < canvas.width && y < canvas.height ? [x, y] : null;
+}
+
+function inspect(e) {
+  const p = framePixel(e);
+  if (!p || !S.frame || !S.socket || S.socket.readyState !== WebSocket.OPEN) return;
+  S.socket.send(JSON.stringify({ type: "inspect", x: p[0], y: p[1] }));
+}
+
+function showPixel(m) {
+  S.pixel = m;
+  const n = m.fragments.length;
+  $("pixel-note").textContent =
+    `pixel ${m.x}, ${m.y} of frame ${m.frame} (${m.method}): ${n} fragment${n === 1 ? "" : "s"}, front to back`;
+  const tbody = $("pixel").tBodies[0];
+  tbody.replaceChildren();
+  m.fragments.forEach((f, i) => {
+    const tr = tbody.insertRow();
+    tr.insertCell().textContent = String(i + 1);
+    tr.insertCell().textContent = f.depth.toFixed(6);
+    const swatch = document.createElement("span");
+    swatch.className = "swatch";
+    const fill = document.createElement("span");
+    fill.style.background = `rgba(${f.rgba[0]}, ${f.rgba[1]}, ${f.rgba[2]}, ${f.rgba[3] / 255})`;
+    swatch.append(fill);
+    tr.insertCell().append(swatch);
+    tr.insertCell().textContent = f.rgba.join(" ");
+    tr.insertCell().textContent = f.name ?? `#${f.object}`;
+  });
+}
 
 // ---- requests ------------------------------------------------------------------------------
 let scheduled = false;
@@ -342,6 +388,8 @@ function connect() {
         buildMethods();
       }
       sendView(); // the view as it is, also after a reconnection
+    } else if (m.type === "pixel") {
+      showPixel(m);
     } else if (m.type === "error") {
       showError(m.id, m.message);
     }
