@@ -108,17 +108,17 @@ def render(strata, scene_file, out_png, *method_args):
     return json.loads(Path(stats).read_text())
 
 
-COMPARE_JS = """async (b64) => {
+COMPARE_JS = """async ([b64, x0]) => {
   const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
   const bitmap = await createImageBitmap(new Blob([bytes], {type: 'image/png'}),
                                          {colorSpaceConversion: 'none', premultiplyAlpha: 'none'});
   const view = document.getElementById('frame');
-  if (bitmap.width !== view.width || bitmap.height !== view.height)
-    return {size: [view.width, view.height], expected: [bitmap.width, bitmap.height]};
+  if (x0 + bitmap.width > view.width || bitmap.height !== view.height)
+    return {size: [view.width, view.height], expected: [bitmap.width, bitmap.height], x0};
   const ref = new OffscreenCanvas(bitmap.width, bitmap.height).getContext('2d');
   ref.drawImage(bitmap, 0, 0);
   const a = ref.getImageData(0, 0, bitmap.width, bitmap.height).data;
-  const b = view.getContext('2d').getImageData(0, 0, view.width, view.height).data;
+  const b = view.getContext('2d').getImageData(x0, 0, bitmap.width, bitmap.height).data;
   let differing = 0, maxDiff = 0;
   for (let i = 0; i < a.length; i += 4) {
     let d = 0;
@@ -179,13 +179,16 @@ class Suite:
     def shot(self, page, name):
         page.screenshot(path=str(self.out / f"{name}.png"))
 
-    def compare_with_render(self, page, header, name, *method_args):
+    def compare_with_render(self, page, header, name, *method_args, x0=0):
         scene = scene_with_view(self.strata, header["camera_toml"], self.tmp / f"{name}.toml")
         png = self.tmp / f"{name}.png"
         stats = render(self.strata, scene, png, *method_args)
-        diff = page.evaluate(COMPARE_JS, base64.b64encode(png.read_bytes()).decode())
-        assert diff.get("differing") == 0, f"{name}: canvas differs from strata render: {diff}"
+        self.compare_with_png(page, png, name, x0)
         return stats
+
+    def compare_with_png(self, page, png, name, x0=0):
+        diff = page.evaluate(COMPARE_JS, [base64.b64encode(Path(png).read_bytes()).decode(), x0])
+        assert diff.get("differing") == 0, f"{name}: canvas differs from {png}: {diff}"
 
     # ---- tests ----------------------------------------------------------------------------
     def test_first_frame_is_what_render_makes(self):
@@ -250,6 +253,49 @@ class Suite:
         hello = page.evaluate("window.strataView.hello")
         reads = next(m["options"] for m in hello["methods"] if m["name"] == "vkbuffer")
         assert offered == [o for o in reads if o != "weights"], (offered, reads)
+        page.close()
+
+    def test_side_by_side_bad_pixels_and_flip_against_a_reference(self):
+        page = self.open_page(self.server.url)
+        page.select_option("#method", "kbuffer")
+        header = self.wait_frame(page, self.last_id(page))
+        page.fill("input[data-option=k]", "2")
+        page.locator("input[data-option=k]").dispatch_event("change")
+        header = self.wait_frame(page, header["id"])
+        page.select_option("#reference", "abuffer")
+        header = self.wait_frame(page, header["id"])
+        c = header["compare"]
+        assert c["method"] == "abuffer" and c["mean_flip"] is None, c
+        assert page.evaluate("document.getElementById('frame').width") == 2 * SIZE[0]
+        self.compare_with_render(page, header, "side-main", "--method", "kbuffer", "-k", "2")
+        self.compare_with_render(page, header, "side-ref", "--method", "abuffer", x0=SIZE[0])
+        self.shot(page, "04-side-by-side")
+        # The numbers and heat map of `strata compare` for the same view.
+        scene = scene_with_view(self.strata, header["camera_toml"], self.tmp / "cmp.toml")
+        out = self.tmp / "cmp"
+        subprocess.run([self.strata, "compare", str(scene), "--methods", "kbuffer:k=2",
+                        "--out-dir", str(out), "-j", "2"], check=True, capture_output=True)
+        report = json.loads((out / "report.json").read_text())["methods"][0]
+        assert c["bad_pixels"]["count"] == report["bad_pixels"]["count"], (c, report)
+        assert abs(c["rmse"] - report["rmse"]) < 1e-12, (c, report)
+        page.select_option("#show", "flip")
+        header = self.wait_frame(page, header["id"])
+        c = header["compare"]
+        assert abs(c["mean_flip"] - report["mean_flip"]) < 1e-9, (c, report)
+        assert page.evaluate("document.getElementById('frame').width") == SIZE[0]
+        self.compare_with_png(page, out / report["flip_heatmap"], "flip heat map")
+        self.shot(page, "04-flip")
+        page.select_option("#show", "bad")
+        header = self.wait_frame(page, header["id"])
+        red = page.evaluate("""() => {
+          const c = document.getElementById('frame');
+          const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+          let n = 0;
+          for (let i = 0; i < d.length; i += 4) if (d[i] === 220 && d[i + 1] === 20 && d[i + 2] === 60) n++;
+          return n;
+        }""")
+        assert red == header["compare"]["bad_pixels"]["count"], (red, header["compare"])
+        self.shot(page, "04-bad-pixels")
         page.close()
 
     def test_the_pixel_inspector_lists_the_deep_frame(self):

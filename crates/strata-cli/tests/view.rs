@@ -309,3 +309,44 @@ fn a_bad_method_spec_or_address_is_refused_before_serving() {
         &format!("cannot listen on {addr}"),
     );
 }
+
+#[test]
+fn a_compared_view_carries_the_reference_and_the_maps() {
+    let v = Viewer::start(&[]);
+    let mut ws = v.socket();
+    let hello = text(ws.read().expect("hello"));
+    ws.send(Message::text(
+        json!({"type": "view", "id": 1, "width": 40, "height": 30, "camera": hello["camera"],
+               "method": "kbuffer", "options": {"k": "1"},
+               "compare": {"method": "abuffer", "flip": true}})
+        .to_string(),
+    ))
+    .expect("send");
+    let Message::Binary(b) = ws.read().expect("a frame") else {
+        panic!("expected a frame");
+    };
+    let n = u32::from_le_bytes(b[..4].try_into().expect("length")) as usize;
+    let header: Value = serde_json::from_slice(&b[4..4 + n]).expect("header JSON");
+    let images = header["images"].as_array().expect("images");
+    let names: Vec<&str> = images
+        .iter()
+        .map(|i| i["name"].as_str().expect("name"))
+        .collect();
+    assert_eq!(names, ["main", "reference", "bad", "flip"]);
+    let mut at = 4 + n;
+    for image in images {
+        let bytes = image["bytes"].as_u64().expect("bytes") as usize;
+        let (w, h, _) = pixels(&b[at..at + bytes]);
+        assert_eq!((w, h), (40, 30), "{image}");
+        at += bytes;
+    }
+    assert_eq!(at, b.len(), "the images fill the message");
+    let c = &header["compare"];
+    assert_eq!(c["method"], "abuffer");
+    assert_eq!(c["stats"]["method"], "abuffer");
+    assert!(
+        c["bad_pixels"]["count"].as_u64().expect("count") > 0,
+        "k = 1 loses layers: {c}"
+    );
+    assert!(c["mean_flip"].as_f64().expect("FLIP") > 0.0, "{c}");
+}

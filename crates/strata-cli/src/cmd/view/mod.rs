@@ -17,6 +17,7 @@
 //! arguments of [`crate::options::MethodParams`], and every request is checked by the functions
 //! `strata render` and `compare --methods` use.
 
+mod compare;
 mod protocol;
 mod session;
 

@@ -16,10 +16,16 @@
 //!                  "object", "name"}, …]}     front to back, as the frame's DeepFrame holds them
 //! ```
 //!
+//! A view may carry `"compare": {"method": "abuffer", "options": {…}, "flip": false}`: the
+//! reference is rendered for the same view and compared with the method's image (RMSE, bad
+//! pixels, and FLIP's mean and heat map when `flip` is set).
+//!
 //! A frame is one binary message: a `u32` little-endian header length, the header (JSON:
-//! `{"type": "frame", "id", "stats", "camera_toml", "render_ms", "encode_ms"}`, where `stats` is
-//! exactly what `strata render --stats` writes) and the PNG. The header and the image travel
-//! together, so a page never pairs an image with another frame's numbers.
+//! `{"type": "frame", "id", "stats", "camera_toml", "render_ms", "encode_ms", "images", …}`,
+//! where `stats` is exactly what `strata render --stats` writes) and the images, PNGs one after
+//! the other in the order and with the byte lengths `images` lists (`[{"name": "main", "bytes":
+//! n}, …]`; with a comparison also `reference`, `bad` and, with FLIP, `flip`). The header and
+//! the images travel together, so a page never pairs an image with another frame's numbers.
 //!
 //! Every field of a request is checked here, with the rules the command line and the scene
 //! file use: the camera by [`Camera::check`], the size against [`MAX_SIDE`], the frame against
@@ -28,7 +34,7 @@
 
 use std::collections::BTreeMap;
 
-use anyhow::{Result, anyhow, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use serde::Deserialize;
 use serde_json::{Value, json};
 use strata_scene::{Camera, Scene};
@@ -65,6 +71,21 @@ pub(crate) struct ViewMessage {
     /// `"true"` or `"false"`.
     #[serde(default)]
     options: BTreeMap<String, String>,
+    /// Also render a reference method for the same view and compare the two.
+    #[serde(default)]
+    compare: Option<CompareMessage>,
+}
+
+/// The reference a view is compared with.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct CompareMessage {
+    method: String,
+    #[serde(default)]
+    options: BTreeMap<String, String>,
+    /// Also compute FLIP (its mean and heat map): a few times slower than the render.
+    #[serde(default)]
+    flip: bool,
 }
 
 /// What a page may send.
@@ -72,7 +93,7 @@ pub(crate) struct ViewMessage {
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub(crate) enum PageMessage {
     /// Render this view; it replaces any view not yet rendered.
-    View(ViewMessage),
+    View(Box<ViewMessage>),
     /// List the fragments of one pixel of the latest frame.
     Inspect { x: u32, y: u32 },
 }
@@ -86,6 +107,15 @@ pub(crate) enum Request {
     Inspect { x: u32, y: u32 },
 }
 
+/// A method with checked options.
+#[derive(Clone, Debug)]
+pub(crate) struct MethodChoice {
+    pub(crate) method: String,
+    pub(crate) options: MethodOptions,
+    /// The method and its settings in one string: a store is rebuilt only when this changes.
+    pub(crate) key: String,
+}
+
 /// A checked request: everything a render needs.
 #[derive(Clone, Debug)]
 pub(crate) struct Job {
@@ -95,10 +125,9 @@ pub(crate) struct Job {
     pub(crate) height: u32,
     pub(crate) frame: u32,
     pub(crate) camera: Camera,
-    pub(crate) method: String,
-    pub(crate) options: MethodOptions,
-    /// The method and its settings in one string: a store is rebuilt only when this changes.
-    pub(crate) method_key: String,
+    pub(crate) main: MethodChoice,
+    /// The reference to compare with, and whether to compute FLIP.
+    pub(crate) compare: Option<(MethodChoice, bool)>,
 }
 
 /// The request number of a text message, if it has one, so an error about it can carry it.
@@ -114,7 +143,7 @@ pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Request> {
     let message: PageMessage =
         serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
     match message {
-        PageMessage::View(m) => view(m, scene).map(|job| Request::View(Box::new(job))),
+        PageMessage::View(m) => view(*m, scene).map(|job| Request::View(Box::new(job))),
         PageMessage::Inspect { x, y } => Ok(Request::Inspect { x, y }),
     }
 }
@@ -129,6 +158,7 @@ fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
         camera,
         method,
         options,
+        compare,
     } = m;
     for (name, side) in [("width", width), ("height", height)] {
         if !(1..=MAX_SIDE).contains(&side) {
@@ -146,6 +176,24 @@ fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
         far: camera.far as f32,
     };
     camera.check()?;
+    let main = choice(method, &options).context("method")?;
+    let compare = match compare {
+        None => None,
+        Some(c) => Some((choice(c.method, &c.options).context("reference")?, c.flip)),
+    };
+    Ok(Job {
+        id,
+        width,
+        height,
+        frame,
+        camera,
+        main,
+        compare,
+    })
+}
+
+/// Checks a method and its options.
+fn choice(method: String, options: &BTreeMap<String, String>) -> Result<MethodChoice> {
     strata_stores::find(&method)?;
     if options.contains_key("weights") {
         bail!(
@@ -155,19 +203,14 @@ fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
     }
     let settings = options.iter().map(|(k, v)| (k.as_str(), Some(v.as_str())));
     let checked = crate::options::configure(&method, &MethodOptions::default(), settings)?;
-    let method_key = std::iter::once(method.clone())
+    let key = std::iter::once(method.clone())
         .chain(options.iter().map(|(k, v)| format!("{k}={v}")))
         .collect::<Vec<_>>()
         .join(":");
-    Ok(Job {
-        id,
-        width,
-        height,
-        frame,
-        camera,
+    Ok(MethodChoice {
         method,
         options: checked,
-        method_key,
+        key,
     })
 }
 
@@ -205,13 +248,20 @@ pub(crate) fn error_json(id: Option<u64>, message: &str) -> String {
     json!({"type": "error", "id": id, "message": message}).to_string()
 }
 
-/// A frame message: header length, header, PNG.
-pub(crate) fn frame_message(header: &Value, png: &[u8]) -> Vec<u8> {
+/// A frame message: header length, header with the list of `images` added, the images.
+pub(crate) fn frame_message(mut header: Value, images: &[(&str, Vec<u8>)]) -> Vec<u8> {
+    header["images"] = images
+        .iter()
+        .map(|(name, bytes)| json!({"name": name, "bytes": bytes.len()}))
+        .collect();
     let header = header.to_string();
-    let mut out = Vec::with_capacity(4 + header.len() + png.len());
+    let size = images.iter().map(|(_, b)| b.len()).sum::<usize>();
+    let mut out = Vec::with_capacity(4 + header.len() + size);
     out.extend_from_slice(&(header.len() as u32).to_le_bytes());
     out.extend_from_slice(header.as_bytes());
-    out.extend_from_slice(png);
+    for (_, bytes) in images {
+        out.extend_from_slice(bytes);
+    }
     out
 }
 
@@ -248,8 +298,9 @@ mod tests {
             panic!("a valid view request");
         };
         assert_eq!((job.id, job.width, job.height, job.frame), (3, 64, 48, 0));
-        assert_eq!(job.options.k, 2);
-        assert_eq!(job.method_key, "kbuffer:k=2");
+        assert_eq!(job.main.options.k, 2);
+        assert_eq!(job.main.key, "kbuffer:k=2");
+        assert!(job.compare.is_none());
         assert_eq!(job.camera.eye, glam::Vec3::new(0.0, 0.0, 2.0));
     }
 
@@ -287,6 +338,13 @@ mod tests {
             .contains("built into strata")
         );
         assert!(refused(&request(|v| v["extra"] = json!(1))).contains("unknown field"));
+        let e = refused(&request(|v| {
+            v["compare"] = json!({"method": "abuffer", "options": {"k": "3"}})
+        }));
+        assert!(
+            e.starts_with("reference: method abuffer does not take k"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -320,9 +378,16 @@ mod tests {
 
     #[test]
     fn frame_messages_put_the_header_first() {
-        let m = frame_message(&json!({"type": "frame"}), b"PNG");
+        let m = frame_message(
+            json!({"type": "frame"}),
+            &[("main", b"PNG".to_vec()), ("flip", b"HEAT".to_vec())],
+        );
         let n = u32::from_le_bytes(m[..4].try_into().expect("4 bytes")) as usize;
-        assert_eq!(&m[4..4 + n], br#"{"type":"frame"}"#);
-        assert_eq!(&m[4 + n..], b"PNG");
+        let header: Value = serde_json::from_slice(&m[4..4 + n]).expect("JSON");
+        assert_eq!(
+            header["images"],
+            json!([{"name": "main", "bytes": 3}, {"name": "flip", "bytes": 4}])
+        );
+        assert_eq!(&m[4 + n..], b"PNGHEAT");
     }
 }

@@ -29,11 +29,12 @@ use anyhow::{Context, Result};
 use axum::extract::ws::{Message, WebSocket};
 use serde_json::json;
 use strata_raster::{FrameInput, Rasterizer};
-use strata_stores::{Method, render_frame};
+use strata_stores::{FrameResult, Method, render_frame};
 use tokio::sync::{mpsc, watch};
 
 use super::Shared;
-use super::protocol::{self, Job, Request};
+use super::compare;
+use super::protocol::{self, Job, MethodChoice, Request};
 use crate::report::{ms, stats_json};
 
 /// Serves one page until it goes away.
@@ -210,6 +211,8 @@ struct Renderer {
     raster: Rasterizer,
     /// The store and the method key it was built for.
     store: Option<(String, Box<dyn Method>)>,
+    /// The reference's store, when the page compares.
+    reference: Option<(String, Box<dyn Method>)>,
     /// The request id and size of the frame the store holds.
     last: Option<(u64, u32, u32)>,
 }
@@ -220,6 +223,7 @@ impl Renderer {
             shared,
             raster: Rasterizer::default(),
             store: None,
+            reference: None,
             last: None,
         }
     }
@@ -280,42 +284,80 @@ impl Renderer {
     }
 
     fn render(&mut self, job: &Job) -> Result<Vec<u8>> {
-        // Taken out for the frame and put back once it succeeds: a store that failed mid-frame
-        // is rebuilt for the next.
         self.last = None;
-        let mut store = match self.store.take() {
-            Some((key, store)) if key == job.method_key => store,
-            _ => strata_stores::create(&job.method, &job.options)?,
-        };
         let mut scene = (*self.shared.scene).clone();
         scene.width = job.width;
         scene.height = job.height;
         scene.camera = job.camera;
         let input = FrameInput::from_scene(&scene, job.frame);
+        let threads = self.shared.pool.current_num_threads();
+
         let start = Instant::now();
-        let pool = &self.shared.pool;
-        let raster = &mut self.raster;
-        let result =
-            pool.install(|| render_frame(store.as_mut(), raster, &input, scene.background))?;
+        let slot = self.store.take();
+        let (store, result) = self.run(slot, &job.main, &input)?;
         let render_ms = ms(start.elapsed());
-        let start = Instant::now();
-        let mut png = Vec::new();
-        result
-            .image
-            .encode_png(&mut png)
-            .context("cannot encode the frame as PNG")?;
-        let header = json!({
+        let mut header = json!({
             "type": "frame",
             "id": job.id,
-            "stats": stats_json(&scene, store.name(), job.frame, pool.current_num_threads(), &result),
+            "stats": stats_json(&scene, store.name(), job.frame, threads, &result),
             "camera": protocol::camera_json(&job.camera),
             "camera_toml": protocol::view_toml(&job.camera, job.width, job.height),
             "render_ms": render_ms,
-            "encode_ms": ms(start.elapsed()),
-            "png_bytes": png.len(),
         });
-        self.store = Some((job.method_key.clone(), store));
+        let mut images = vec![("main", result.image)];
+        // Put back once rendered: a store that failed mid-frame is rebuilt for the next.
+        self.store = Some((job.main.key.clone(), store));
+
+        if let Some((choice, with_flip)) = &job.compare {
+            let start = Instant::now();
+            let slot = self.reference.take();
+            let (reference, ref_result) = self.run(slot, choice, &input)?;
+            let ref_ms = ms(start.elapsed());
+            let start = Instant::now();
+            let (mut numbers, maps) =
+                compare::compare(&ref_result.image, &images[0].1, *with_flip)?;
+            numbers["method"] = json!(reference.name());
+            numbers["stats"] =
+                stats_json(&scene, reference.name(), job.frame, threads, &ref_result);
+            numbers["render_ms"] = json!(ref_ms);
+            numbers["compare_ms"] = json!(ms(start.elapsed()));
+            header["compare"] = numbers;
+            images.push(("reference", ref_result.image));
+            images.extend(maps);
+            self.reference = Some((choice.key.clone(), reference));
+        }
+
+        let start = Instant::now();
+        let mut encoded = Vec::with_capacity(images.len());
+        for (name, image) in &images {
+            let mut png = Vec::new();
+            image
+                .encode_png(&mut png)
+                .with_context(|| format!("cannot encode the {name} image as PNG"))?;
+            encoded.push((*name, png));
+        }
+        header["encode_ms"] = json!(ms(start.elapsed()));
+        header["png_bytes"] = json!(encoded[0].1.len());
         self.last = Some((job.id, job.width, job.height));
-        Ok(protocol::frame_message(&header, &png))
+        Ok(protocol::frame_message(header, &encoded))
+    }
+
+    /// Renders `input` with the store in `slot` if it was built for `choice`, else a new one.
+    fn run(
+        &mut self,
+        slot: Option<(String, Box<dyn Method>)>,
+        choice: &MethodChoice,
+        input: &FrameInput<'_>,
+    ) -> Result<(Box<dyn Method>, FrameResult)> {
+        let mut store = match slot {
+            Some((key, store)) if key == choice.key => store,
+            _ => strata_stores::create(&choice.method, &choice.options)?,
+        };
+        let raster = &mut self.raster;
+        let result = self
+            .shared
+            .pool
+            .install(|| render_frame(store.as_mut(), raster, input, input.background))?;
+        Ok((store, result))
     }
 }

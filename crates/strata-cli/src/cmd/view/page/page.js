@@ -14,6 +14,11 @@ const S = {
   camera: null,         // {eye, target, up, fovy_deg, near, far}, scene-file terms
   method: null,
   options: {},          // option name -> value string, only those set away from the default
+  reference: null,      // the method compared with, or null
+  referenceOptions: {},
+  show: "side",         // with a reference: side, split, bad, flip, main or reference
+  split: 0.5,
+  images: {},           // name -> ImageBitmap of the frame on the canvas
   nextId: 1,
   sent: new Map(),      // request id -> performance.now() when sent
   lastSentId: 0,
@@ -145,13 +150,21 @@ function framePixel(e) {
   const s = Math.min(r.width / canvas.width, r.height / canvas.height);
   const ox = (r.width - canvas.width * s) / 2, oy = (r.height - canvas.height * s) / 2;
   const x = Math.floor((e.clientX - r.left - ox) / s), y = Math.floor((e.clientY - r.top - oy) / s);
-  return x >= 0 && y >= 0 && x < canvas.width && y < canvas.height ? [x, y] : null;
+  if (!(x >= 0 && y >= 0 && x < canvas.width && y < canvas.height)) return null;
+  // Side by side, both halves show the same pixels: the method's store is inspected.
+  const w = S.frame ? S.frame.stats.width : canvas.width;
+  return [x % w, y];
 }
 
 function inspect(e) {
   const p = framePixel(e);
   if (!p || !S.frame || !S.socket || S.socket.readyState !== WebSocket.OPEN) return;
   S.socket.send(JSON.stringify({ type: "inspect", x: p[0], y: p[1] }));
+  const r = canvas.getBoundingClientRect();
+  const marker = $("marker");
+  marker.style.left = `${e.clientX - r.left}px`;
+  marker.style.top = `${e.clientY - r.top}px`;
+  marker.hidden = false;
 }
 
 function showPixel(m) {
@@ -188,24 +201,32 @@ function requestView() {
   });
 }
 
+const sideBySide = () => S.reference !== null && S.show === "side";
+
 function frameSize() {
   const max = S.hello ? S.hello.max_side : 4096;
   if (fixedSize) return fixedSize.map((v) => Math.max(1, Math.min(max, v)));
   const r = canvas.getBoundingClientRect();
-  return [Math.max(1, Math.min(max, Math.round(r.width))), Math.max(1, Math.min(max, Math.round(r.height)))];
+  const width = sideBySide() ? r.width / 2 : r.width;
+  return [Math.max(1, Math.min(max, Math.round(width))), Math.max(1, Math.min(max, Math.round(r.height)))];
 }
 
 function sendView() {
   if (!S.socket || S.socket.readyState !== WebSocket.OPEN || !S.camera) return;
+  $("marker").hidden = true; // the inspected pixel belongs to the previous view
   const [width, height] = frameSize();
   const id = S.nextId++;
   S.sent.set(id, performance.now());
   if (S.sent.size > 256) S.sent.delete(S.sent.keys().next().value);
   S.lastSentId = id;
-  S.socket.send(JSON.stringify({
+  const request = {
     type: "view", id, width, height, frame: 0,
     camera: S.camera, method: S.method, options: S.options,
-  }));
+  };
+  if (S.reference !== null) {
+    request.compare = { method: S.reference, options: S.referenceOptions, flip: S.show === "flip" };
+  }
+  S.socket.send(JSON.stringify(request));
 }
 
 new ResizeObserver(() => { if (!fixedSize) requestView(); }).observe(canvas);
@@ -221,14 +242,39 @@ function buildMethods() {
     buildOptions();
     requestView();
   };
+  const reference = $("reference");
+  reference.append(...S.hello.methods.map((m) => new Option(m.name, m.name)));
+  reference.onchange = () => {
+    S.reference = reference.value || null;
+    S.referenceOptions = {};
+    buildOptions();
+    requestView();
+  };
+  $("show").onchange = () => {
+    S.show = $("show").value;
+    $("split-row").hidden = S.show !== "split";
+    requestView();
+  };
+  $("split").oninput = () => {
+    S.split = $("split").value / 100;
+    draw();
+  };
   buildOptions();
 }
 
 function buildOptions() {
   const info = S.hello.methods.find((m) => m.name === S.method);
   $("method-summary").textContent = info ? `${info.summary} (${info.fidelity})` : "";
-  const box = $("options");
+  optionForm($("options"), S.method, () => S.options, (o) => { S.options = o; }, () => S.method);
+  optionForm($("reference-options"), S.reference, () => S.referenceOptions,
+    (o) => { S.referenceOptions = o; }, () => S.reference);
+}
+
+// The form of `method`'s options in `box`: exactly the options it reads, with the command
+// line's help and defaults. `current` gives the live setting, which this form belongs to.
+function optionForm(box, method, get, set, current) {
   box.replaceChildren();
+  const info = S.hello.methods.find((m) => m.name === method);
   if (!info) return;
   for (const name of info.options) {
     const spec = S.hello.options.find((o) => o.name === name);
@@ -240,26 +286,28 @@ function buildOptions() {
     const input = document.createElement("input");
     input.name = name;
     input.dataset.option = name;
+    const options = get();
     if (spec.flag) {
       input.type = "checkbox";
-      input.checked = (S.options[name] ?? spec.default) === "true";
+      input.checked = (options[name] ?? spec.default) === "true";
     } else {
       input.type = "text";
-      input.value = S.options[name] ?? spec.default ?? "";
+      input.value = options[name] ?? spec.default ?? "";
       input.placeholder = spec.default ?? "";
     }
     input.title = spec.help;
-    const method = S.method;
     input.onchange = () => {
       // A field edited and left by switching the method fires after the switch: it is gone.
-      if (S.method !== method || !input.isConnected) return;
+      if (current() !== method || !input.isConnected) return;
       const value = spec.flag ? String(input.checked) : input.value.trim();
-      if (value === (spec.default ?? "")) delete S.options[name];
-      else S.options[name] = value;
-      input.classList.toggle("changed", name in S.options);
+      const next = { ...get() };
+      if (value === (spec.default ?? "")) delete next[name];
+      else next[name] = value;
+      set(next);
+      input.classList.toggle("changed", name in next);
       requestView();
     };
-    input.classList.toggle("changed", name in S.options);
+    input.classList.toggle("changed", name in options);
     label.append(input);
     const help = document.createElement("p");
     help.className = "note";
@@ -276,14 +324,18 @@ async function showFrame(buffer) {
   const view = new DataView(buffer);
   const n = view.getUint32(0, true);
   const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, n)));
-  const png = new Blob([new Uint8Array(buffer, 4 + n)], { type: "image/png" });
-  const bitmap = await createImageBitmap(png, { colorSpaceConversion: "none", premultiplyAlpha: "none" });
+  const images = {};
+  let at = 4 + n;
+  for (const { name, bytes } of header.images) {
+    const png = new Blob([new Uint8Array(buffer, at, bytes)], { type: "image/png" });
+    images[name] = await createImageBitmap(png, { colorSpaceConversion: "none", premultiplyAlpha: "none" });
+    at += bytes;
+  }
   if (S.frame && header.id < S.frame.id) return; // an older frame decoded late
-  canvas.width = bitmap.width;
-  canvas.height = bitmap.height;
-  ctx.drawImage(bitmap, 0, 0);
-  bitmap.close();
+  for (const old of Object.values(S.images)) old.close();
+  S.images = images;
   S.frame = header;
+  draw();
   S.framesShown++;
   const now = performance.now();
   const sent = S.sent.get(header.id);
@@ -297,6 +349,29 @@ async function showFrame(buffer) {
   }
   showStats(header);
   showStatus();
+}
+
+// Draws the frame's images as `show` asks (the method's image alone without a reference).
+function draw() {
+  const { main, reference, bad, flip } = S.images;
+  if (!main) return;
+  const w = main.width, h = main.height;
+  const show = reference ? S.show : "main";
+  canvas.width = show === "side" ? 2 * w : w;
+  canvas.height = h;
+  if (show === "side") {
+    ctx.drawImage(main, 0, 0);
+    ctx.drawImage(reference, w, 0);
+  } else if (show === "split") {
+    const at = Math.round(S.split * w);
+    ctx.drawImage(reference, 0, 0);
+    ctx.drawImage(main, 0, 0, at, h, 0, 0, at, h);
+    ctx.fillStyle = "#fff";
+    ctx.fillRect(Math.min(at, w - 1), 0, 1, h);
+  } else {
+    const image = { bad, flip, reference, main }[show] ?? main;
+    ctx.drawImage(image, 0, 0);
+  }
 }
 
 function row(tbody, label, value, cls) {
@@ -325,6 +400,15 @@ function showStats(h) {
   for (const [pass, ms] of Object.entries(s.timings_ms)) row(tbody, pass, fmt(ms), "pass");
   row(tbody, "PNG encode ms", fmt(h.encode_ms));
   row(tbody, "PNG KiB", fmt(h.png_bytes / 1024));
+  const c = h.compare;
+  if (c) {
+    row(tbody, "reference", c.method);
+    row(tbody, "reference render ms", fmt(c.render_ms));
+    row(tbody, "RMSE", c.rmse.toFixed(4));
+    row(tbody, `bad pixels (> ${c.bad_pixels.threshold} steps)`,
+      `${fmt(c.bad_pixels.count)} (${(100 * c.bad_pixels.share).toFixed(2)} %)`);
+    row(tbody, "mean FLIP", c.mean_flip === null ? "(shown with its heat map)" : c.mean_flip.toFixed(4));
+  }
   $("camera").value = h.camera_toml;
   const hist = s.depth_histogram || [];
   const max = Math.max(1, ...hist.slice(1));
