@@ -326,6 +326,16 @@ class Suite:
         rows = page.locator("#pixel tbody tr").count()
         assert rows == len(listed), rows
         self.shot(page, "04-pixel-inspector")
+        # The deep EXR button saves the frame's DeepFrame: strata inspect reads every fragment.
+        with page.expect_download() as info:
+            page.click("#save-deep")
+        saved = self.tmp / "saved.exr"
+        info.value.save_as(saved)
+        read = json.loads(subprocess.run(
+            [self.strata, "inspect", str(saved), "--pixel", f"{pixel['x']},{pixel['y']}", "--json"],
+            check=True, capture_output=True, text=True).stdout)
+        assert read["deep"] and read["samples"]["total"] == header["stats"]["fragments"], read["samples"]
+        assert read["pixel"]["samples"] == listed, "the saved EXR differs from strata render --deep"
         page.close()
 
     def test_bad_option_shows_an_error_and_the_page_recovers(self):

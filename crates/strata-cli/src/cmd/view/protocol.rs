@@ -9,6 +9,9 @@
 //!                  "method": "kbuffer", "options": {"k": "2", "tail-blend": "true"}}
 //!                 {"type": "inspect", "x": 120, "y": 40}     the fragments of one pixel of the
 //!                                                           latest frame
+//!                 {"type": "save_deep"}          the latest frame as a deep OpenEXR file: a
+//!                                                binary message like a frame's, header type
+//!                                                "deep", one image named "deep" (the EXR)
 //! server → page   {"type": "hello", …}        once, on connecting: the scene, its camera and
 //!                                             size, the methods and their options (see `hello`)
 //!                 {"type": "error", "id": 7, "message": "…"}   a request refused or failed
@@ -96,6 +99,8 @@ pub(crate) enum PageMessage {
     View(Box<ViewMessage>),
     /// List the fragments of one pixel of the latest frame.
     Inspect { x: u32, y: u32 },
+    /// Send the latest frame's DeepFrame as a deep OpenEXR file.
+    SaveDeep,
 }
 
 /// A checked message.
@@ -103,8 +108,17 @@ pub(crate) enum PageMessage {
 pub(crate) enum Request {
     /// Render this.
     View(Box<Job>),
-    /// The pixel `(x, y)` of the latest frame (checked against its size when answered).
-    Inspect { x: u32, y: u32 },
+    /// A question about the latest frame, answered between frames.
+    About(Probe),
+}
+
+/// A question about the latest frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Probe {
+    /// The fragments of pixel `(x, y)` (checked against the frame's size when answered).
+    Pixel(u32, u32),
+    /// The whole DeepFrame as a deep OpenEXR file.
+    Deep,
 }
 
 /// A method with checked options.
@@ -144,7 +158,8 @@ pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Request> {
         serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
     match message {
         PageMessage::View(m) => view(*m, scene).map(|job| Request::View(Box::new(job))),
-        PageMessage::Inspect { x, y } => Ok(Request::Inspect { x, y }),
+        PageMessage::Inspect { x, y } => Ok(Request::About(Probe::Pixel(x, y))),
+        PageMessage::SaveDeep => Ok(Request::About(Probe::Deep)),
     }
 }
 

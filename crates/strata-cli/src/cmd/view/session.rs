@@ -28,13 +28,16 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use axum::extract::ws::{Message, WebSocket};
 use serde_json::json;
+use strata_core::DeepFrame;
 use strata_raster::{FrameInput, Rasterizer};
+use strata_scene::Camera;
 use strata_stores::{FrameResult, Method, render_frame};
 use tokio::sync::{mpsc, watch};
 
 use super::Shared;
 use super::compare;
-use super::protocol::{self, Job, MethodChoice, Request};
+use super::protocol::{self, Job, MethodChoice, Probe, Request};
+use crate::images::deep_exr_bytes;
 use crate::report::{ms, stats_json};
 
 /// Serves one page until it goes away.
@@ -58,8 +61,8 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
     }
     let (job_tx, job_rx) = watch::channel::<Option<Job>>(None);
     let (frame_tx, mut frame_rx) = watch::channel::<Option<Message>>(None);
-    let (probe_tx, probe_rx) = mpsc::channel::<(u32, u32)>(PROBES_WAITING);
-    let (answer_tx, mut answer_rx) = mpsc::channel::<String>(PROBES_WAITING);
+    let (probe_tx, probe_rx) = mpsc::channel::<Probe>(PROBES_WAITING);
+    let (answer_tx, mut answer_rx) = mpsc::channel::<Message>(PROBES_WAITING);
     let renderer = tokio::spawn(render_loop(
         Inbox {
             jobs: job_rx,
@@ -80,10 +83,10 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
                             job_tx.send_replace(Some(*job));
                             None
                         }
-                        Ok(Request::Inspect { x, y }) => probe_tx.try_send((x, y)).err().map(|_| {
+                        Ok(Request::About(probe)) => probe_tx.try_send(probe).err().map(|_| {
                             protocol::error_json(
                                 None,
-                                "too many pixels asked for at once; wait for the answers",
+                                "too many questions at once; wait for the answers",
                             )
                         }),
                         Err(e) => Some(protocol::error_json(
@@ -105,7 +108,7 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
                 }
             }
             Some(answer) = answer_rx.recv() => {
-                if socket.send(Message::Text(answer.into())).await.is_err() {
+                if socket.send(answer).await.is_err() {
                     break;
                 }
             }
@@ -134,13 +137,13 @@ const PROBES_WAITING: usize = 8;
 /// What the render loop receives.
 struct Inbox {
     jobs: watch::Receiver<Option<Job>>,
-    probes: mpsc::Receiver<(u32, u32)>,
+    probes: mpsc::Receiver<Probe>,
 }
 
 /// Where the render loop sends.
 struct Outbox {
     frames: watch::Sender<Option<Message>>,
-    answers: mpsc::Sender<String>,
+    answers: mpsc::Sender<Message>,
 }
 
 /// Renders the latest request whenever there is a new one, and answers pixel questions between
@@ -158,7 +161,7 @@ async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
                 };
                 Work::Frame(Box::new(job))
             }
-            Some((x, y)) = inbox.probes.recv() => Work::Probe(x, y),
+            Some(probe) = inbox.probes.recv() => Work::Probe(probe),
         };
         let id = match &work {
             Work::Frame(job) => Some(job.id),
@@ -167,7 +170,7 @@ async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
         let done = tokio::task::spawn_blocking(move || {
             let message = match work {
                 Work::Frame(job) => renderer.frame(&job),
-                Work::Probe(x, y) => Message::Text(renderer.inspect(x, y).into()),
+                Work::Probe(probe) => renderer.answer(probe),
             };
             (renderer, message)
         })
@@ -175,11 +178,9 @@ async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
         let sent = match done {
             Ok((r, message)) => {
                 renderer = r;
-                match (id, message) {
-                    (None, Message::Text(answer)) => {
-                        outbox.answers.send(answer.to_string()).await.is_ok()
-                    }
-                    (_, message) => outbox.frames.send(Some(message)).is_ok(),
+                match id {
+                    None => outbox.answers.send(message).await.is_ok(),
+                    Some(_) => outbox.frames.send(Some(message)).is_ok(),
                 }
             }
             Err(e) => {
@@ -189,7 +190,10 @@ async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
                 } else {
                     "the render was cancelled"
                 };
-                let _ = outbox.answers.send(protocol::error_json(id, why)).await;
+                let _ = outbox
+                    .answers
+                    .send(Message::Text(protocol::error_json(id, why).into()))
+                    .await;
                 return;
             }
         };
@@ -202,7 +206,7 @@ async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
 /// One piece of work for the render loop.
 enum Work {
     Frame(Box<Job>),
-    Probe(u32, u32),
+    Probe(Probe),
 }
 
 /// A page's store and rasterizer, kept from frame to frame.
@@ -213,8 +217,8 @@ struct Renderer {
     store: Option<(String, Box<dyn Method>)>,
     /// The reference's store, when the page compares.
     reference: Option<(String, Box<dyn Method>)>,
-    /// The request id and size of the frame the store holds.
-    last: Option<(u64, u32, u32)>,
+    /// The request id, size and camera of the frame the store holds.
+    last: Option<(u64, u32, u32, Camera)>,
 }
 
 impl Renderer {
@@ -228,35 +232,67 @@ impl Renderer {
         }
     }
 
-    /// The answer to "which fragments does pixel (x, y) hold", as a `pixel` or `error` message.
-    fn inspect(&self, x: u32, y: u32) -> String {
-        let (Some((id, width, height)), Some((_, store))) = (self.last, &self.store) else {
-            return protocol::error_json(None, "no frame yet: nothing to inspect");
+    /// The answer to a question about the latest frame, or an error message.
+    fn answer(&self, probe: Probe) -> Message {
+        let Some((id, width, height, camera)) = self.last else {
+            return Message::Text(protocol::error_json(None, "no frame yet").into());
         };
-        if x >= width || y >= height {
-            return protocol::error_json(
-                Some(id),
-                &format!("pixel {x},{y} is outside the {width}x{height} frame"),
-            );
-        }
-        let frame = match store.deep_frame() {
-            None => {
-                return protocol::error_json(
+        let frame = match self.deep_frame() {
+            Ok(frame) => frame,
+            Err(e) => {
+                return Message::Text(protocol::error_json(Some(id), &format!("{e:#}")).into());
+            }
+        };
+        match probe {
+            Probe::Pixel(x, y) if x >= width || y >= height => Message::Text(
+                protocol::error_json(
                     Some(id),
-                    &format!(
-                        "method {} blends fragments without keeping them: there is no list to show",
-                        store.name()
+                    &format!("pixel {x},{y} is outside the {width}x{height} frame"),
+                )
+                .into(),
+            ),
+            Probe::Pixel(x, y) => Message::Text(self.pixel(id, &frame, x, y).into()),
+            Probe::Deep => {
+                let projection = camera.projection(width, height);
+                match deep_exr_bytes(&frame, (camera.near, camera.far), camera.view(), projection) {
+                    Ok(bytes) => Message::Binary(
+                        protocol::frame_message(
+                            json!({"type": "deep", "frame": id}),
+                            &[("deep", bytes)],
+                        )
+                        .into(),
                     ),
-                );
+                    Err(e) => Message::Text(
+                        protocol::error_json(
+                            Some(id),
+                            &format!("cannot write the deep EXR: {e:#}"),
+                        )
+                        .into(),
+                    ),
+                }
             }
-            Some(Err(e)) => {
-                return protocol::error_json(
-                    Some(id),
-                    &format!("method {} gave an invalid DeepFrame: {e}", store.name()),
-                );
-            }
-            Some(Ok(frame)) => frame,
+        }
+    }
+
+    /// The latest frame's DeepFrame, or why there is none.
+    fn deep_frame(&self) -> Result<DeepFrame> {
+        let Some((_, store)) = &self.store else {
+            anyhow::bail!("no frame yet");
         };
+        match store.deep_frame() {
+            None => anyhow::bail!(
+                "method {} blends fragments without keeping them: it has no fragment lists",
+                store.name()
+            ),
+            Some(frame) => {
+                frame.with_context(|| format!("method {} gave an invalid DeepFrame", store.name()))
+            }
+        }
+    }
+
+    /// The `pixel` message for `(x, y)` of `frame`.
+    fn pixel(&self, id: u64, frame: &DeepFrame, x: u32, y: u32) -> String {
+        let method = self.store.as_ref().map(|(_, s)| s.name());
         let scene = &self.shared.scene;
         let fragments: Vec<serde_json::Value> = frame
             .pixel(x, y)
@@ -270,7 +306,7 @@ impl Renderer {
                 json!({"depth": f.depth, "rgba": f.color.0, "object": f.object.0, "name": name})
             })
             .collect();
-        json!({"type": "pixel", "frame": id, "x": x, "y": y, "method": store.name(),
+        json!({"type": "pixel", "frame": id, "x": x, "y": y, "method": method,
                "fragments": fragments})
         .to_string()
     }
@@ -338,7 +374,7 @@ impl Renderer {
         }
         header["encode_ms"] = json!(ms(start.elapsed()));
         header["png_bytes"] = json!(encoded[0].1.len());
-        self.last = Some((job.id, job.width, job.height));
+        self.last = Some((job.id, job.width, job.height, job.camera));
         Ok(protocol::frame_message(header, &encoded))
     }
 

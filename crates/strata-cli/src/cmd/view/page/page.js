@@ -320,12 +320,31 @@ function optionForm(box, method, get, set, current) {
 // ---- frames --------------------------------------------------------------------------------
 let drawing = Promise.resolve();
 
-async function showFrame(buffer) {
+// A binary message: a frame, or a deep EXR asked for with "save_deep".
+async function onBinary(buffer) {
   const view = new DataView(buffer);
   const n = view.getUint32(0, true);
   const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, n)));
+  if (header.type === "deep") {
+    const bytes = new Uint8Array(buffer, 4 + n, header.images[0].bytes);
+    S.savedDeep = { frame: header.frame, bytes: bytes.length };
+    download(new Blob([bytes], { type: "image/x-exr" }), `${S.hello.scene}-${S.method}-deep.exr`);
+    return;
+  }
+  await showFrame(header, buffer, 4 + n);
+}
+
+function download(blob, name) {
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(blob);
+  a.download = name;
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+}
+
+async function showFrame(header, buffer, first) {
   const images = {};
-  let at = 4 + n;
+  let at = first;
   for (const { name, bytes } of header.images) {
     const png = new Blob([new Uint8Array(buffer, at, bytes)], { type: "image/png" });
     images[name] = await createImageBitmap(png, { colorSpaceConversion: "none", premultiplyAlpha: "none" });
@@ -456,7 +475,7 @@ function connect() {
   socket.onmessage = (e) => {
     if (typeof e.data !== "string") {
       const buffer = e.data;
-      drawing = drawing.then(() => showFrame(buffer)).catch((err) => showError(null, `cannot show the frame: ${err}`));
+      drawing = drawing.then(() => onBinary(buffer)).catch((err) => showError(null, `cannot show the frame: ${err}`));
       return;
     }
     const m = JSON.parse(e.data);
@@ -494,13 +513,12 @@ $("copy").addEventListener("click", () => {
 
 $("screenshot").addEventListener("click", () => {
   canvas.toBlob((blob) => {
-    if (!blob) return;
-    const a = document.createElement("a");
-    a.href = URL.createObjectURL(blob);
-    a.download = `${S.hello ? S.hello.scene : "strata"}-${S.method}.png`;
-    a.click();
-    setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+    if (blob) download(blob, `${S.hello ? S.hello.scene : "strata"}-${S.method}.png`);
   }, "image/png");
+});
+
+$("save-deep").addEventListener("click", () => {
+  if (S.socket && S.socket.readyState === WebSocket.OPEN) S.socket.send(JSON.stringify({ type: "save_deep" }));
 });
 
 setInterval(showStatus, 500);
