@@ -301,8 +301,12 @@ class Suite:
     def test_the_pixel_inspector_lists_the_deep_frame(self):
         page = self.open_page(self.server.url)
         header = page.evaluate("window.strataView.frame")
+        # The centre of frame pixel (160, 90), through the canvas's object-fit: contain.
         box = page.locator("#frame").bounding_box()
-        page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        scale = min(box["width"] / SIZE[0], box["height"] / SIZE[1])
+        left = box["x"] + (box["width"] - SIZE[0] * scale) / 2
+        top = box["y"] + (box["height"] - SIZE[1] * scale) / 2
+        page.mouse.click(left + (SIZE[0] // 2 + 0.5) * scale, top + (SIZE[1] // 2 + 0.5) * scale)
         page.wait_for_function("window.strataView.pixel !== null", timeout=15000)
         pixel = page.evaluate("window.strataView.pixel")
         assert pixel["frame"] == header["id"], "clicking must not move the camera"

@@ -52,7 +52,7 @@ impl Viewer {
         (head.to_owned(), body.to_owned())
     }
 
-    fn socket(&self) -> tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>> {
+    fn socket(&self) -> Socket {
         tungstenite::connect(format!("ws://{}/ws", self.addr))
             .expect("WebSocket handshake")
             .0
@@ -63,6 +63,18 @@ impl Drop for Viewer {
     fn drop(&mut self) {
         self.child.kill().ok();
         self.child.wait().ok();
+    }
+}
+
+type Socket = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>;
+
+/// The next message that is not a ping or a pong (the server pings quiet pages).
+fn next(ws: &mut Socket) -> tungstenite::Result<Message> {
+    loop {
+        match ws.read()? {
+            Message::Ping(_) | Message::Pong(_) => continue,
+            m => return Ok(m),
+        }
     }
 }
 
@@ -114,7 +126,7 @@ fn the_page_and_its_assets_are_served() {
 fn a_view_request_gets_the_frame_strata_render_makes() {
     let v = Viewer::start(&["--method", "kbuffer:k=3"]);
     let mut ws = v.socket();
-    let hello = text(ws.read().expect("hello"));
+    let hello = text(next(&mut ws).expect("hello"));
     assert_eq!(hello["type"], "hello");
     assert_eq!(hello["scene"], "spheres");
     assert_eq!(hello["method"], "kbuffer");
@@ -140,7 +152,7 @@ fn a_view_request_gets_the_frame_strata_render_makes() {
     let request = json!({"type": "view", "id": 5, "width": 96, "height": 64, "camera": camera,
                          "method": "kbuffer", "options": {"k": "3"}});
     ws.send(Message::text(request.to_string())).expect("send");
-    let (header, png) = frame(ws.read().expect("a frame"));
+    let (header, png) = frame(next(&mut ws).expect("a frame"));
     assert_eq!(header["id"], 5);
     assert_eq!(header["stats"]["method"], "kbuffer");
     let (w, h, got) = pixels(&png);
@@ -206,13 +218,13 @@ fn a_view_request_gets_the_frame_strata_render_makes() {
 fn bad_requests_get_errors_and_the_connection_goes_on() {
     let v = Viewer::start(&[]);
     let mut ws = v.socket();
-    let hello = text(ws.read().expect("hello"));
+    let hello = text(next(&mut ws).expect("hello"));
     let camera = hello["camera"].clone();
     let inspect =
         |x: u32, y: u32| Message::text(json!({"type": "inspect", "x": x, "y": y}).to_string());
     ws.send(inspect(0, 0)).expect("send");
     assert!(
-        text(ws.read().expect("a reply"))["message"]
+        text(next(&mut ws).expect("a reply"))["message"]
             .as_str()
             .expect("message")
             .contains("no frame yet")
@@ -233,7 +245,7 @@ fn bad_requests_get_errors_and_the_connection_goes_on() {
         ),
     ] {
         ws.send(Message::text(message)).expect("send");
-        let reply = text(ws.read().expect("a reply"));
+        let reply = text(next(&mut ws).expect("a reply"));
         assert_eq!(reply["type"], "error");
         assert!(
             reply["message"]
@@ -245,7 +257,7 @@ fn bad_requests_get_errors_and_the_connection_goes_on() {
     }
     ws.send(Message::binary(vec![1, 2, 3])).expect("send");
     assert!(
-        text(ws.read().expect("a reply"))["message"]
+        text(next(&mut ws).expect("a reply"))["message"]
             .as_str()
             .expect("message")
             .contains("binary")
@@ -257,10 +269,10 @@ fn bad_requests_get_errors_and_the_connection_goes_on() {
         .to_string(),
     ))
     .expect("send");
-    let (header, _) = frame(ws.read().expect("a frame"));
+    let (header, _) = frame(next(&mut ws).expect("a frame"));
     assert_eq!(header["id"], 11);
     ws.send(inspect(8, 0)).expect("send");
-    let reply = text(ws.read().expect("a reply"));
+    let reply = text(next(&mut ws).expect("a reply"));
     assert!(
         reply["message"]
             .as_str()
@@ -269,7 +281,7 @@ fn bad_requests_get_errors_and_the_connection_goes_on() {
         "{reply}"
     );
     ws.send(inspect(7, 7)).expect("send");
-    let reply = text(ws.read().expect("a reply"));
+    let reply = text(next(&mut ws).expect("a reply"));
     assert_eq!(
         (reply["type"].as_str(), reply["frame"].as_u64()),
         (Some("pixel"), Some(11)),
@@ -314,7 +326,7 @@ fn a_bad_method_spec_or_address_is_refused_before_serving() {
 fn a_compared_view_carries_the_reference_and_the_maps() {
     let v = Viewer::start(&[]);
     let mut ws = v.socket();
-    let hello = text(ws.read().expect("hello"));
+    let hello = text(next(&mut ws).expect("hello"));
     ws.send(Message::text(
         json!({"type": "view", "id": 1, "width": 40, "height": 30, "camera": hello["camera"],
                "method": "kbuffer", "options": {"k": "1"},
@@ -322,7 +334,7 @@ fn a_compared_view_carries_the_reference_and_the_maps() {
         .to_string(),
     ))
     .expect("send");
-    let Message::Binary(b) = ws.read().expect("a frame") else {
+    let Message::Binary(b) = next(&mut ws).expect("a frame") else {
         panic!("expected a frame");
     };
     let n = u32::from_le_bytes(b[..4].try_into().expect("length")) as usize;
@@ -349,4 +361,80 @@ fn a_compared_view_carries_the_reference_and_the_maps() {
         "k = 1 loses layers: {c}"
     );
     assert!(c["mean_flip"].as_f64().expect("FLIP") > 0.0, "{c}");
+}
+
+#[test]
+fn a_page_that_floods_questions_and_leaves_gives_its_seat_back() {
+    let v = Viewer::start(&["--max-pages", "1"]);
+    {
+        let mut ws = v.socket();
+        let hello = text(next(&mut ws).expect("hello"));
+        ws.send(Message::text(
+            json!({"type": "view", "id": 1, "width": 64, "height": 64, "camera": hello["camera"],
+                   "method": "abuffer"})
+            .to_string(),
+        ))
+        .expect("send");
+        let _ = frame(next(&mut ws).expect("a frame"));
+        // Questions until the server stops reading: its answers fill the socket, which this
+        // page never reads.
+        if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
+            s.set_write_timeout(Some(std::time::Duration::from_secs(2)))
+                .expect("a write timeout");
+        }
+        for _ in 0..2_000_000 {
+            if ws
+                .send(Message::text(r#"{"type": "inspect", "x": 1, "y": 1}"#))
+                .is_err()
+            {
+                break;
+            }
+        }
+        // Gone without reading a single answer.
+    }
+    // The seat comes back once the work in hand is done; wait for it (no timing is asserted:
+    // a seat that never comes back fails after a minute).
+    for _ in 0..600 {
+        let mut ws = v.socket();
+        let first = text(next(&mut ws).expect("a first message"));
+        if first["type"] == "hello" {
+            return;
+        }
+        assert!(
+            first["message"]
+                .as_str()
+                .expect("message")
+                .contains("too many pages"),
+            "{first}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    panic!("the page that left never gave its seat back");
+}
+
+#[test]
+fn a_page_from_another_site_is_refused() {
+    use tungstenite::client::IntoClientRequest;
+    let v = Viewer::start(&[]);
+    let mut request = format!("ws://{}/ws", v.addr)
+        .into_client_request()
+        .expect("request");
+    request.headers_mut().insert(
+        "Origin",
+        "http://evil.example".parse().expect("header value"),
+    );
+    match tungstenite::connect(request) {
+        Err(tungstenite::Error::Http(response)) => assert_eq!(response.status(), 403),
+        other => panic!("a cross-site page was let in: {:?}", other.map(|_| ())),
+    }
+    // The viewer's own page is let in.
+    let mut request = format!("ws://{}/ws", v.addr)
+        .into_client_request()
+        .expect("request");
+    let own = format!("http://{}", v.addr);
+    request
+        .headers_mut()
+        .insert("Origin", own.parse().expect("header value"));
+    let (mut ws, _) = tungstenite::connect(request).expect("same origin");
+    assert_eq!(text(next(&mut ws).expect("hello"))["type"], "hello");
 }

@@ -29,7 +29,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use anyhow::{Context, Result};
 use axum::Router;
 use axum::extract::{State, WebSocketUpgrade};
-use axum::http::header;
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use clap::Args as _;
@@ -252,7 +252,39 @@ fn asset(kind: &'static str, body: &'static str) -> Response {
         .into_response()
 }
 
-async fn socket(ws: WebSocketUpgrade, State(shared): State<Arc<Shared>>) -> Response {
+async fn socket(
+    ws: WebSocketUpgrade,
+    headers: HeaderMap,
+    State(shared): State<Arc<Shared>>,
+) -> Response {
+    if let Err(why) = same_origin(&headers) {
+        return (StatusCode::FORBIDDEN, why).into_response();
+    }
     ws.max_message_size(1 << 20)
         .on_upgrade(move |socket| session::run(socket, shared))
+}
+
+/// Refuses a WebSocket opened by a page from another site: browsers let any page open sockets
+/// to `localhost`, and a viewer's socket renders, reads and exports the scene. A client that is
+/// not a browser sends no `Origin` and is let in.
+fn same_origin(headers: &HeaderMap) -> Result<(), String> {
+    let Some(origin) = headers.get(header::ORIGIN) else {
+        return Ok(());
+    };
+    let origin = origin.to_str().unwrap_or_default();
+    let host = headers
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .unwrap_or_default();
+    let origin_host = origin
+        .strip_prefix("http://")
+        .or_else(|| origin.strip_prefix("https://"))
+        .unwrap_or_default();
+    if !host.is_empty() && origin_host.eq_ignore_ascii_case(host) {
+        Ok(())
+    } else {
+        Err(format!(
+            "strata view: a page from {origin} may not use this viewer (it serves {host} only)"
+        ))
+    }
 }

@@ -7,8 +7,8 @@
 //!                  "camera": {"eye": [x, y, z], "target": […], "up": […],
 //!                             "fovy_deg": 45, "near": 0.01, "far": 100},
 //!                  "method": "kbuffer", "options": {"k": "2", "tail-blend": "true"}}
-//!                 {"type": "inspect", "x": 120, "y": 40}     the fragments of one pixel of the
-//!                                                           latest frame
+//!                 {"type": "inspect", "x": 120, "y": 40, "frame": 7}   the fragments of one
+//!                                                 pixel of frame 7, if it is still the latest
 //!                 {"type": "save_deep"}          the latest frame as a deep OpenEXR file: a
 //!                                                binary message like a frame's, header type
 //!                                                "deep", one image named "deep" (the EXR)
@@ -45,6 +45,11 @@ use strata_stores::MethodOptions;
 
 /// The largest side of a frame the viewer renders, in pixels.
 pub(crate) const MAX_SIDE: u32 = 4096;
+
+/// The most a store with a fixed number of fragments per pixel (`kbuffer`'s `k`,
+/// `abuffer-array`'s `array-size`) may reserve for one page, in bytes: more is refused before
+/// anything is allocated, so one page cannot take the server's memory.
+pub(crate) const MAX_FIXED_STORE_BYTES: u64 = 2 << 30;
 
 /// A camera as a page sends it: scene-file terms.
 #[derive(Clone, Debug, Deserialize)]
@@ -97,8 +102,14 @@ pub(crate) struct CompareMessage {
 pub(crate) enum PageMessage {
     /// Render this view; it replaces any view not yet rendered.
     View(Box<ViewMessage>),
-    /// List the fragments of one pixel of the latest frame.
-    Inspect { x: u32, y: u32 },
+    /// List the fragments of one pixel of the latest frame; with `frame`, only if the latest
+    /// frame is still the one of that request id.
+    Inspect {
+        x: u32,
+        y: u32,
+        #[serde(default)]
+        frame: Option<u64>,
+    },
     /// Send the latest frame's DeepFrame as a deep OpenEXR file.
     SaveDeep,
 }
@@ -115,8 +126,9 @@ pub(crate) enum Request {
 /// A question about the latest frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Probe {
-    /// The fragments of pixel `(x, y)` (checked against the frame's size when answered).
-    Pixel(u32, u32),
+    /// The fragments of pixel `(x, y)` (checked against the frame's size when answered) of the
+    /// frame of that request id, if one is given.
+    Pixel(u32, u32, Option<u64>),
     /// The whole DeepFrame as a deep OpenEXR file.
     Deep,
 }
@@ -158,7 +170,7 @@ pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Request> {
         serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
     match message {
         PageMessage::View(m) => view(*m, scene).map(|job| Request::View(Box::new(job))),
-        PageMessage::Inspect { x, y } => Ok(Request::About(Probe::Pixel(x, y))),
+        PageMessage::Inspect { x, y, frame } => Ok(Request::About(Probe::Pixel(x, y, frame))),
         PageMessage::SaveDeep => Ok(Request::About(Probe::Deep)),
     }
 }
@@ -192,9 +204,14 @@ fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
     };
     camera.check()?;
     let main = choice(method, &options).context("method")?;
+    check_memory(&main, width, height).context("method")?;
     let compare = match compare {
         None => None,
-        Some(c) => Some((choice(c.method, &c.options).context("reference")?, c.flip)),
+        Some(c) => {
+            let reference = choice(c.method, &c.options).context("reference")?;
+            check_memory(&reference, width, height).context("reference")?;
+            Some((reference, c.flip))
+        }
     };
     Ok(Job {
         id,
@@ -205,6 +222,28 @@ fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
         main,
         compare,
     })
+}
+
+/// Refuses a store whose fixed per-pixel arrays would exceed [`MAX_FIXED_STORE_BYTES`] (at 16
+/// bytes a fragment slot, what the fixed stores keep with their counts).
+fn check_memory(choice: &MethodChoice, width: u32, height: u32) -> Result<()> {
+    let (option, per_pixel) = match choice.method.as_str() {
+        "kbuffer" => ("k", choice.options.k),
+        "abuffer-array" => ("array-size", choice.options.array_size),
+        _ => return Ok(()),
+    };
+    let bytes = u64::from(width) * u64::from(height) * u64::from(per_pixel) * 16;
+    if bytes > MAX_FIXED_STORE_BYTES {
+        bail!(
+            "{} with {option} = {per_pixel} at {width}x{height} would reserve about {:.1} GiB, \
+             more than the {} GiB a page's store may; lower {option} or the frame size \
+             (?size=WxH in the address)",
+            choice.method,
+            bytes as f64 / f64::from(1u32 << 30),
+            MAX_FIXED_STORE_BYTES >> 30
+        );
+    }
+    Ok(())
 }
 
 /// Checks a method and its options.

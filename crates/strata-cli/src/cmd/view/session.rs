@@ -47,16 +47,14 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
             "too many pages are open ({} at most); close one and reload",
             shared.max_pages
         );
-        let _ = socket
-            .send(Message::Text(protocol::error_json(None, &message).into()))
-            .await;
+        send(
+            &mut socket,
+            Message::Text(protocol::error_json(None, &message).into()),
+        )
+        .await;
         return;
     };
-    if socket
-        .send(Message::Text(shared.hello.clone().into()))
-        .await
-        .is_err()
-    {
+    if !send(&mut socket, Message::Text(shared.hello.clone().into())).await {
         return;
     }
     let (job_tx, job_rx) = watch::channel::<Option<Job>>(None);
@@ -74,9 +72,13 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
         },
         shared.clone(),
     ));
+    let mut heartbeat =
+        tokio::time::interval_at(tokio::time::Instant::now() + HEARTBEAT, HEARTBEAT);
+    let mut last_heard = Instant::now();
     loop {
         tokio::select! {
             incoming = socket.recv() => {
+                last_heard = Instant::now();
                 let reply = match incoming {
                     Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene) {
                         Ok(Request::View(job)) => {
@@ -102,34 +104,65 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
                     Some(Ok(Message::Close(_)) | Err(_)) | None => break,
                 };
                 if let Some(reply) = reply
-                    && socket.send(Message::Text(reply.into())).await.is_err()
+                    && !send(&mut socket, Message::Text(reply.into())).await
                 {
                     break;
                 }
             }
             Some(answer) = answer_rx.recv() => {
-                if socket.send(answer).await.is_err() {
+                if !send(&mut socket, answer).await {
+                    break;
+                }
+            }
+            _ = heartbeat.tick() => {
+                // A page that went away without closing (a laptop put to sleep, a dropped link)
+                // answers no ping: its seat is given back. Browsers answer pings by themselves.
+                if last_heard.elapsed() > 3 * HEARTBEAT
+                    || !send(&mut socket, Message::Ping(Vec::new().into())).await
+                {
                     break;
                 }
             }
             changed = frame_rx.changed() => {
                 if changed.is_err() {
-                    break; // the render loop ended
+                    // The render loop ended; its last words (an error) may still be queued.
+                    while let Ok(answer) = answer_rx.try_recv() {
+                        if !send(&mut socket, answer).await {
+                            break;
+                        }
+                    }
+                    break;
                 }
                 let message = frame_rx.borrow_and_update().clone();
                 if let Some(message) = message
-                    && socket.send(message).await.is_err()
+                    && !send(&mut socket, message).await
                 {
                     break;
                 }
             }
         }
     }
-    // The render loop sees the request channels close and ends after its current frame.
-    drop(job_tx);
-    drop(probe_tx);
+    // Every channel to and from the render loop closes, so it ends after the work in hand even
+    // if it was waiting to hand over an answer nobody will read; the seat is given back when it
+    // has.
+    drop((job_tx, probe_tx, frame_rx, answer_rx));
     let _ = renderer.await;
 }
+
+/// Sends one message; false if the page is gone, or has read nothing for [`SEND_TIMEOUT`] (a
+/// page that stops reading would otherwise hold its seat for ever).
+async fn send(socket: &mut WebSocket, message: Message) -> bool {
+    matches!(
+        tokio::time::timeout(SEND_TIMEOUT, socket.send(message)).await,
+        Ok(Ok(()))
+    )
+}
+
+/// How long one message may take to leave: a 4 MB frame at 1 Mbit/s, with room to spare.
+const SEND_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
+
+/// How often a quiet page is pinged; one silent for three of these is gone.
+const HEARTBEAT: std::time::Duration = std::time::Duration::from_secs(20);
 
 /// Pixels a page may ask about before it has its answers.
 const PROBES_WAITING: usize = 8;
@@ -163,15 +196,21 @@ async fn render_loop(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
             }
             Some(probe) = inbox.probes.recv() => Work::Probe(probe),
         };
+        if outbox.frames.is_closed() || outbox.answers.is_closed() {
+            return; // the page has gone: no more work for it
+        }
         let id = match &work {
             Work::Frame(job) => Some(job.id),
             Work::Probe(..) => None,
         };
+        let shared = Arc::clone(&renderer.shared);
+        // Everything parallel in the work (render, DeepFrame export, comparison) runs on the
+        // server's pool, so `-j` bounds the whole server.
         let done = tokio::task::spawn_blocking(move || {
-            let message = match work {
+            let message = shared.pool.install(|| match work {
                 Work::Frame(job) => renderer.frame(&job),
                 Work::Probe(probe) => renderer.answer(probe),
-            };
+            });
             (renderer, message)
         })
         .await;
@@ -244,14 +283,21 @@ impl Renderer {
             }
         };
         match probe {
-            Probe::Pixel(x, y) if x >= width || y >= height => Message::Text(
+            Probe::Pixel(_, _, Some(frame)) if frame != id => Message::Text(
+                protocol::error_json(
+                    Some(id),
+                    &format!("frame {frame} has been replaced by frame {id}; click again"),
+                )
+                .into(),
+            ),
+            Probe::Pixel(x, y, _) if x >= width || y >= height => Message::Text(
                 protocol::error_json(
                     Some(id),
                     &format!("pixel {x},{y} is outside the {width}x{height} frame"),
                 )
                 .into(),
             ),
-            Probe::Pixel(x, y) => Message::Text(self.pixel(id, &frame, x, y).into()),
+            Probe::Pixel(x, y, _) => Message::Text(self.pixel(id, &frame, x, y).into()),
             Probe::Deep => {
                 let projection = camera.projection(width, height);
                 match deep_exr_bytes(&frame, (camera.near, camera.far), camera.view(), projection) {
@@ -389,11 +435,7 @@ impl Renderer {
             Some((key, store)) if key == choice.key => store,
             _ => strata_stores::create(&choice.method, &choice.options)?,
         };
-        let raster = &mut self.raster;
-        let result = self
-            .shared
-            .pool
-            .install(|| render_frame(store.as_mut(), raster, input, input.background))?;
+        let result = render_frame(store.as_mut(), &mut self.raster, input, input.background)?;
         Ok((store, result))
     }
 }

@@ -18,6 +18,7 @@ const S = {
   referenceOptions: {},
   show: "side",         // with a reference: side, split, bad, flip, main or reference
   split: 0.5,
+  animationFrame: 0,
   images: {},           // name -> ImageBitmap of the frame on the canvas
   nextId: 1,
   sent: new Map(),      // request id -> performance.now() when sent
@@ -159,7 +160,7 @@ function framePixel(e) {
 function inspect(e) {
   const p = framePixel(e);
   if (!p || !S.frame || !S.socket || S.socket.readyState !== WebSocket.OPEN) return;
-  S.socket.send(JSON.stringify({ type: "inspect", x: p[0], y: p[1] }));
+  S.socket.send(JSON.stringify({ type: "inspect", x: p[0], y: p[1], frame: S.frame.id }));
   const r = canvas.getBoundingClientRect();
   const marker = $("marker");
   marker.style.left = `${e.clientX - r.left}px`;
@@ -171,7 +172,7 @@ function showPixel(m) {
   S.pixel = m;
   const n = m.fragments.length;
   $("pixel-note").textContent =
-    `pixel ${m.x}, ${m.y} of frame ${m.frame} (${m.method}): ${n} fragment${n === 1 ? "" : "s"}, front to back`;
+    `pixel ${m.x}, ${m.y} of frame ${m.frame}, as ${m.method} keeps it: ${n} fragment${n === 1 ? "" : "s"}, front to back`;
   const tbody = $("pixel").tBodies[0];
   tbody.replaceChildren();
   m.fragments.forEach((f, i) => {
@@ -220,7 +221,7 @@ function sendView() {
   if (S.sent.size > 256) S.sent.delete(S.sent.keys().next().value);
   S.lastSentId = id;
   const request = {
-    type: "view", id, width, height, frame: 0,
+    type: "view", id, width, height, frame: S.animationFrame,
     camera: S.camera, method: S.method, options: S.options,
   };
   if (S.reference !== null) {
@@ -318,20 +319,40 @@ function optionForm(box, method, get, set, current) {
 }
 
 // ---- frames --------------------------------------------------------------------------------
-let drawing = Promise.resolve();
+// Newest wins here too: while a frame decodes, only the newest frame that arrived meanwhile
+// waits; older ones are dropped undecoded. Deep EXRs are never dropped.
+let waiting = null;
+let decoding = false;
 
-// A binary message: a frame, or a deep EXR asked for with "save_deep".
-async function onBinary(buffer) {
-  const view = new DataView(buffer);
-  const n = view.getUint32(0, true);
+function receive(buffer) {
+  const n = new DataView(buffer).getUint32(0, true);
   const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, n)));
   if (header.type === "deep") {
-    const bytes = new Uint8Array(buffer, 4 + n, header.images[0].bytes);
-    S.savedDeep = { frame: header.frame, bytes: bytes.length };
-    download(new Blob([bytes], { type: "image/x-exr" }), `${S.hello.scene}-${S.method}-deep.exr`);
+    saveDeep(header, buffer, 4 + n);
     return;
   }
-  await showFrame(header, buffer, 4 + n);
+  waiting = { header, buffer, first: 4 + n };
+  if (!decoding) decodeNext();
+}
+
+async function decodeNext() {
+  decoding = true;
+  while (waiting) {
+    const { header, buffer, first } = waiting;
+    waiting = null;
+    try {
+      await showFrame(header, buffer, first);
+    } catch (err) {
+      showError(null, `cannot show the frame: ${err}`);
+    }
+  }
+  decoding = false;
+}
+
+function saveDeep(header, buffer, first) {
+  const bytes = new Uint8Array(buffer, first, header.images[0].bytes);
+  S.savedDeep = { frame: header.frame, bytes: bytes.length };
+  download(new Blob([bytes], { type: "image/x-exr" }), `${S.hello.scene}-${S.method}-deep.exr`);
 }
 
 function download(blob, name) {
@@ -368,6 +389,7 @@ async function showFrame(header, buffer, first) {
   }
   showStats(header);
   showStatus();
+  window.dispatchEvent(new CustomEvent("strata-frame", { detail: header }));
 }
 
 // Draws the frame's images as `show` asks (the method's image alone without a reference).
@@ -455,6 +477,7 @@ function showStatus() {
 
 function showError(id, message) {
   S.errors.push({ id, message });
+  if (S.errors.length > 100) S.errors.shift();
   const el = $("error");
   el.textContent = message;
   el.hidden = false;
@@ -474,12 +497,12 @@ function connect() {
   };
   socket.onmessage = (e) => {
     if (typeof e.data !== "string") {
-      const buffer = e.data;
-      drawing = drawing.then(() => onBinary(buffer)).catch((err) => showError(null, `cannot show the frame: ${err}`));
+      receive(e.data);
       return;
     }
     const m = JSON.parse(e.data);
     if (m.type === "hello") {
+      $("error").hidden = true; // whatever kept the page out (too many pages) is over
       const first = S.hello === null;
       S.hello = m;
       if (first) {
@@ -489,6 +512,16 @@ function connect() {
         $("scene").textContent = `${m.scene}: ${fmt(m.triangles)} triangles (${m.origin})`;
         document.title = `strata view: ${m.scene}`;
         buildMethods();
+        if (m.frames > 1) {
+          const input = $("animation");
+          input.max = String(m.frames - 1);
+          $("animation-row").hidden = false;
+          input.onchange = () => {
+            S.animationFrame = Math.max(0, Math.min(m.frames - 1, Math.round(Number(input.value) || 0)));
+            input.value = String(S.animationFrame);
+            requestView();
+          };
+        }
       }
       sendView(); // the view as it is, also after a reconnection
     } else if (m.type === "pixel") {
