@@ -101,6 +101,18 @@ pub(crate) struct MethodParams {
     pub(crate) given: Vec<&'static str>,
 }
 
+/// Splits a method spec, `name[:key=value[:key]…]`, into the method's name and its settings (a
+/// flag written without a value has none), as `compare --methods` and `view --method` read it.
+pub(crate) fn split_spec(spec: &str) -> (&str, impl Iterator<Item = (&str, Option<&str>)>) {
+    let mut parts = spec.split(':');
+    let method = parts.next().unwrap_or_default().trim();
+    let settings = parts.map(|part| match part.split_once('=') {
+        Some((k, v)) => (k.trim(), Some(v.trim())),
+        None => (part.trim(), None),
+    });
+    (method, settings)
+}
+
 /// Sets `settings` (an option's name and its value; a flag may have none) on top of `base` for
 /// `method`, refusing an unknown option, a bad value, and any option that `method` does not
 /// read once every option is set (`k-from` decides whether the importance options are read).

@@ -95,16 +95,12 @@ fn parse_ppd(s: &str) -> Result<f32, String> {
 /// `name[:key=value[:key]…]` on top of the command line's options; every option it sets must be
 /// one the method reads.
 fn parse_spec(spec: &str, base: &MethodOptions) -> Result<Spec> {
-    let mut parts = spec.split(':');
-    let method = parts.next().unwrap_or_default().trim().to_owned();
+    let (method, settings) = crate::options::split_spec(spec);
+    let method = method.to_owned();
     if method.is_empty() {
         bail!("'{spec}': a method spec starts with the method's name (strata methods lists them)");
     }
     let info = strata_stores::find(&method)?;
-    let settings = parts.map(|part| match part.split_once('=') {
-        Some((k, v)) => (k, Some(v)),
-        None => (part, None),
-    });
     let options = crate::options::configure(&method, base, settings)
         .map_err(|e| anyhow::anyhow!("'{spec}': {e}"))?;
     let file: String = spec

@@ -137,25 +137,14 @@ fn option_specs() -> Vec<Value> {
 
 /// Splits a method spec (`kbuffer:k=8`) into its method, checked options and option strings.
 fn initial_method(spec: &str) -> Result<(String, serde_json::Map<String, Value>)> {
-    let mut parts = spec.split(':');
-    let method = parts.next().unwrap_or_default().trim().to_owned();
-    strata_stores::find(&method)?;
-    let mut settings = serde_json::Map::new();
-    let mut pairs = Vec::new();
-    for part in parts {
-        let (key, value) = match part.split_once('=') {
-            Some((k, v)) => (k.trim(), v.trim()),
-            None => (part.trim(), "true"),
-        };
-        pairs.push((key, Some(value)));
-        settings.insert(key.to_owned(), json!(value));
-    }
-    if settings.contains_key("weights") {
-        anyhow::bail!("--method '{spec}': the viewer uses the weights built into strata");
-    }
-    crate::options::configure(&method, &MethodOptions::default(), pairs)
-        .with_context(|| format!("--method '{spec}'"))?;
-    Ok((method, settings))
+    let (method, settings) = crate::options::split_spec(spec);
+    let settings: std::collections::BTreeMap<String, String> = settings
+        .map(|(k, v)| (k.to_owned(), v.unwrap_or("true").to_owned()))
+        .collect();
+    // The page's own check, so the first view is refused exactly as a later one would be.
+    protocol::choice(method.to_owned(), &settings).with_context(|| format!("--method '{spec}'"))?;
+    let settings = settings.into_iter().map(|(k, v)| (k, json!(v))).collect();
+    Ok((method.to_owned(), settings))
 }
 
 /// The hello message: the scene, the methods and their options, the first view.

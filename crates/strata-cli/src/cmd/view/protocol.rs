@@ -247,7 +247,7 @@ fn check_memory(choice: &MethodChoice, width: u32, height: u32) -> Result<()> {
 }
 
 /// Checks a method and its options.
-fn choice(method: String, options: &BTreeMap<String, String>) -> Result<MethodChoice> {
+pub(crate) fn choice(method: String, options: &BTreeMap<String, String>) -> Result<MethodChoice> {
     strata_stores::find(&method)?;
     if options.contains_key("weights") {
         bail!(
