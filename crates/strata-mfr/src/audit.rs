@@ -15,7 +15,11 @@
 //!     transparency artefact of colour-and-depth composition).
 
 use strata_core::metrics::{DEFAULT_BAD_PIXEL_THRESHOLD, bad_pixels, rmse};
-use strata_core::{DeepFrame, ObjectId, Run};
+use strata_core::{DeepFrame, ObjectId, Rgb8Image, Run};
+use strata_scene::Scene;
+
+use crate::client::Client;
+use crate::simulate::{FcFrame, SimulateError};
 
 /// One frame's audit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -92,6 +96,23 @@ pub fn audit(frame: &DeepFrame, reference: &DeepFrame, background: [f32; 3]) -> 
         }
     }
     out
+}
+
+/// Audits an FC frame against the whole scene rendered at once by `reference` (a client of the
+/// frame's size), at the frame's snapshot and through the view it composed with; also returns
+/// the reference's image.
+pub fn audit_fc_frame(
+    scene: &Scene,
+    reference: &mut Client,
+    frame: &FcFrame,
+) -> Result<(FrameAudit, Rgb8Image), SimulateError> {
+    let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
+    let all: Vec<usize> = (0..scene.objects.len()).collect();
+    let r = reference.render(scene, &frame.snapshot, &view, &all)?;
+    Ok((
+        audit(&frame.composed()?, &r, scene.background),
+        r.resolve(scene.background),
+    ))
 }
 
 #[cfg(test)]

@@ -41,7 +41,10 @@ use strata_scene::{Aabb, Mesh, Scene};
 
 use crate::lighting::{LightPose, TraceLights};
 use crate::state::{Input, ObjectState};
-use crate::trace::{Button, Event, Trace};
+use crate::trace::{Button, Event, TimedEvent, Trace, TraceError};
+
+/// Applied live events kept before they are dropped from the trace.
+const FORGET_AFTER: usize = 1024;
 
 /// The camera of a snapshot.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,6 +121,8 @@ struct Drag {
 pub struct Authority {
     trace: Trace,
     next_event: usize,
+    /// Applied events dropped from the front of `trace` (live input, see [`Authority::push`]).
+    forgotten: usize,
     /// Each object's mesh and world matrix at rest (without the user's offset).
     meshes: Vec<(Arc<Mesh>, Mat4)>,
     /// World bounds of each object at rest.
@@ -167,6 +172,7 @@ impl Authority {
         Authority {
             trace,
             next_event: 0,
+            forgotten: 0,
             meshes,
             rest_bounds,
             pointer: None,
@@ -205,7 +211,7 @@ impl Authority {
             self.step_drag(&mut next, e.t_ms);
             self.apply(&mut next, e.t_ms, e.event);
             self.next_event += 1;
-            next.events_applied = self.next_event;
+            next.events_applied = self.forgotten + self.next_event;
         }
         self.step_drag(&mut next, t_ms);
         if !self.lights.is_empty() {
@@ -220,6 +226,36 @@ impl Authority {
             self.current = Arc::new(next);
         }
         Arc::clone(&self.current)
+    }
+
+    /// Appends a live input — what a person does, as they do it — to the trace being replayed.
+    /// It must not come before the newest snapshot's time or the last event; it is applied by the
+    /// next [`Authority::advance_to`] that reaches its time. Lights are keyed by the trace the
+    /// authority starts with and cannot be added. Applied events are forgotten as input goes on
+    /// (a session can last hours); [`Snapshot::events_applied`] goes on counting them.
+    pub fn push(&mut self, event: TimedEvent) -> Result<(), TraceError> {
+        if matches!(event.event, Event::Light { .. }) {
+            return Err(TraceError::new(
+                "live input",
+                "lights are keyed by the trace the authority starts with",
+            ));
+        }
+        if !(event.t_ms >= self.current.t_ms) {
+            return Err(TraceError::new(
+                "live input",
+                format!(
+                    "an event at {} ms comes before the newest snapshot, at {} ms",
+                    event.t_ms, self.current.t_ms
+                ),
+            ));
+        }
+        self.trace.push(event)?;
+        if self.next_event >= FORGET_AFTER {
+            self.trace.drop_front(self.next_event);
+            self.forgotten += self.next_event;
+            self.next_event = 0;
+        }
+        Ok(())
     }
 
     fn apply(&mut self, s: &mut Snapshot, t_ms: f64, event: Event) {
@@ -310,13 +346,17 @@ impl Authority {
     /// The object whose triangles the ray from `origin` along `dir` hits first, with every object
     /// where the current snapshot puts it.
     pub fn nearest_hit(&self, origin: Vec3, dir: Vec3) -> Option<usize> {
+        self.nearest_hit_at(origin, dir).map(|(i, _)| i)
+    }
+
+    /// [`Authority::nearest_hit`] with the ray parameter of the hit (`origin + t · dir`).
+    pub fn nearest_hit_at(&self, origin: Vec3, dir: Vec3) -> Option<(usize, f32)> {
         self.current
             .objects
             .iter()
             .enumerate()
             .filter_map(|(i, o)| self.hit(i, o.offset, origin, dir).map(|t| (i, t)))
             .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(i, _)| i)
     }
 
     /// The distance along the ray to the nearest triangle of object `i` moved by `offset`.

@@ -44,6 +44,9 @@
 //!   chunks of geometry and its export in bands of rows, sized by a fitted cost model to the time
 //!   left before the FC's next deadline.
 //!
+//! - [`live`]: the same clients following a person's input as it comes (`strata view --mfr`):
+//!   pointer positions become rays, presses select, moves drag the selected object.
+//!
 //! - [`tcp`]: the SC in another process or on another machine (`strata mfr-slow`), over
 //!   strata-wire messages; network threads feed the same triple buffers.
 //!
@@ -63,6 +66,7 @@ pub mod compose;
 pub mod deferred;
 pub mod interleaved;
 pub mod lighting;
+pub mod live;
 pub mod realtime;
 pub mod simulate;
 pub mod state;
@@ -77,6 +81,7 @@ pub use audit::{FrameAudit, audit};
 pub use authority::{Authority, ObjectPose, Snapshot, ViewPose};
 pub use compose::Composition;
 pub use interleaved::{Chunking, InterleavedStats, ScFrameRecord, run_interleaved};
+pub use live::{Live, ScStatus};
 pub use realtime::{Incident, RealConfig, RealStats, ScLoad, ScPriority, Transport, run_real};
 pub use simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 pub use state::{Input, ObjectState, fc_renders, table_6_1_row};

@@ -33,7 +33,7 @@
 //!   on a machine with fewer cores than busy threads the FC is scheduled first; over TCP it
 //!   applies to the FC process's link threads, which decode and resolve the SC's buffers.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -231,19 +231,53 @@ fn pool(name: &str, low: bool, incidents: &Incidents) -> Result<rayon::ThreadPoo
 /// The in-process SC's figures: each frame's render time (ms), each publish's time (µs).
 type ScTimes = (Vec<f64>, Vec<f64>);
 
+/// What the in-process SC shows while it runs, and how it is paced: read and set from other
+/// threads without waiting.
+#[derive(Debug, Default)]
+pub(crate) struct ScGauge {
+    /// Frames published so far.
+    frames: AtomicU64,
+    /// The last frame's render time, in microseconds.
+    last_us: AtomicU64,
+    /// The shortest time from one frame's start to the next's, in microseconds (0: none). A
+    /// live session sets it to make a light scene's SC as slow as a heavy one's.
+    min_interval_us: AtomicU64,
+}
+
+impl ScGauge {
+    /// Frames published so far and the last one's render time (ms).
+    pub(crate) fn read(&self) -> (u64, f64) {
+        (
+            self.frames.load(Ordering::Acquire),
+            self.last_us.load(Ordering::Acquire) as f64 / 1e3,
+        )
+    }
+
+    /// Holds the SC to at most one frame every `interval` (zero: as fast as it can).
+    pub(crate) fn set_min_interval(&self, interval: Duration) {
+        let us = u64::try_from(interval.as_micros()).unwrap_or(u64::MAX);
+        self.min_interval_us.store(us, Ordering::Release);
+    }
+
+    fn min_interval(&self) -> Duration {
+        Duration::from_micros(self.min_interval_us.load(Ordering::Acquire))
+    }
+}
+
 /// The in-process SC: renders the newest snapshot whenever it is free, until `stop`.
-struct ScThread {
+pub(crate) struct ScThread {
     handle: std::thread::JoinHandle<Result<ScTimes, SimulateError>>,
 }
 
 impl ScThread {
-    fn spawn(
+    pub(crate) fn spawn(
         scene: Arc<Scene>,
         config: &RealConfig,
         mut snapshots_in: Latest<Snapshot>,
         mut buffers_out: Publisher<TransferBuffer>,
         stop: Arc<AtomicBool>,
         incidents: &Incidents,
+        gauge: Arc<ScGauge>,
     ) -> Result<Self, SimulateError> {
         let low = config.sc_priority == ScPriority::Low;
         let sc_pool = pool("strata-mfr-sc", low, incidents)?;
@@ -259,22 +293,29 @@ impl ScThread {
                 let (mut frame_ms, mut publish_us) = (Vec::new(), Vec::new());
                 let mut last: Option<u64> = None;
                 let mut sc_frame = 0;
+                let mut last_start: Option<Instant> = None;
                 while !stop.load(Ordering::Acquire) {
+                    let paced = last_start.is_some_and(|t| t.elapsed() < gauge.min_interval());
                     let newest = snapshots_in.latest().cloned();
-                    let Some(snapshot) = newest.filter(|s| Some(s.id) != last) else {
+                    let Some(snapshot) = newest.filter(|s| !paced && Some(s.id) != last) else {
                         std::thread::sleep(Duration::from_millis(1));
                         continue;
                     };
                     let start = Instant::now();
+                    last_start = Some(start);
                     let buffer = sc_pool.install(|| {
                         sc_render(&scene, &mut client, &snapshot, migration, sc_frame)
                     })?;
-                    frame_ms.push(start.elapsed().as_secs_f64() * 1e3);
+                    let took = start.elapsed();
+                    frame_ms.push(took.as_secs_f64() * 1e3);
+                    let took_us = u64::try_from(took.as_micros()).unwrap_or(u64::MAX);
+                    gauge.last_us.store(took_us, Ordering::Release);
                     let buffer = Arc::new(buffer);
                     let start = Instant::now();
                     let old = buffers_out.publish(buffer);
                     publish_us.push(start.elapsed().as_secs_f64() * 1e6);
                     drop(old);
+                    gauge.frames.fetch_add(1, Ordering::AcqRel);
                     last = Some(snapshot.id);
                     sc_frame += 1;
                 }
@@ -285,7 +326,7 @@ impl ScThread {
     }
 
     /// Joins the thread (after `stop` was set); its frame times and publish times.
-    fn join(self) -> Result<ScTimes, SimulateError> {
+    pub(crate) fn join(self) -> Result<ScTimes, SimulateError> {
         self.handle
             .join()
             .map_err(|_| SimulateError::Thread("the slow client's thread panicked".into()))?
@@ -333,6 +374,7 @@ pub fn run_real(
             buffers_out,
             Arc::clone(&stop),
             &incidents,
+            Arc::default(),
         )?),
         (Transport::Tcp(options), _) => Sc::Tcp(Box::new(FcLink::start(
             &scene,

@@ -137,7 +137,7 @@ pub struct TraceError {
 }
 
 impl TraceError {
-    fn new(origin: &str, what: impl Into<String>) -> Self {
+    pub(crate) fn new(origin: &str, what: impl Into<String>) -> Self {
         TraceError {
             origin: origin.to_owned(),
             what: what.into(),
@@ -360,6 +360,27 @@ impl Trace {
             }
         }
         Ok(Trace { events })
+    }
+
+    /// Appends `event`, which must come at or after the last event (a live session's input).
+    pub fn push(&mut self, event: TimedEvent) -> Result<(), TraceError> {
+        let last = self.duration_ms();
+        if !(event.t_ms.is_finite() && event.t_ms >= last) {
+            return Err(TraceError::new(
+                "live input",
+                format!(
+                    "an event at {} ms comes before the last one, at {last} ms",
+                    event.t_ms
+                ),
+            ));
+        }
+        self.events.push(event);
+        Ok(())
+    }
+
+    /// Drops the first `count` events (those a live session has applied), keeping the rest.
+    pub(crate) fn drop_front(&mut self, count: usize) {
+        self.events.drain(..count.min(self.events.len()));
     }
 
     /// This trace's events and `other`'s, in time order (at equal times this trace's first):

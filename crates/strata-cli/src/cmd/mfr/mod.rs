@@ -17,7 +17,7 @@ use strata_mfr::FrameRecord;
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration, VirtualClock, run_virtual};
 use strata_mfr::tcp::TcpOptions;
-use strata_mfr::{Composition, FrameAudit, RealConfig, ScLoad, Transport, audit, run_real};
+use strata_mfr::{Composition, FrameAudit, RealConfig, ScLoad, Transport, run_real};
 
 use crate::cmd::mfr_slow::PriorityArg;
 use crate::options::{open_scene, search_path};
@@ -529,11 +529,5 @@ fn audit_frame(
     reference: &mut Client,
     f: &FcFrame,
 ) -> Result<(FrameAudit, strata_core::Rgb8Image)> {
-    let view = f.sc.as_ref().map_or(f.snapshot.view, |sc| sc.view);
-    let all: Vec<usize> = (0..scene.objects.len()).collect();
-    let r = reference.render(scene, &f.snapshot, &view, &all)?;
-    Ok((
-        audit(&f.composed()?, &r, scene.background),
-        r.resolve(scene.background),
-    ))
+    Ok(strata_mfr::audit::audit_fc_frame(scene, reference, f)?)
 }
