@@ -240,7 +240,7 @@ impl Authority {
                 "lights are keyed by the trace the authority starts with",
             ));
         }
-        if !(event.t_ms >= self.current.t_ms) {
+        if event.t_ms.is_nan() || event.t_ms < self.current.t_ms {
             return Err(TraceError::new(
                 "live input",
                 format!(
