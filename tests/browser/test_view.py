@@ -8,7 +8,10 @@ downloaded) and checks what a person would: the first frame is the image `strata
 the same view; dragging orbits the camera, and the camera the page reports renders, pasted into a
 scene file, to the very image on the canvas; switching the method and its options gives the
 statistics `strata render --stats` reports; bad input of every kind gets an error in the page and
-never takes the server down; a killed socket reconnects; pages beyond --max-pages are told why.
+never takes the server down; a killed socket reconnects; pages beyond --max-pages are told why;
+in the multi-frame-rate mode, dragging an object moves it on the fast client ahead of a held-back
+slow client, deep composition stays exact against the single renderer, and digital composition
+shows the seed's artefact while the object is behind the windscreen.
 Screenshots of each state go to --out (default target/browser-tests).
 
 Exit status 0 if every test passed, 1 if one failed. Without Chromium or Playwright it says so and
@@ -46,9 +49,9 @@ def find_browser():
 class Server:
     """A `strata view` process on a free port."""
 
-    def __init__(self, strata, *args):
+    def __init__(self, strata, *args, scene=SCENE):
         self.proc = subprocess.Popen(
-            [strata, "view", SCENE, "--listen", "127.0.0.1:0", "-j", "2", *args],
+            [strata, "view", scene, "--listen", "127.0.0.1:0", "-j", "2", *args],
             stderr=subprocess.PIPE,
             text=True,
         )
@@ -424,6 +427,129 @@ class Suite:
             first.close()
         finally:
             limited.stop()
+
+    def wait_mfr(self, page, condition, what, timeout=30000):
+        """Waits for a multi-frame-rate frame whose `header.mfr` meets the JS `condition` (on m)."""
+        from playwright.sync_api import TimeoutError as Timeout
+
+        try:
+            page.wait_for_function(
+                f"() => {{ const f = window.strataView.frame; const m = f && f.mfr;"
+                f" return Boolean(m && ({condition})); }}",
+                timeout=timeout,
+            )
+        except Timeout:
+            state = page.evaluate("[window.strataView.frame && window.strataView.frame.mfr,"
+                                  " window.strataView.errors]")
+            raise AssertionError(f"no frame with {what}; last frame and errors: {state}")
+        return page.evaluate("window.strataView.frame")
+
+    def client_point(self, page, x, y):
+        """The page coordinates of pixel (x, y) of the frame's main (left) image."""
+        return page.evaluate(
+            """([x, y]) => {
+              const c = document.getElementById('frame'), r = c.getBoundingClientRect();
+              const s = Math.min(r.width / c.width, r.height / c.height);
+              const ox = (r.width - c.width * s) / 2, oy = (r.height - c.height * s) / 2;
+              return [r.left + ox + x * s, r.top + oy + y * s, s];
+            }""",
+            [x, y],
+        )
+
+    def red_pixels(self, page):
+        """Pixels of the bad-pixel map the page holds that are the map's red."""
+        return page.evaluate(
+            """() => {
+              const b = window.strataView.images.bad;
+              const c = new OffscreenCanvas(b.width, b.height).getContext('2d');
+              c.drawImage(b, 0, 0);
+              const d = c.getImageData(0, 0, b.width, b.height).data;
+              let n = 0;
+              for (let i = 0; i < d.length; i += 4)
+                if (d[i] === 220 && d[i + 1] === 20 && d[i + 2] === 60) n++;
+              return n;
+            }"""
+        )
+
+    def test_mfr_a_drag_runs_ahead_of_the_slow_client_and_deep_stays_exact(self):
+        server = Server(self.strata, "--mfr", scene="mfr-cars")
+        try:
+            page = self.browser.new_page(viewport={"width": 1200, "height": 700})
+            page.on("pageerror", lambda e: self.page_errors.append(str(e)))
+            page.goto(f"{server.url}?size=320x180")
+            # Audited, the slow client held to one frame every two seconds; every frame's header
+            # is kept.
+            page.wait_for_function("window.strataView.hello !== null")
+            page.evaluate("""() => { window.mfrFrames = [];
+              window.addEventListener('strata-frame', (e) => window.mfrFrames.push(e.detail.mfr)); }""")
+            page.check("#audit")
+            page.fill("#sc-interval", "2000")
+            page.dispatch_event("#sc-interval", "change")
+            first = self.wait_mfr(page, "m.audit && m.sc_age_ms === 0", "an audited, settled frame")
+            assert first["mfr"]["audit"]["bad_pixels"] == 0, first["mfr"]
+            assert first["mfr"]["fc_objects"] == [], first["mfr"]
+            self.shot(page, "08-mfr-start")
+
+            # Hover the object the session offers: predictive migration hands it to the FC.
+            hx, hy = first["mfr"]["handle_px"]
+            x, y, s = self.client_point(page, hx, hy)
+            page.mouse.move(x, y)
+            over = self.wait_mfr(page, "m.over !== null && m.fc_objects.includes(m.over)",
+                                 "the object under the pointer drawn by the FC")
+            name = over["mfr"]["over"]
+
+            # Press and drag six frame pixels to the right: the FC shows the object moving while
+            # the SC buffer is older than the state, and the composite is still exact.
+            page.mouse.down()
+            for i in range(1, 7):
+                page.mouse.move(x + i * s, y)
+            held = self.wait_mfr(
+                page,
+                f"m.selected === {json.dumps(name)} && m.moved.length === 1 && m.audit"
+                " && m.pointer_seq === window.strataView.pointerSeq",
+                "the held object where the last pointer event put it",
+            )
+            m = held["mfr"]
+            assert m["moved"][0]["name"] == name and m["moved"][0]["offset"][0] > 0, m
+            assert m["audit"]["bad_pixels"] == 0, f"deep composition: {m}"
+            assert self.red_pixels(page) == 0
+            ahead = page.evaluate(
+                f"window.mfrFrames.filter((m) => m.selected === {json.dumps(name)}"
+                " && m.moved.length === 1 && m.sc_age_ms > 0 && m.audit)"
+            )
+            assert ahead, "no frame showed the drag before the slow client's buffer did"
+            assert all(f["audit"]["bad_pixels"] == 0 for f in ahead), ahead
+            self.shot(page, "09-mfr-drag-deep")
+
+            # Digital composition (colour + depth) loses the wheel behind the windscreen: the
+            # seed's fig. 6.6 artefact appears, and goes with deep composition.
+            page.select_option("#composition", "digital")
+            digital = self.wait_mfr(page, "m.composition === 'digital' && m.audit && m.sc_age_ms === 0"
+                                    " && f.id === window.strataView.lastSentId", "a digital frame")
+            a = digital["mfr"]["audit"]
+            assert a["hole_pixels"] > 0 and a["bad_pixels"] > 0, a
+            assert self.red_pixels(page) == a["bad_pixels"], (self.red_pixels(page), a)
+            page.select_option("#mfr-show", "bad")
+            page.wait_for_function("document.getElementById('frame').width === 320")
+            self.shot(page, "10-mfr-digital-artefact")
+            page.select_option("#composition", "deep")
+            deep = self.wait_mfr(page, "m.composition === 'deep' && m.audit"
+                                 " && f.id === window.strataView.lastSentId", "a deep frame again")
+            assert deep["mfr"]["audit"]["bad_pixels"] == 0, deep["mfr"]
+            page.select_option("#mfr-show", "side")
+
+            # Released, it stays where it was left; the page inspects the composed fragments.
+            page.mouse.up()
+            after = self.wait_mfr(page, "m.selected === null && m.sc_age_ms === 0",
+                                  "the released object in a settled frame")
+            assert after["mfr"]["moved"] == m["moved"], (after["mfr"]["moved"], m["moved"])
+            assert after["mfr"]["audit"]["bad_pixels"] == 0, after["mfr"]
+            assert after["mfr"]["pointer_seq"] is not None
+            self.shot(page, "11-mfr-released")
+            page.close()
+            assert server.alive()
+        finally:
+            server.stop()
 
     # ---- driver ---------------------------------------------------------------------------
     def run(self, only):

@@ -19,9 +19,13 @@ struct Viewer {
 
 impl Viewer {
     fn start(args: &[&str]) -> Viewer {
+        Viewer::start_scene("spheres", args)
+    }
+
+    fn start_scene(scene: &str, args: &[&str]) -> Viewer {
         let mut child = StdCommand::cargo_bin("strata")
             .expect("the strata binary")
-            .args(["view", "spheres", "--listen", "127.0.0.1:0", "-j", "2"])
+            .args(["view", scene, "--listen", "127.0.0.1:0", "-j", "2"])
             .args(args)
             .stderr(Stdio::piped())
             .spawn()
@@ -437,4 +441,87 @@ fn a_page_from_another_site_is_refused() {
         .insert("Origin", own.parse().expect("header value"));
     let (mut ws, _) = tungstenite::connect(request).expect("same origin");
     assert_eq!(text(next(&mut ws).expect("hello"))["type"], "hello");
+}
+
+/// The next frame whose header meets `wanted`; errors in between fail the test.
+fn frame_where(ws: &mut Socket, wanted: impl Fn(&Value) -> bool) -> Value {
+    for _ in 0..2000 {
+        match next(ws).expect("a message") {
+            m @ Message::Binary(_) => {
+                let (header, _) = frame(m);
+                if wanted(&header) {
+                    return header;
+                }
+            }
+            other => panic!("expected frames, got {other:?}"),
+        }
+    }
+    panic!("no frame as wanted in 2000");
+}
+
+#[test]
+fn an_mfr_page_grabs_and_drags_an_object_and_the_composite_stays_exact() {
+    let v = Viewer::start_scene("mfr-cars", &["--mfr"]);
+    let mut ws = v.socket();
+    let hello = text(next(&mut ws).expect("hello"));
+    assert!(
+        hello["mfr"]["objects"].as_u64() > Some(100),
+        "{}",
+        hello["mfr"]
+    );
+    let settings = json!({"type": "mfr", "id": 1, "width": 160, "height": 90,
+                          "camera": hello["camera"], "audit": true});
+    ws.send(Message::text(settings.to_string())).expect("send");
+    let settled = |h: &Value| h["mfr"]["sc_age_ms"] == json!(0.0);
+    let first = frame_where(&mut ws, settled);
+    assert_eq!(first["mfr"]["audit"]["bad_pixels"], 0, "{}", first["mfr"]);
+    assert_eq!(first["camera"], hello["camera"]);
+
+    // Hover the object the session offers, press, drag 4 pixels right.
+    let handle = &first["mfr"]["handle_px"];
+    let (x, y) = (
+        handle[0].as_f64().expect("x"),
+        handle[1].as_f64().expect("y"),
+    );
+    let pointer = |seq: u64, dx: f64, pressed: bool| {
+        json!({"type": "pointer", "x": x + dx, "y": y, "pressed": pressed, "seq": seq}).to_string()
+    };
+    for (seq, dx, pressed) in [
+        (1, 0.0, false),
+        (2, 0.0, true),
+        (3, 2.0, true),
+        (4, 4.0, true),
+    ] {
+        ws.send(Message::text(pointer(seq, dx, pressed)))
+            .expect("send");
+    }
+    let held = frame_where(&mut ws, |h| h["mfr"]["pointer_seq"] == 4 && settled(h));
+    let m = &held["mfr"];
+    assert_eq!(m["selected"], "steering wheel", "{m}");
+    assert_eq!(m["fc_objects"], json!(["steering wheel"]), "{m}");
+    assert!(m["moved"][0]["offset"][0].as_f64().expect("x") > 0.0, "{m}");
+    assert_eq!(m["audit"]["bad_pixels"], 0, "{m}");
+
+    // A view message is refused with the reason; the session goes on.
+    let view = json!({"type": "view", "id": 2, "width": 8, "height": 8, "camera": hello["camera"],
+                      "method": "abuffer"});
+    ws.send(Message::text(view.to_string())).expect("send");
+    loop {
+        match next(&mut ws).expect("a message") {
+            Message::Binary(_) => continue,
+            m => {
+                let e = text(m);
+                assert!(
+                    e["message"].as_str().expect("text").contains("--mfr"),
+                    "{e}"
+                );
+                break;
+            }
+        }
+    }
+    ws.send(Message::text(pointer(5, 4.0, false)))
+        .expect("send");
+    let released = frame_where(&mut ws, |h| h["mfr"]["pointer_seq"] == 5 && settled(h));
+    assert_eq!(released["mfr"]["selected"], Value::Null);
+    assert_eq!(released["mfr"]["moved"], m["moved"]);
 }

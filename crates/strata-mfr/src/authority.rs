@@ -182,6 +182,25 @@ impl Authority {
         }
     }
 
+    /// An authority that goes on from `snapshot` (a live session restarted at another size):
+    /// the view and every object where the snapshot has them, every object INACTIVE (nothing
+    /// stays held across a restart), time 0, snapshot ids going on from the snapshot's. A
+    /// snapshot of another scene (another object count) is ignored.
+    pub fn resume(scene: &Scene, trace: Trace, snapshot: &Snapshot) -> Self {
+        let mut authority = Authority::new(scene, trace);
+        if snapshot.objects.len() == authority.current.objects.len() {
+            let mut s = snapshot.clone();
+            for o in &mut s.objects {
+                o.state = ObjectState::Inactive;
+            }
+            s.t_ms = 0.0;
+            s.events_applied = 0;
+            s.lights.clear();
+            authority.current = Arc::new(s);
+        }
+        authority
+    }
+
     /// The newest snapshot.
     pub fn current(&self) -> Arc<Snapshot> {
         Arc::clone(&self.current)

@@ -107,6 +107,19 @@ impl Live {
         migration: Migration,
         priority: ScPriority,
     ) -> Result<Self, SimulateError> {
+        Self::start_from(scene, size, migration, priority, None)
+    }
+
+    /// Like [`Live::start`], going on from `from` (a snapshot of an earlier session on the same
+    /// scene: the view and the objects where it has them, nothing held), e.g. when the page's
+    /// size changes.
+    pub fn start_from(
+        scene: Arc<Scene>,
+        size: (u32, u32),
+        migration: Migration,
+        priority: ScPriority,
+        from: Option<&Snapshot>,
+    ) -> Result<Self, SimulateError> {
         let origin = Instant::now();
         let (snapshots_out, snapshots_in) = exchange::<Snapshot>();
         let (buffers_out, buffers_in) = exchange::<TransferBuffer>();
@@ -124,7 +137,10 @@ impl Live {
             &Incidents::new(origin),
             Arc::clone(&gauge),
         )?;
-        let authority = Authority::new(&scene, Trace::default());
+        let authority = match from {
+            Some(snapshot) => Authority::resume(&scene, Trace::default(), snapshot),
+            None => Authority::new(&scene, Trace::default()),
+        };
         let shown_view = authority.current().view;
         let mut live = Live {
             fc: Client::new(size.0, size.1),
@@ -300,6 +316,35 @@ impl Live {
         (view.eye, if dir == Vec3::ZERO { -Vec3::Z } else { dir })
     }
 
+    /// The pixel where world point `p` appears through `view` at this size (fractions kept),
+    /// if it lies in front of the eye.
+    pub fn project(&self, view: &ViewPose, p: Vec3) -> Option<(f32, f32)> {
+        let (w, h) = (self.size.0 as f32, self.size.1 as f32);
+        let clip = self.scene.camera.projection(self.size.0, self.size.1) * view.matrix();
+        let c = clip * p.extend(1.0);
+        (c.w > 0.0).then(|| {
+            let (x, y) = (c.x / c.w, c.y / c.w);
+            ((x + 1.0) * 0.5 * w, (1.0 - y) * 0.5 * h)
+        })
+    }
+
+    /// The view of the last frame made (the SC buffer's it composed with): what a person sees.
+    pub fn shown_view(&self) -> ViewPose {
+        self.shown_view
+    }
+
+    /// Something to grab at the start: the first object, in scene order, that a ray from the
+    /// scene's eye reaches before any other (what the `grab:` trace takes by default), and the
+    /// point of it the ray meets, at rest.
+    pub fn handle(&self) -> Option<(usize, Vec3)> {
+        let eye = self.scene.camera.eye;
+        (0..self.scene.objects.len()).find_map(|i| {
+            let dir = crate::trace::aim_at(&self.scene, i, eye)?;
+            let (hit, t) = self.authority.nearest_hit_at(eye, dir)?;
+            (hit == i).then_some((i, eye + dir * t))
+        })
+    }
+
     fn ray(&self, x: f32, y: f32) -> (Vec3, Vec3) {
         self.pixel_ray(&self.shown_view, x, y)
     }
@@ -453,6 +498,73 @@ mod tests {
         let f = settled(&mut live, Composition::Deep);
         let (a, _) = audit_fc_frame(&scene, &mut reference, &f).expect("audit");
         assert!(!a.has_artefact(), "{a:?}");
+    }
+
+    #[test]
+    fn pixels_and_rays_are_inverse_and_the_handle_is_under_its_pixel() {
+        let live = Live::start(
+            scene(),
+            (160, 90),
+            Migration::Predictive,
+            ScPriority::Normal,
+        )
+        .expect("start");
+        let view = live.shown_view();
+        for (x, y) in [(0.5, 0.5), (80.0, 45.0), (159.5, 10.25)] {
+            let (o, d) = live.pixel_ray(&view, x, y);
+            let (px, py) = live.project(&view, o + d * 3.0).expect("in front");
+            assert!(
+                (px - x).abs() < 1e-3 && (py - y).abs() < 1e-3,
+                "{x},{y}: {px},{py}"
+            );
+        }
+        assert_eq!(
+            live.project(&view, view.eye * 2.0 - view.target),
+            None,
+            "behind"
+        );
+        let (index, point) = live.handle().expect("something to grab");
+        assert_eq!(live.scene.objects[index].name, "steering wheel");
+        let (x, y) = live.project(&view, point).expect("on screen");
+        let (o, d) = live.pixel_ray(&view, x, y);
+        assert_eq!(live.authority.nearest_hit(o, d), Some(index));
+    }
+
+    #[test]
+    fn a_restarted_session_keeps_the_objects_where_they_were_left() {
+        let scene = scene();
+        let mut live = Live::start(
+            Arc::clone(&scene),
+            (160, 90),
+            Migration::Predictive,
+            ScPriority::Normal,
+        )
+        .expect("start");
+        let (index, point) = live.handle().expect("something to grab");
+        let (x, y) = live.project(&live.shown_view(), point).expect("on screen");
+        live.pointer(x, y, false).expect("hover");
+        live.pointer(x, y, true).expect("press");
+        live.pointer(x + 5.0, y, true).expect("drag");
+        let before = live.advance();
+        assert!(before.objects[index].offset.x > 0.0);
+        let mut again = Live::start_from(
+            scene,
+            (320, 180),
+            Migration::Naive,
+            ScPriority::Normal,
+            Some(&before),
+        )
+        .expect("restart");
+        let s = again.advance();
+        assert_eq!(s.objects[index].offset, before.objects[index].offset);
+        assert_eq!(
+            s.objects[index].state,
+            ObjectState::Inactive,
+            "nothing held"
+        );
+        assert_eq!(s.view, before.view);
+        let f = settled(&mut again, Composition::Deep);
+        assert_eq!(f.image.width(), 320);
     }
 
     #[test]

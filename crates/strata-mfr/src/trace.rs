@@ -696,7 +696,7 @@ pub fn grab(scene: &Scene, p: &GrabParams) -> Result<Trace, TraceError> {
 /// A direction from `eye` whose ray meets object `index` before any other: toward its centre if
 /// that works, else toward the first of up to 512 of its vertices (pulled a little toward the
 /// centre, to hit the surface rather than graze an edge) that does.
-fn aim_at(scene: &Scene, index: usize, eye: Vec3) -> Option<Vec3> {
+pub(crate) fn aim_at(scene: &Scene, index: usize, eye: Vec3) -> Option<Vec3> {
     let picker = crate::Authority::new(scene, Trace::default());
     let object = &scene.objects[index];
     let model = object.model_matrix(None, 0);

@@ -5,6 +5,8 @@
 //! browser ── GET /            page.html, page.js, page.css (compiled into the binary)
 //!         ── GET /ws ───────▶ session::run, one per page:
 //!                              requests (JSON text) → render on the shared workers → PNG frames
+//!                              with --mfr: settings and pointer events → mfr::run, a slow and
+//!                              a fast client composed (seed 004) → PNG frames at the FC's pace
 //! ```
 //!
 //! The server is axum on tokio; rendering runs on one rayon pool shared by every page
@@ -18,6 +20,7 @@
 //! `strata render` and `compare --methods` use.
 
 mod compare;
+mod mfr;
 mod protocol;
 mod session;
 
@@ -61,6 +64,16 @@ pub(crate) struct Args {
     #[arg(long, short, default_value = "abuffer")]
     pub(crate) method: String,
 
+    /// Multi-frame-rate mode (seed 004): the scene renders on a slow client, and what you point
+    /// at or drag renders on a fast client composed with it every frame. Hover an object to
+    /// hand it to the fast client, press and drag to move it; the page shows both clients'
+    /// rates, the age of the slow client's buffer, and lets you switch the composition (`deep`
+    /// is exact; `digital` and `optical` show the artefacts of the original systems) and audit
+    /// every frame against the whole scene rendered at once. Try `strata view mfr-cars --mfr`.
+    /// Both clients keep every fragment, so `--method` does not apply.
+    #[arg(long, conflicts_with = "method")]
+    pub(crate) mfr: bool,
+
     /// Pages served at once; more are refused with a message until one closes.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..=256))]
     pub(crate) max_pages: u16,
@@ -82,6 +95,8 @@ pub(crate) struct Shared {
     hello: String,
     pages: AtomicUsize,
     max_pages: usize,
+    /// Pages run the multi-frame-rate session instead of rendering views.
+    mfr: bool,
 }
 
 /// A page's place among the `--max-pages`; given back when dropped.
@@ -148,7 +163,12 @@ fn initial_method(spec: &str) -> Result<(String, serde_json::Map<String, Value>)
 }
 
 /// The hello message: the scene, the methods and their options, the first view.
-fn hello(scene: &Scene, method: &str, settings: serde_json::Map<String, Value>) -> String {
+fn hello(
+    scene: &Scene,
+    method: &str,
+    settings: serde_json::Map<String, Value>,
+    mfr: bool,
+) -> String {
     let methods: Vec<Value> = strata_stores::METHODS
         .iter()
         .map(|m| {
@@ -175,6 +195,11 @@ fn hello(scene: &Scene, method: &str, settings: serde_json::Map<String, Value>) 
         "method": method,
         "method_options": settings,
         "max_side": protocol::MAX_SIDE,
+        "mfr": mfr.then(|| json!({
+            "objects": scene.objects.len(),
+            "max_fc_hz": protocol::MAX_FC_HZ,
+            "max_sc_interval_ms": protocol::MAX_SC_INTERVAL_MS,
+        })),
     })
     .to_string()
 }
@@ -185,11 +210,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     let pool = thread_pool(args.threads)?;
     let shared = Arc::new(Shared {
-        hello: hello(&scene, &method, settings),
+        hello: hello(&scene, &method, settings, args.mfr),
         scene: Arc::new(scene),
         pool,
         pages: AtomicUsize::new(0),
         max_pages: usize::from(args.max_pages),
+        mfr: args.mfr,
     });
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

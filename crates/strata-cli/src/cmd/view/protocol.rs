@@ -12,6 +12,11 @@
 //!                 {"type": "save_deep"}          the latest frame as a deep OpenEXR file: a
 //!                                                binary message like a frame's, header type
 //!                                                "deep", one image named "deep" (the EXR)
+//!   with --mfr    {"type": "mfr", "id": 7, "width", "height", "camera": {…},
+//!    instead of    "composition": "deep", "migration": "predictive", "fc_hz": 30,
+//!    "view"        "sc_interval_ms": 0, "audit": false}   the multi-frame-rate session's settings
+//!                 {"type": "pointer", "x": 120.5, "y": 40, "pressed": true, "seq": 9}
+//!                                                the pointer over pixel (x, y) of the frame shown
 //! server → page   {"type": "hello", …}        once, on connecting: the scene, its camera and
 //!                                             size, the methods and their options (see `hello`)
 //!                 {"type": "error", "id": 7, "message": "…"}   a request refused or failed
@@ -96,12 +101,59 @@ pub(crate) struct CompareMessage {
     flip: bool,
 }
 
+/// The settings of a multi-frame-rate page (`strata view --mfr`).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct MfrMessage {
+    id: u64,
+    width: u32,
+    height: u32,
+    /// The camera: its eye, target and up move the view; the projection is the scene's.
+    camera: CameraMessage,
+    #[serde(default = "default_composition")]
+    composition: String,
+    #[serde(default = "default_migration")]
+    migration: String,
+    /// The fast client's most frames a second.
+    #[serde(default = "default_fc_hz")]
+    fc_hz: f64,
+    /// The slow client's least time between frames (0: as fast as it can).
+    #[serde(default)]
+    sc_interval_ms: f64,
+    /// Also render the whole scene at once and audit each frame against it.
+    #[serde(default)]
+    audit: bool,
+}
+
+fn default_composition() -> String {
+    "deep".into()
+}
+
+fn default_migration() -> String {
+    "predictive".into()
+}
+
+fn default_fc_hz() -> f64 {
+    30.0
+}
+
 /// What a page may send.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub(crate) enum PageMessage {
     /// Render this view; it replaces any view not yet rendered.
     View(Box<ViewMessage>),
+    /// The multi-frame-rate session's settings; they replace the previous ones.
+    Mfr(Box<MfrMessage>),
+    /// The pointer over a pixel of the frame shown, pressed or not (multi-frame-rate pages).
+    Pointer {
+        x: f32,
+        y: f32,
+        pressed: bool,
+        /// The page's number for the event; frames say the newest they show.
+        #[serde(default)]
+        seq: Option<u64>,
+    },
     /// List the fragments of one pixel of the latest frame; with `frame`, only if the latest
     /// frame is still the one of that request id.
     Inspect {
@@ -119,6 +171,10 @@ pub(crate) enum PageMessage {
 pub(crate) enum Request {
     /// Render this.
     View(Box<Job>),
+    /// Run the multi-frame-rate session with these settings.
+    Mfr(Box<MfrJob>),
+    /// The pointer moved or its button changed.
+    Pointer(PointerInput),
     /// A question about the latest frame, answered between frames.
     About(Probe),
 }
@@ -156,6 +212,36 @@ pub(crate) struct Job {
     pub(crate) compare: Option<(MethodChoice, bool)>,
 }
 
+/// Checked multi-frame-rate settings.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct MfrJob {
+    pub(crate) id: u64,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    /// The scene's camera moved to the page's eye, target and up.
+    pub(crate) camera: Camera,
+    pub(crate) composition: strata_mfr::Composition,
+    pub(crate) migration: strata_mfr::simulate::Migration,
+    pub(crate) fc_hz: f64,
+    pub(crate) sc_interval_ms: f64,
+    pub(crate) audit: bool,
+}
+
+/// A pointer event of a multi-frame-rate page.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct PointerInput {
+    pub(crate) x: f32,
+    pub(crate) y: f32,
+    pub(crate) pressed: bool,
+    pub(crate) seq: Option<u64>,
+}
+
+/// The highest fast-client rate a page may ask for (frames a second).
+pub(crate) const MAX_FC_HZ: f64 = 240.0;
+
+/// The longest a page may hold the slow client between frames (ms).
+pub(crate) const MAX_SC_INTERVAL_MS: f64 = 10_000.0;
+
 /// The request number of a text message, if it has one, so an error about it can carry it.
 pub(crate) fn request_id(text: &str) -> Option<u64> {
     serde_json::from_str::<Value>(text)
@@ -164,15 +250,106 @@ pub(crate) fn request_id(text: &str) -> Option<u64> {
         .as_u64()
 }
 
-/// Parses and checks one text message from a page.
-pub(crate) fn parse(text: &str, scene: &Scene) -> Result<Request> {
+/// Parses and checks one text message from a page; `mfr` says whether the server runs the
+/// multi-frame-rate session (which takes `mfr` and `pointer` messages instead of `view`).
+pub(crate) fn parse(text: &str, scene: &Scene, mfr: bool) -> Result<Request> {
     let message: PageMessage =
         serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
     match message {
+        PageMessage::View(_) if mfr => bail!(
+            "this viewer runs the multi-frame-rate session (strata view --mfr): send \"mfr\" \
+             settings and \"pointer\" events, not \"view\""
+        ),
+        PageMessage::Mfr(_) | PageMessage::Pointer { .. } if !mfr => bail!(
+            "this viewer renders views; start it with `strata view --mfr` for the \
+             multi-frame-rate session"
+        ),
         PageMessage::View(m) => view(*m, scene).map(|job| Request::View(Box::new(job))),
+        PageMessage::Mfr(m) => mfr_settings(*m, scene).map(|job| Request::Mfr(Box::new(job))),
+        PageMessage::Pointer { x, y, pressed, seq } => {
+            if !(x.is_finite() && y.is_finite() && x.abs() <= 1e6 && y.abs() <= 1e6) {
+                bail!("pointer at ({x}, {y}): expected pixel coordinates");
+            }
+            Ok(Request::Pointer(PointerInput { x, y, pressed, seq }))
+        }
         PageMessage::Inspect { x, y, frame } => Ok(Request::About(Probe::Pixel(x, y, frame))),
         PageMessage::SaveDeep => Ok(Request::About(Probe::Deep)),
     }
+}
+
+/// The frame size of a request, checked against [`MAX_SIDE`].
+fn size(width: u32, height: u32) -> Result<()> {
+    for (name, side) in [("width", width), ("height", height)] {
+        if !(1..=MAX_SIDE).contains(&side) {
+            bail!("{name} {side} is outside 1..={MAX_SIDE} pixels");
+        }
+    }
+    Ok(())
+}
+
+/// A page's camera, checked as a scene file's is.
+fn camera(c: &CameraMessage) -> Result<Camera> {
+    let v = |a: [f64; 3]| glam::Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
+    let camera = Camera {
+        eye: v(c.eye),
+        target: v(c.target),
+        up: v(c.up),
+        fovy_deg: c.fovy_deg as f32,
+        near: c.near as f32,
+        far: c.far as f32,
+    };
+    camera.check()?;
+    Ok(camera)
+}
+
+/// Checks multi-frame-rate settings.
+fn mfr_settings(m: MfrMessage, scene: &Scene) -> Result<MfrJob> {
+    use strata_mfr::Composition;
+    use strata_mfr::simulate::Migration;
+    size(m.width, m.height)?;
+    let given = camera(&m.camera)?;
+    // The clients project with the scene's camera; the page moves its eye, target and up.
+    let camera = Camera {
+        eye: given.eye,
+        target: given.target,
+        up: given.up,
+        ..scene.camera
+    };
+    camera.check()?;
+    let composition = match m.composition.as_str() {
+        "deep" => Composition::Deep,
+        "digital" => Composition::Digital,
+        "optical" => Composition::Optical,
+        other => bail!("composition '{other}': expected deep, digital or optical"),
+    };
+    let migration = match m.migration.as_str() {
+        "predictive" => Migration::Predictive,
+        "naive" => Migration::Naive,
+        other => bail!("migration '{other}': expected predictive or naive"),
+    };
+    if !(m.fc_hz.is_finite() && m.fc_hz >= 1.0 && m.fc_hz <= MAX_FC_HZ) {
+        bail!(
+            "fc_hz {} is outside 1..={MAX_FC_HZ} frames a second",
+            m.fc_hz
+        );
+    }
+    if !(m.sc_interval_ms.is_finite() && (0.0..=MAX_SC_INTERVAL_MS).contains(&m.sc_interval_ms)) {
+        bail!(
+            "sc_interval_ms {} is outside 0..={MAX_SC_INTERVAL_MS} ms",
+            m.sc_interval_ms
+        );
+    }
+    Ok(MfrJob {
+        id: m.id,
+        width: m.width,
+        height: m.height,
+        camera,
+        composition,
+        migration,
+        fc_hz: m.fc_hz,
+        sc_interval_ms: m.sc_interval_ms,
+        audit: m.audit,
+    })
 }
 
 /// Checks a view request.
@@ -187,22 +364,9 @@ fn view(m: ViewMessage, scene: &Scene) -> Result<Job> {
         options,
         compare,
     } = m;
-    for (name, side) in [("width", width), ("height", height)] {
-        if !(1..=MAX_SIDE).contains(&side) {
-            bail!("{name} {side} is outside 1..={MAX_SIDE} pixels");
-        }
-    }
+    size(width, height)?;
     scene.check_frame(frame)?;
-    let v = |a: [f64; 3]| glam::Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
-    let camera = Camera {
-        eye: v(camera.eye),
-        target: v(camera.target),
-        up: v(camera.up),
-        fovy_deg: camera.fovy_deg as f32,
-        near: camera.near as f32,
-        far: camera.far as f32,
-    };
-    camera.check()?;
+    let camera = self::camera(&camera)?;
     let main = choice(method, &options).context("method")?;
     check_memory(&main, width, height).context("method")?;
     let compare = match compare {
@@ -340,7 +504,7 @@ mod tests {
     }
 
     fn refused(text: &str) -> String {
-        match parse(text, &scene()) {
+        match parse(text, &scene(), false) {
             Ok(request) => panic!("accepted {text}: {request:?}"),
             Err(e) => format!("{e:#}"),
         }
@@ -348,7 +512,7 @@ mod tests {
 
     #[test]
     fn a_good_request_becomes_a_job() {
-        let Ok(Request::View(job)) = parse(&request(|_| {}), &scene()) else {
+        let Ok(Request::View(job)) = parse(&request(|_| {}), &scene(), false) else {
             panic!("a valid view request");
         };
         assert_eq!((job.id, job.width, job.height, job.frame), (3, 64, 48, 0));
@@ -399,6 +563,73 @@ mod tests {
             e.starts_with("reference: method abuffer does not take k"),
             "{e}"
         );
+    }
+
+    fn mfr_request(patch: impl FnOnce(&mut Value)) -> String {
+        let mut v = json!({
+            "type": "mfr", "id": 4, "width": 64, "height": 48,
+            "camera": {"eye": [0, 0, 2], "target": [0, 0, 0], "up": [0, 1, 0],
+                       "fovy_deg": 10, "near": 0.5, "far": 5},
+        });
+        patch(&mut v);
+        v.to_string()
+    }
+
+    #[test]
+    fn mfr_settings_are_checked_and_only_an_mfr_viewer_takes_them() {
+        let scene = scene();
+        let Ok(Request::Mfr(job)) = parse(&mfr_request(|_| {}), &scene, true) else {
+            panic!("valid settings");
+        };
+        assert_eq!(
+            (job.id, job.width, job.fc_hz, job.audit),
+            (4, 64, 30.0, false)
+        );
+        assert_eq!(job.composition, strata_mfr::Composition::Deep);
+        // The eye moves; the projection stays the scene's.
+        assert_eq!(job.camera.eye, glam::Vec3::new(0.0, 0.0, 2.0));
+        assert_eq!(job.camera.fovy_deg, scene.camera.fovy_deg);
+        let mfr_refused = |text: String| match parse(&text, &scene, true) {
+            Ok(r) => panic!("accepted {text}: {r:?}"),
+            Err(e) => format!("{e:#}"),
+        };
+        for (text, expected) in [
+            (
+                mfr_request(|v| v["composition"] = json!("x")),
+                "composition 'x'",
+            ),
+            (
+                mfr_request(|v| v["migration"] = json!("x")),
+                "migration 'x'",
+            ),
+            (mfr_request(|v| v["fc_hz"] = json!(0)), "fc_hz 0"),
+            (mfr_request(|v| v["fc_hz"] = json!(1000)), "fc_hz 1000"),
+            (
+                mfr_request(|v| v["sc_interval_ms"] = json!(-1)),
+                "sc_interval_ms -1",
+            ),
+            (mfr_request(|v| v["width"] = json!(0)), "width 0"),
+            (
+                mfr_request(|v| v["camera"]["eye"] = json!([0, 0, 0])),
+                "camera",
+            ),
+            (request(|_| {}), "--mfr"),
+            (
+                json!({"type": "pointer", "x": 1e9, "y": 0, "pressed": false}).to_string(),
+                "pointer at",
+            ),
+        ] {
+            let e = mfr_refused(text.clone());
+            assert!(e.contains(expected), "{text}: {e}");
+        }
+        let pointer = json!({"type": "pointer", "x": 3.5, "y": 2, "pressed": true, "seq": 9});
+        let Ok(Request::Pointer(p)) = parse(&pointer.to_string(), &scene, true) else {
+            panic!("a valid pointer event");
+        };
+        assert_eq!((p.x, p.y, p.pressed, p.seq), (3.5, 2.0, true, Some(9)));
+        for text in [mfr_request(|_| {}), pointer.to_string()] {
+            assert!(refused(&text).contains("strata view --mfr"), "{text}");
+        }
     }
 
     #[test]

@@ -36,7 +36,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::Shared;
 use super::compare;
-use super::protocol::{self, Job, MethodChoice, Probe, Request};
+use super::protocol::{self, Job, MethodChoice, MfrJob, PointerInput, Probe, Request};
 use crate::images::deep_exr_bytes;
 use crate::report::{ms, stats_json};
 
@@ -58,20 +58,26 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
         return;
     }
     let (job_tx, job_rx) = watch::channel::<Option<Job>>(None);
+    let (mfr_tx, mfr_rx) = watch::channel::<Option<MfrJob>>(None);
+    let (pointer_tx, pointer_rx) = mpsc::channel::<PointerInput>(POINTER_WAITING);
     let (frame_tx, mut frame_rx) = watch::channel::<Option<Message>>(None);
     let (probe_tx, probe_rx) = mpsc::channel::<Probe>(PROBES_WAITING);
     let (answer_tx, mut answer_rx) = mpsc::channel::<Message>(PROBES_WAITING);
-    let renderer = tokio::spawn(render_loop(
-        Inbox {
-            jobs: job_rx,
-            probes: probe_rx,
-        },
-        Outbox {
-            frames: frame_tx,
-            answers: answer_tx,
-        },
-        shared.clone(),
-    ));
+    let inbox = Inbox {
+        jobs: job_rx,
+        mfr: mfr_rx,
+        pointer: pointer_rx,
+        probes: probe_rx,
+    };
+    let outbox = Outbox {
+        frames: frame_tx,
+        answers: answer_tx,
+    };
+    let renderer = if shared.mfr {
+        tokio::spawn(super::mfr::run(inbox, outbox, shared.clone()))
+    } else {
+        tokio::spawn(render_loop(inbox, outbox, shared.clone()))
+    };
     let mut heartbeat =
         tokio::time::interval_at(tokio::time::Instant::now() + HEARTBEAT, HEARTBEAT);
     let mut last_heard = Instant::now();
@@ -80,11 +86,21 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
             incoming = socket.recv() => {
                 last_heard = Instant::now();
                 let reply = match incoming {
-                    Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene) {
+                    Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene, shared.mfr) {
                         Ok(Request::View(job)) => {
                             job_tx.send_replace(Some(*job));
                             None
                         }
+                        Ok(Request::Mfr(job)) => {
+                            mfr_tx.send_replace(Some(*job));
+                            None
+                        }
+                        Ok(Request::Pointer(p)) => pointer_tx.try_send(p).err().map(|_| {
+                            protocol::error_json(
+                                None,
+                                "too many pointer events at once; the session is behind",
+                            )
+                        }),
                         Ok(Request::About(probe)) => probe_tx.try_send(probe).err().map(|_| {
                             protocol::error_json(
                                 None,
@@ -145,7 +161,7 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
     // Every channel to and from the render loop closes, so it ends after the work in hand even
     // if it was waiting to hand over an answer nobody will read; the seat is given back when it
     // has.
-    drop((job_tx, probe_tx, frame_rx, answer_rx));
+    drop((job_tx, mfr_tx, pointer_tx, probe_tx, frame_rx, answer_rx));
     let _ = renderer.await;
 }
 
@@ -167,16 +183,22 @@ const HEARTBEAT: std::time::Duration = std::time::Duration::from_secs(20);
 /// Pixels a page may ask about before it has its answers.
 const PROBES_WAITING: usize = 8;
 
-/// What the render loop receives.
-struct Inbox {
-    jobs: watch::Receiver<Option<Job>>,
-    probes: mpsc::Receiver<Probe>,
+/// Pointer events a multi-frame-rate page may send before the session takes them (it takes
+/// them all every FC tick).
+const POINTER_WAITING: usize = 1024;
+
+/// What the render loop (or the multi-frame-rate loop) receives.
+pub(crate) struct Inbox {
+    pub(crate) jobs: watch::Receiver<Option<Job>>,
+    pub(crate) mfr: watch::Receiver<Option<MfrJob>>,
+    pub(crate) pointer: mpsc::Receiver<PointerInput>,
+    pub(crate) probes: mpsc::Receiver<Probe>,
 }
 
 /// Where the render loop sends.
-struct Outbox {
-    frames: watch::Sender<Option<Message>>,
-    answers: mpsc::Sender<Message>,
+pub(crate) struct Outbox {
+    pub(crate) frames: watch::Sender<Option<Message>>,
+    pub(crate) answers: mpsc::Sender<Message>,
 }
 
 /// Renders the latest request whenever there is a new one, and answers pixel questions between

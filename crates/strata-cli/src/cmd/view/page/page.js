@@ -4,6 +4,11 @@
 // the server renders the newest view it has and sends back a frame: a u32 little-endian header
 // length, a JSON header (request id, `strata render --stats` statistics, the camera as scene-file
 // lines) and a PNG. See crates/strata-cli/src/cmd/view/protocol.rs.
+//
+// With `strata view --mfr` (the hello says `mfr`) the page drives a multi-frame-rate session
+// instead: it sends its settings as an "mfr" message and the pointer as "pointer" events; frames
+// come at the fast client's pace with the clients' rates in `header.mfr` (see
+// crates/strata-cli/src/cmd/view/mfr.rs).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -31,6 +36,13 @@ const S = {
   pixel: null,          // the last pixel message: {frame, x, y, fragments}
   socket: null,
   connects: 0,
+  // Multi-frame-rate mode: the settings sent, the pointer events sent (seq -> time) and the
+  // latency from the newest pointer event a frame shows to that frame drawn.
+  mfr: { composition: "deep", migration: "predictive", fc_hz: 30, sc_interval_ms: 0, audit: false },
+  pointerSeq: 0,
+  pointerSent: new Map(),
+  pointerShown: null,
+  pointerLatencyMs: null,
 };
 window.strataView = S;
 
@@ -91,19 +103,53 @@ function zoom(factor) {
   c.eye = add(c.target, scale(offset, next / d));
 }
 
+const isMfr = () => Boolean(S.hello && S.hello.mfr);
+
+// Multi-frame rate: the pointer as the session sees it. Moves are coalesced to one event per
+// animation frame (the newest position); presses and releases go at once, after it.
+let pointerPending = null;
+let pointerScheduled = false;
+function sendPointer(e, pressed, now) {
+  const at = framePoint(e);
+  if (!at) return;
+  pointerPending = { x: at[0], y: at[1], pressed };
+  if (now) flushPointer();
+  else if (!pointerScheduled) {
+    pointerScheduled = true;
+    requestAnimationFrame(() => { pointerScheduled = false; flushPointer(); });
+  }
+}
+function flushPointer() {
+  if (!pointerPending || !S.socket || S.socket.readyState !== WebSocket.OPEN) return;
+  const seq = ++S.pointerSeq;
+  S.pointerSent.set(seq, performance.now());
+  if (S.pointerSent.size > 512) S.pointerSent.delete(S.pointerSent.keys().next().value);
+  S.socket.send(JSON.stringify({ type: "pointer", ...pointerPending, seq }));
+  pointerPending = null;
+}
+
 const pointers = new Map(); // pointerId -> {x, y}
 canvas.addEventListener("contextmenu", (e) => e.preventDefault());
 canvas.addEventListener("pointerdown", (e) => {
   if (!S.camera) return;
   canvas.setPointerCapture(e.pointerId);
+  // In multi-frame-rate mode a left press on an object the session has under the pointer
+  // (OVER) grabs it; anywhere else it orbits, pans or zooms as always.
+  const grab = isMfr() && e.button === 0 && !e.shiftKey && pointers.size === 0
+    && Boolean(S.frame && S.frame.mfr && S.frame.mfr.over);
   pointers.set(e.pointerId, {
     x: e.clientX, y: e.clientY, x0: e.clientX, y0: e.clientY, moved: false,
-    button: e.button, shift: e.shiftKey,
+    button: e.button, shift: e.shiftKey, grab,
   });
+  if (grab) sendPointer(e, true, true);
   canvas.classList.add("dragging");
 });
 canvas.addEventListener("pointermove", (e) => {
   const p = pointers.get(e.pointerId);
+  if (isMfr() && (!p || p.grab)) {
+    sendPointer(e, Boolean(p), false);
+    return;
+  }
   if (!p || !S.camera) return;
   // A press that moves less than a few pixels is a click (inspect), not a drag.
   if (!p.moved && Math.hypot(e.clientX - p.x0, e.clientY - p.y0) < 4) return;
@@ -126,6 +172,7 @@ canvas.addEventListener("pointermove", (e) => {
 });
 const release = (e) => {
   const p = pointers.get(e.pointerId);
+  if (p && p.grab) sendPointer(e, false, true);
   if (e.type === "pointerup" && p && !p.moved && p.button === 0 && pointers.size === 1) inspect(e);
   pointers.delete(e.pointerId);
   if (pointers.size === 0) canvas.classList.remove("dragging");
@@ -145,16 +192,22 @@ $("reset").addEventListener("click", () => {
   requestView();
 });
 
-// The frame pixel under a pointer event, through the canvas's object-fit: contain.
-function framePixel(e) {
+// The frame point under a pointer event, through the canvas's object-fit: contain, in pixels
+// of the frame (fractions kept); side by side, both halves show the same pixels.
+function framePoint(e) {
   const r = canvas.getBoundingClientRect();
   const s = Math.min(r.width / canvas.width, r.height / canvas.height);
   const ox = (r.width - canvas.width * s) / 2, oy = (r.height - canvas.height * s) / 2;
-  const x = Math.floor((e.clientX - r.left - ox) / s), y = Math.floor((e.clientY - r.top - oy) / s);
+  const x = (e.clientX - r.left - ox) / s, y = (e.clientY - r.top - oy) / s;
   if (!(x >= 0 && y >= 0 && x < canvas.width && y < canvas.height)) return null;
-  // Side by side, both halves show the same pixels: the method's store is inspected.
-  const w = S.frame ? S.frame.stats.width : canvas.width;
+  const w = S.images.main ? S.images.main.width : canvas.width;
   return [x % w, y];
+}
+
+// The frame pixel under a pointer event.
+function framePixel(e) {
+  const p = framePoint(e);
+  return p && [Math.floor(p[0]), Math.floor(p[1])];
 }
 
 function inspect(e) {
@@ -186,7 +239,8 @@ function showPixel(m) {
     swatch.append(fill);
     tr.insertCell().append(swatch);
     tr.insertCell().textContent = f.rgba.join(" ");
-    tr.insertCell().textContent = f.name ?? `#${f.object}`;
+    const name = f.name ?? `#${f.object}`;
+    tr.insertCell().textContent = f.client ? `${name} (${f.client})` : name;
   });
 }
 
@@ -202,7 +256,9 @@ function requestView() {
   });
 }
 
-const sideBySide = () => S.reference !== null && S.show === "side";
+// Whether frames come with a reference image: a compared method, or an audited session.
+const comparing = () => (isMfr() ? S.mfr.audit : S.reference !== null);
+const sideBySide = () => comparing() && S.show === "side";
 
 function frameSize() {
   const max = S.hello ? S.hello.max_side : 4096;
@@ -220,6 +276,10 @@ function sendView() {
   S.sent.set(id, performance.now());
   if (S.sent.size > 256) S.sent.delete(S.sent.keys().next().value);
   S.lastSentId = id;
+  if (isMfr()) {
+    S.socket.send(JSON.stringify({ type: "mfr", id, width, height, camera: S.camera, ...S.mfr }));
+    return;
+  }
   const request = {
     type: "view", id, width, height, frame: S.animationFrame,
     camera: S.camera, method: S.method, options: S.options,
@@ -231,6 +291,47 @@ function sendView() {
 }
 
 new ResizeObserver(() => { if (!fixedSize) requestView(); }).observe(canvas);
+
+// ---- multi-frame-rate settings -------------------------------------------------------------
+function buildMfr() {
+  $("mfr-section").hidden = false;
+  $("method-section").hidden = true;
+  $("compare-section").hidden = true;
+  $("histogram-box").hidden = true;
+  $("mfr-section").append($("split-row"));
+  const hz = $("fc-hz"), interval = $("sc-interval");
+  hz.max = String(S.hello.mfr.max_fc_hz);
+  interval.max = String(S.hello.mfr.max_sc_interval_ms);
+  const number = (input, lo, hi, fallback) => {
+    const v = Number(input.value);
+    const clamped = Number.isFinite(v) ? Math.max(lo, Math.min(hi, v)) : fallback;
+    input.value = String(clamped);
+    return clamped;
+  };
+  $("composition").onchange = () => { S.mfr.composition = $("composition").value; requestView(); };
+  $("migration").onchange = () => { S.mfr.migration = $("migration").value; requestView(); };
+  hz.onchange = () => { S.mfr.fc_hz = number(hz, 1, Number(hz.max), 30); requestView(); };
+  interval.onchange = () => {
+    S.mfr.sc_interval_ms = number(interval, 0, Number(interval.max), 0);
+    requestView();
+  };
+  $("audit").onchange = () => {
+    S.mfr.audit = $("audit").checked;
+    $("mfr-show-row").hidden = !S.mfr.audit;
+    $("split-row").hidden = !(S.mfr.audit && S.show === "split");
+    requestView();
+  };
+  $("mfr-show").onchange = () => {
+    S.show = $("mfr-show").value;
+    $("split-row").hidden = S.show !== "split";
+    draw(); // the images are there; a new size (side by side or not) follows with the frame
+    requestView();
+  };
+  $("split").oninput = () => {
+    S.split = $("split").value / 100;
+    draw();
+  };
+}
 
 // ---- method and options --------------------------------------------------------------------
 function buildMethods() {
@@ -379,7 +480,16 @@ async function showFrame(header, buffer, first) {
   S.framesShown++;
   const now = performance.now();
   const sent = S.sent.get(header.id);
-  if (sent !== undefined) S.latencyMs = now - sent;
+  if (sent !== undefined) {
+    S.latencyMs = now - sent;
+    S.sent.delete(header.id); // later frames of the same settings (MFR) are not its answer
+  }
+  const seq = header.mfr && header.mfr.pointer_seq;
+  if (seq && seq !== S.pointerShown) {
+    S.pointerShown = seq;
+    const at = S.pointerSent.get(seq);
+    if (at !== undefined) S.pointerLatencyMs = now - at;
+  }
   S.shownTimes.push(now);
   while (S.shownTimes.length && S.shownTimes[0] < now - 1000) S.shownTimes.shift();
   // A frame answers every request before it: their errors are settled.
@@ -387,6 +497,8 @@ async function showFrame(header, buffer, first) {
       && S.errors[S.errors.length - 1].id <= header.id) {
     $("error").hidden = true;
   }
+  // Over an object the session can grab, the cursor says so.
+  canvas.classList.toggle("over", Boolean(header.mfr && header.mfr.over));
   showStats(header);
   showStatus();
   window.dispatchEvent(new CustomEvent("strata-frame", { detail: header }));
@@ -397,7 +509,7 @@ function draw() {
   const { main, reference, bad, flip } = S.images;
   if (!main) return;
   const w = main.width, h = main.height;
-  const show = reference ? S.show : "main";
+  const show = reference && comparing() ? S.show : "main";
   canvas.width = show === "side" ? 2 * w : w;
   canvas.height = h;
   if (show === "side") {
@@ -425,7 +537,43 @@ function row(tbody, label, value, cls) {
 const fmt = (n) => (typeof n === "number" ? n.toLocaleString("en-US", { maximumFractionDigits: 2 }) : String(n));
 const mib = (b) => `${(b / 1048576).toFixed(1)} MiB`;
 
+// The multi-frame-rate session's numbers.
+function showMfrStats(h) {
+  const m = h.mfr;
+  const tbody = $("stats").tBodies[0];
+  tbody.replaceChildren();
+  const names = (list) => (list.length ? list.join(", ") : "none");
+  row(tbody, "composition", m.composition);
+  row(tbody, "migration", m.migration);
+  row(tbody, "FC frames a second", fmt(m.fc_fps));
+  row(tbody, "FC frame ms", fmt(m.fc_ms));
+  row(tbody, "SC frames a second", fmt(m.sc_fps));
+  row(tbody, "SC frame ms", fmt(m.sc_ms));
+  row(tbody, "SC buffer age ms", m.sc_age_ms === null ? "(no SC buffer yet)" : fmt(m.sc_age_ms));
+  row(tbody, "SC frames", fmt(m.sc_frames));
+  row(tbody, "state snapshot", fmt(m.snapshot));
+  row(tbody, "FC draws", names(m.fc_objects));
+  row(tbody, "under the pointer", m.over ?? "nothing");
+  row(tbody, "selected", m.selected ?? "nothing");
+  for (const o of m.moved) row(tbody, `${o.name} moved by`, o.offset.map((v) => v.toFixed(3)).join(", "), "pass");
+  if (S.pointerLatencyMs !== null) row(tbody, "pointer → frame ms", fmt(Math.round(S.pointerLatencyMs)));
+  const a = m.audit;
+  if (a) {
+    row(tbody, "bad pixels (audit)", fmt(a.bad_pixels));
+    row(tbody, "ghost / hole / blend", `${fmt(a.ghost_pixels)} / ${fmt(a.hole_pixels)} / ${fmt(a.blend_pixels)}`);
+    row(tbody, "RMSE", a.rmse.toFixed(4));
+    row(tbody, "audit ms", fmt(a.ms));
+  }
+  row(tbody, "PNG encode ms", fmt(h.encode_ms));
+  row(tbody, "PNG KiB", fmt(h.png_bytes / 1024));
+  $("camera").value = h.camera_toml;
+}
+
 function showStats(h) {
+  if (h.mfr) {
+    showMfrStats(h);
+    return;
+  }
   const s = h.stats;
   const tbody = $("stats").tBodies[0];
   tbody.replaceChildren();
@@ -470,8 +618,16 @@ function showStatus() {
     return;
   }
   const parts = [`${S.shownTimes.length} fps`];
-  if (S.frame) parts.push(`render ${fmt(S.frame.render_ms)} ms`);
-  if (S.latencyMs !== null) parts.push(`latency ${Math.round(S.latencyMs)} ms`);
+  const m = S.frame && S.frame.mfr;
+  if (m) {
+    parts.push(`SC ${fmt(m.sc_fps)} fps`);
+    if (m.sc_age_ms !== null) parts.push(`SC age ${Math.round(m.sc_age_ms)} ms`);
+    parts.push(m.composition);
+    if (m.audit) parts.push(`${fmt(m.audit.bad_pixels)} bad pixels`);
+  } else {
+    if (S.frame) parts.push(`render ${fmt(S.frame.render_ms)} ms`);
+    if (S.latencyMs !== null) parts.push(`latency ${Math.round(S.latencyMs)} ms`);
+  }
   el.textContent = parts.join(" · ");
 }
 
@@ -512,6 +668,7 @@ function connect() {
         $("scene").textContent = `${m.scene}: ${fmt(m.triangles)} triangles (${m.origin})`;
         document.title = `strata view: ${m.scene}`;
         buildMethods();
+        if (m.mfr) buildMfr();
         if (m.frames > 1) {
           const input = $("animation");
           input.max = String(m.frames - 1);

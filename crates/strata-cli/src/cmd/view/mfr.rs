@@ -1,0 +1,479 @@
+//! A multi-frame-rate page (`strata view --mfr`): the scene on a slow client, the objects a
+//! person points at or drags on the fast client, composed every FC frame (seed 004).
+//!
+//! ```text
+//!  settings (watch: newest wins) ─┐
+//!  pointer events (queue, in order)┼─▶ mfr loop, every 1/fc_hz:  spawn_blocking on the shared pool:
+//!  questions (queue) ─────────────┘     settings → Live (restarted on a new size or migration;
+//!                                        camera → a view event; SC pacing)
+//!                                       pointer events → Live::pointer (rays, select, drag)
+//!                                       if Live::has_news or the settings changed:
+//!                                         FC frame (+ the single renderer and its audit) → PNGs
+//!  frame (watch: newest wins) ◀──────── header: FC / SC rates, SC buffer age, who draws what
+//! ```
+//!
+//! The session itself is [`strata_mfr::Live`]: the authority, the SC on its own thread (at low
+//! priority, so the FC comes first on a busy machine), the FC's frame. This module paces the FC,
+//! measures what the page shows, and answers questions about the composed frame (its pixels'
+//! fragments, with the client each came from; its deep EXR).
+//!
+//! The frame header (`type` "frame") carries `mfr`:
+//! `{fc_fps, sc_fps, fc_ms, sc_ms, sc_age_ms, sc_frame, snapshot, composition, migration,
+//!   fc_objects, over, selected, moved: [{name, offset}], handle_px, pointer_seq, audit}`,
+//! where `sc_age_ms` is how much older the SC buffer's state is than the frame's, `handle_px`
+//! the pixel of something to grab, `pointer_seq` the newest pointer event the frame shows, and
+//! `audit` (with `audit` set) the bad, ghost, hole and blend pixels against the whole scene
+//! rendered at once — whose image and bad-pixel map come as the images `reference` and `bad`.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use axum::extract::ws::Message;
+use glam::Vec3;
+use serde_json::{Value, json};
+use strata_core::DeepFrame;
+use strata_mfr::audit::audit_fc_frame;
+use strata_mfr::client::Client;
+use strata_mfr::simulate::{FcFrame, Migration};
+use strata_mfr::{Composition, Live, ObjectState, ScPriority, Snapshot};
+use strata_scene::Camera;
+
+use super::Shared;
+use super::compare;
+use super::protocol::{self, MfrJob, PointerInput, Probe};
+use super::session::{Inbox, Outbox};
+use crate::images::deep_exr_bytes;
+use crate::report::ms;
+
+/// Runs a multi-frame-rate page until it goes away.
+pub(crate) async fn run(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
+    let mut page = Page::new(shared);
+    let mut period = Duration::from_secs_f64(1.0 / 30.0);
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            changed = inbox.mfr.changed() => {
+                if changed.is_err() {
+                    return;
+                }
+                let settings = inbox.mfr.borrow_and_update().clone();
+                if let Some(s) = &settings {
+                    let wanted = Duration::from_secs_f64(1.0 / s.fc_hz);
+                    if wanted != period {
+                        period = wanted;
+                        tick = tokio::time::interval(period);
+                        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+                    }
+                }
+                page.next = settings;
+                continue;
+            }
+            Some(p) = inbox.pointer.recv() => {
+                page.pointer.push(p);
+                while let Ok(p) = inbox.pointer.try_recv() {
+                    page.pointer.push(p);
+                }
+                continue;
+            }
+            Some(probe) = inbox.probes.recv() => {
+                if outbox.answers.is_closed() {
+                    return;
+                }
+                let (p, answer) = blocking(page, move |p| {
+                    let answer = p.answer(probe);
+                    (p, answer)
+                })
+                .await;
+                let Some(p) = p else {
+                    let _ = outbox.answers.send(answer).await;
+                    return;
+                };
+                page = p;
+                if outbox.answers.send(answer).await.is_err() {
+                    return;
+                }
+            }
+            _ = tick.tick() => {
+                if outbox.frames.is_closed() || outbox.answers.is_closed() {
+                    return;
+                }
+                let (p, message) = blocking(page, |mut p| {
+                    let message = p.step();
+                    (p, message)
+                })
+                .await;
+                let Some(p) = p else {
+                    let _ = outbox.answers.send(message.unwrap_or_else(|| bug(None))).await;
+                    return;
+                };
+                page = p;
+                let sent = match message {
+                    Some(frame @ Message::Binary(_)) => outbox.frames.send(Some(frame)).is_ok(),
+                    Some(error) => outbox.answers.send(error).await.is_ok(),
+                    None => true,
+                };
+                if !sent {
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// Runs `work` on the page in a blocking thread, inside the shared pool; the page back, or
+/// `None` (and an error message) if the work panicked.
+async fn blocking<T>(
+    page: Page,
+    work: impl FnOnce(Page) -> (Page, T) + Send + 'static,
+) -> (Option<Page>, T)
+where
+    T: From<Message> + Send + 'static,
+{
+    let shared = Arc::clone(&page.shared);
+    match tokio::task::spawn_blocking(move || shared.pool.install(|| work(page))).await {
+        Ok((page, out)) => (Some(page), out),
+        Err(_) => (None, T::from(bug(None))),
+    }
+}
+
+/// The message for a panic: a bug in strata.
+fn bug(id: Option<u64>) -> Message {
+    Message::Text(
+        protocol::error_json(
+            id,
+            "the multi-frame-rate session failed (a bug in strata: please report it with the \
+             scene); reload the page to go on",
+        )
+        .into(),
+    )
+}
+
+/// A page's session and what it has shown.
+struct Page {
+    shared: Arc<Shared>,
+    /// Settings received and not yet applied.
+    next: Option<MfrJob>,
+    /// Settings in force.
+    settings: Option<MfrJob>,
+    /// Pointer events received and not yet applied.
+    pointer: Vec<PointerInput>,
+    /// The newest pointer event applied.
+    pointer_seq: Option<u64>,
+    live: Option<Live>,
+    /// The state to go on from when the session is rebuilt after an error.
+    resume: Option<Arc<Snapshot>>,
+    /// The object to point the page at and its point at rest.
+    handle: Option<(usize, Vec3)>,
+    /// The single renderer, for the audit.
+    reference: Option<Client>,
+    /// The last frame sent (for questions) and the settings id it answered.
+    shown: Option<(u64, FcFrame)>,
+    /// A frame is due whatever the session says (settings changed).
+    due: bool,
+    fc_times: VecDeque<Instant>,
+    sc_counts: VecDeque<(Instant, u64)>,
+}
+
+impl Page {
+    fn new(shared: Arc<Shared>) -> Self {
+        Page {
+            shared,
+            next: None,
+            settings: None,
+            pointer: Vec::new(),
+            pointer_seq: None,
+            live: None,
+            resume: None,
+            handle: None,
+            reference: None,
+            shown: None,
+            due: false,
+            fc_times: VecDeque::new(),
+            sc_counts: VecDeque::new(),
+        }
+    }
+
+    /// One FC tick: the settings and input that came, then a frame if anything changed. `None`
+    /// when there is nothing new to show.
+    fn step(&mut self) -> Option<Message> {
+        let id = self.next.as_ref().or(self.settings.as_ref()).map(|s| s.id);
+        match self.try_step() {
+            Ok(message) => message,
+            Err(e) => {
+                // The session is rebuilt by the next tick, with the objects where they were.
+                self.resume = self.live.take().map(|live| live.snapshot());
+                Some(Message::Text(
+                    protocol::error_json(id, &format!("{e:#}")).into(),
+                ))
+            }
+        }
+    }
+
+    fn try_step(&mut self) -> Result<Option<Message>> {
+        if let Some(next) = self.next.take() {
+            self.apply(next)?;
+        }
+        let Some(settings) = self.settings.clone() else {
+            return Ok(None);
+        };
+        let live = match &mut self.live {
+            Some(live) => live,
+            None => {
+                let from = self.resume.take();
+                self.start(&settings, from.as_deref())?;
+                self.live.as_mut().context("the session did not start")?
+            }
+        };
+        for p in self.pointer.drain(..) {
+            live.pointer(p.x, p.y, p.pressed)?;
+            self.pointer_seq = p.seq.or(self.pointer_seq);
+        }
+        if !(live.has_news() || std::mem::take(&mut self.due)) {
+            return Ok(None);
+        }
+        let start = Instant::now();
+        let frame = live.frame(settings.composition)?;
+        let fc_ms = ms(start.elapsed());
+        self.frame_message(&settings, frame, fc_ms).map(Some)
+    }
+
+    /// Takes new settings: a new size or migration restarts the session (both clients' buffers
+    /// are sized and their shares decided at the start); a new camera is a view event.
+    fn apply(&mut self, next: MfrJob) -> Result<()> {
+        let restart = self.live.as_ref().is_none_or(|live| {
+            live.size() != (next.width, next.height) || live.migration() != next.migration
+        });
+        if restart {
+            // The objects stay where the person left them; only what is held is let go.
+            let from = self.live.take().map(|live| live.snapshot());
+            self.start(&next, from.as_deref())?;
+        }
+        let live = self.live.as_mut().context("the session did not start")?;
+        let c = &next.camera;
+        live.view(c.eye, c.target, c.up)?;
+        live.set_sc_interval(Duration::from_secs_f64(next.sc_interval_ms / 1e3));
+        self.settings = Some(next);
+        self.due = true;
+        Ok(())
+    }
+
+    fn start(&mut self, settings: &MfrJob, from: Option<&Snapshot>) -> Result<()> {
+        let size = (settings.width, settings.height);
+        let mut live = Live::start_from(
+            Arc::clone(&self.shared.scene),
+            size,
+            settings.migration,
+            ScPriority::Low,
+            from,
+        )?;
+        let c = &settings.camera;
+        live.view(c.eye, c.target, c.up)?;
+        live.set_sc_interval(Duration::from_secs_f64(settings.sc_interval_ms / 1e3));
+        self.handle = live.handle();
+        self.reference = None;
+        self.shown = None;
+        self.pointer.clear();
+        self.sc_counts.clear();
+        self.live = Some(live);
+        self.due = true;
+        Ok(())
+    }
+
+    /// The frame message: the header of the module docs and the images.
+    fn frame_message(&mut self, settings: &MfrJob, frame: FcFrame, fc_ms: f64) -> Result<Message> {
+        let live = self.live.as_ref().context("the session did not start")?;
+        let scene = &self.shared.scene;
+        let now = Instant::now();
+        let second = Duration::from_secs(1);
+        self.fc_times.push_back(now);
+        while self.fc_times.front().is_some_and(|&t| now - t > second) {
+            self.fc_times.pop_front();
+        }
+        let sc = live.sc_status();
+        self.sc_counts.push_back((now, sc.frames));
+        while self.sc_counts.len() > 2
+            && self
+                .sc_counts
+                .front()
+                .is_some_and(|&(t, _)| now - t > second)
+        {
+            self.sc_counts.pop_front();
+        }
+        let sc_fps = match (self.sc_counts.front(), self.sc_counts.back()) {
+            (Some(&(t0, n0)), Some(&(t1, n1))) if t1 > t0 => {
+                (n1 - n0) as f64 / (t1 - t0).as_secs_f64()
+            }
+            _ => 0.0,
+        };
+
+        let snapshot = &frame.snapshot;
+        let name = |i: usize| scene.objects[i].name.as_str();
+        let named = |state: ObjectState| -> Option<&str> {
+            snapshot
+                .objects
+                .iter()
+                .position(|o| o.state == state)
+                .map(name)
+        };
+        let moved: Vec<Value> = snapshot
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.offset != Vec3::ZERO)
+            .map(|(i, o)| json!({"name": name(i), "offset": o.offset.to_array()}))
+            .collect();
+        let view = frame.sc.as_ref().map_or(snapshot.view, |sc| sc.view);
+        let handle_px = self.handle.and_then(|(i, at_rest)| {
+            let (x, y) = live.project(&view, at_rest + snapshot.objects[i].offset)?;
+            Some([x, y])
+        });
+        let camera = Camera {
+            eye: view.eye,
+            target: view.target,
+            up: view.up,
+            ..scene.camera
+        };
+        let mut mfr = json!({
+            "fc_fps": self.fc_times.len(),
+            "sc_fps": sc_fps,
+            "fc_ms": fc_ms,
+            "sc_ms": sc.last_ms,
+            "sc_frames": sc.frames,
+            "sc_age_ms": frame.sc.as_ref().map(|sc| snapshot.t_ms - sc.snapshot_t_ms),
+            "sc_frame": frame.sc.as_ref().map(|sc| sc.sc_frame),
+            "snapshot": snapshot.id,
+            "composition": composition_name(settings.composition),
+            "migration": migration_name(settings.migration),
+            "fc_objects": frame.fc_objects.iter().map(|&i| name(i)).collect::<Vec<_>>(),
+            "over": named(ObjectState::Over),
+            "selected": named(ObjectState::Selected),
+            "moved": moved,
+            "handle_px": handle_px,
+            "pointer_seq": self.pointer_seq,
+            "audit": null,
+        });
+        let mut images = vec![("main", frame.image.clone())];
+        if settings.audit {
+            let (w, h) = (settings.width, settings.height);
+            let reference = self.reference.get_or_insert_with(|| Client::new(w, h));
+            let start = Instant::now();
+            let (audit, reference_image) = audit_fc_frame(scene, reference, &frame)?;
+            let (_, maps) = compare::compare(&reference_image, &frame.image, false)?;
+            mfr["audit"] = json!({
+                "bad_pixels": audit.bad_pixels,
+                "ghost_pixels": audit.ghost_pixels,
+                "hole_pixels": audit.hole_pixels,
+                "blend_pixels": audit.blend_pixels,
+                "rmse": audit.rmse,
+                "ms": ms(start.elapsed()),
+            });
+            images.push(("reference", reference_image));
+            images.extend(maps);
+        }
+        let start = Instant::now();
+        let mut encoded = Vec::with_capacity(images.len());
+        for (name, image) in &images {
+            let mut png = Vec::new();
+            image
+                .encode_png(&mut png)
+                .with_context(|| format!("cannot encode the {name} image as PNG"))?;
+            encoded.push((*name, png));
+        }
+        let header = json!({
+            "type": "frame",
+            "id": settings.id,
+            "mfr": mfr,
+            "camera": protocol::camera_json(&camera),
+            "camera_toml": protocol::view_toml(&camera, settings.width, settings.height),
+            "render_ms": fc_ms,
+            "encode_ms": ms(start.elapsed()),
+            "png_bytes": encoded[0].1.len(),
+        });
+        self.shown = Some((settings.id, frame));
+        Ok(Message::Binary(
+            protocol::frame_message(header, &encoded).into(),
+        ))
+    }
+
+    /// The answer to a question about the frame shown last: its composed fragments.
+    fn answer(&self, probe: Probe) -> Message {
+        let error = |id, text: &str| Message::Text(protocol::error_json(id, text).into());
+        let Some((id, frame)) = &self.shown else {
+            return error(None, "no frame yet");
+        };
+        let composed = match frame.composed() {
+            Ok(f) => f,
+            Err(e) => return error(Some(*id), &format!("cannot compose the frame: {e}")),
+        };
+        let (width, height) = (composed.width(), composed.height());
+        match probe {
+            Probe::Pixel(x, y, _) if x >= width || y >= height => error(
+                Some(*id),
+                &format!("pixel {x},{y} is outside the {width}x{height} frame"),
+            ),
+            Probe::Pixel(x, y, _) => Message::Text(self.pixel(*id, frame, &composed, x, y).into()),
+            Probe::Deep => {
+                let scene = &self.shared.scene;
+                let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
+                let projection = scene.camera.projection(width, height);
+                let near_far = (scene.camera.near, scene.camera.far);
+                match deep_exr_bytes(&composed, near_far, view.matrix(), projection) {
+                    Ok(bytes) => Message::Binary(
+                        protocol::frame_message(
+                            json!({"type": "deep", "frame": id}),
+                            &[("deep", bytes)],
+                        )
+                        .into(),
+                    ),
+                    Err(e) => error(Some(*id), &format!("cannot write the deep EXR: {e:#}")),
+                }
+            }
+        }
+    }
+
+    /// The `pixel` message for `(x, y)` of the composed frame: each fragment with its object
+    /// and the client that drew it.
+    fn pixel(&self, id: u64, frame: &FcFrame, composed: &DeepFrame, x: u32, y: u32) -> String {
+        let scene = &self.shared.scene;
+        let fragments: Vec<Value> = composed
+            .pixel(x, y)
+            .iter()
+            .map(|f| {
+                let name = scene
+                    .objects
+                    .iter()
+                    .find(|o| o.id == f.object)
+                    .map(|o| o.name.as_str());
+                let client = if frame.fc_ids.binary_search(&f.object).is_ok() {
+                    "FC"
+                } else {
+                    "SC"
+                };
+                json!({"depth": f.depth, "rgba": f.color.0, "object": f.object.0, "name": name,
+                       "client": client})
+            })
+            .collect();
+        let method = format!("{} composition", composition_name(frame.composition));
+        json!({"type": "pixel", "frame": id, "x": x, "y": y, "method": method,
+               "fragments": fragments})
+        .to_string()
+    }
+}
+
+fn composition_name(c: Composition) -> &'static str {
+    match c {
+        Composition::Deep => "deep",
+        Composition::Digital => "digital",
+        Composition::Optical => "optical",
+    }
+}
+
+fn migration_name(m: Migration) -> &'static str {
+    match m {
+        Migration::Predictive => "predictive",
+        Migration::Naive => "naive",
+    }
+}
