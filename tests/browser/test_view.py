@@ -49,9 +49,9 @@ def find_browser():
 class Server:
     """A `strata view` process on a free port."""
 
-    def __init__(self, strata, *args, scene=SCENE):
+    def __init__(self, strata, *args, scene=SCENE, listen="127.0.0.1:0"):
         self.proc = subprocess.Popen(
-            [strata, "view", scene, "--listen", "127.0.0.1:0", "-j", "2", *args],
+            [strata, "view", scene, "--listen", listen, "-j", "2", *args],
             stderr=subprocess.PIPE,
             text=True,
         )
@@ -406,6 +406,28 @@ class Suite:
         self.wait_frame(page, last)
         self.shot(page, "06-reconnected")
         page.close()
+
+    def test_a_page_follows_a_restarted_server(self):
+        first = Server(self.strata)
+        second = None
+        try:
+            page = self.open_page(first.url)
+            address = first.url.split("//")[1].rstrip("/")
+            first.stop()
+            page.wait_for_function("window.strataView.socket.readyState !== WebSocket.OPEN")
+            second = Server(self.strata, scene="slabs", listen=address)
+            # Another scene: the page reloads itself and shows the new server's.
+            page.wait_for_function(
+                "window.strataView && window.strataView.hello && window.strataView.hello.scene === 'slabs'",
+                timeout=30000,
+            )
+            self.wait_frame(page, 0)
+            assert "slabs" in page.locator("#scene").inner_text()
+            page.close()
+        finally:
+            first.stop()
+            if second is not None:
+                second.stop()
 
     def test_many_pages_at_once_and_a_limit(self):
         pages = [self.browser.new_page() for _ in range(4)]

@@ -260,12 +260,15 @@ function requestView() {
 const comparing = () => (isMfr() ? S.mfr.audit : S.reference !== null);
 const sideBySide = () => comparing() && S.show === "side";
 
+// Frames are rendered at the canvas's size in device pixels (sharp on high-density screens),
+// at most twice its CSS size: the cost grows with the square.
 function frameSize() {
   const max = S.hello ? S.hello.max_side : 4096;
   if (fixedSize) return fixedSize.map((v) => Math.max(1, Math.min(max, v)));
   const r = canvas.getBoundingClientRect();
-  const width = sideBySide() ? r.width / 2 : r.width;
-  return [Math.max(1, Math.min(max, Math.round(width))), Math.max(1, Math.min(max, Math.round(r.height)))];
+  const dpr = Math.max(1, Math.min(2, window.devicePixelRatio || 1));
+  const width = (sideBySide() ? r.width / 2 : r.width) * dpr;
+  return [Math.max(1, Math.min(max, Math.round(width))), Math.max(1, Math.min(max, Math.round(r.height * dpr)))];
 }
 
 function sendView() {
@@ -660,6 +663,12 @@ function connect() {
     if (m.type === "hello") {
       $("error").hidden = true; // whatever kept the page out (too many pages) is over
       const first = S.hello === null;
+      // A server restarted with another scene, mode or method list: start the page afresh.
+      const offer = (h) => JSON.stringify([h.scene, h.origin, h.mfr, h.methods, h.options]);
+      if (!first && offer(m) !== offer(S.hello)) {
+        location.reload();
+        return;
+      }
       S.hello = m;
       if (first) {
         S.camera = structuredClone(m.camera);
