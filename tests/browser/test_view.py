@@ -450,7 +450,7 @@ class Suite:
         finally:
             limited.stop()
 
-    def wait_mfr(self, page, condition, what, timeout=30000):
+    def wait_mfr(self, page, condition, what, timeout=60000):
         """Waits for a multi-frame-rate frame whose `header.mfr` meets the JS `condition` (on m)."""
         from playwright.sync_api import TimeoutError as Timeout
 

@@ -72,7 +72,8 @@ pub struct ScStatus {
     pub last_ms: f64,
 }
 
-/// A live multi-frame-rate session; see the module docs. Dropping it stops the SC thread.
+/// A live multi-frame-rate session; see the module docs. Dropping it stops the SC thread
+/// without waiting for it.
 pub struct Live {
     scene: Arc<Scene>,
     size: (u32, u32),
@@ -283,8 +284,13 @@ impl Live {
     /// SC buffer's view and composed with it as `composition` says.
     ///
     /// # Errors
-    /// The FC cannot render or compose.
+    /// The FC cannot render or compose, or the SC has stopped on an error.
     pub fn frame(&mut self, composition: Composition) -> Result<FcFrame, SimulateError> {
+        if let Some(why) = self.gauge.failure() {
+            return Err(SimulateError::Thread(format!(
+                "the slow client stopped: {why}"
+            )));
+        }
         let snapshot = self.advance();
         let sc = self.buffers_in.latest().cloned();
         let work = fc_frame(
@@ -338,9 +344,11 @@ impl Live {
     /// point of it the ray meets, at rest.
     pub fn handle(&self) -> Option<(usize, Vec3)> {
         let eye = self.scene.camera.eye;
+        // Every object at rest, whatever this session has moved.
+        let at_rest = Authority::new(&self.scene, Trace::default());
         (0..self.scene.objects.len()).find_map(|i| {
             let dir = crate::trace::aim_at(&self.scene, i, eye)?;
-            let (hit, t) = self.authority.nearest_hit_at(eye, dir)?;
+            let (hit, t) = at_rest.nearest_hit_at(eye, dir)?;
             (hit == i).then_some((i, eye + dir * t))
         })
     }
@@ -372,11 +380,18 @@ impl Live {
 }
 
 impl Drop for Live {
+    /// Tells the SC thread to stop and returns at once: the SC ends after the frame it is
+    /// rendering (seconds for a large frame), joined by a thread of its own, so whoever drops a
+    /// session (an async worker, a render worker) never waits for it.
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Release);
         if let Some(sc) = self.sc.take() {
-            // Its result is the SC's timings; a failed SC already showed as frames not coming.
-            let _ = sc.join();
+            // Its result is the SC's timings, of no use now; a failure was shown by `frame`.
+            let reaper = std::thread::Builder::new()
+                .name("strata-mfr-sc-join".into())
+                .spawn(move || drop(sc.join()));
+            // Without a thread to join it, the SC is detached: it still stops on its own.
+            drop(reaper);
         }
     }
 }
@@ -558,6 +573,11 @@ mod tests {
         let s = again.advance();
         assert_eq!(s.objects[index].offset, before.objects[index].offset);
         assert_eq!(
+            again.handle(),
+            Some((index, point)),
+            "the handle is at rest"
+        );
+        assert_eq!(
             s.objects[index].state,
             ObjectState::Inactive,
             "nothing held"
@@ -565,6 +585,39 @@ mod tests {
         assert_eq!(s.view, before.view);
         let f = settled(&mut again, Composition::Deep);
         assert_eq!(f.image.width(), 320);
+    }
+
+    #[test]
+    fn live_input_is_forgotten_once_applied_but_still_counted() {
+        let scene = scene();
+        let mut authority = Authority::new(&scene, Trace::default());
+        let (origin, dir) = (scene.camera.eye, Vec3::NEG_Z);
+        for i in 0..3000 {
+            let event = TimedEvent {
+                t_ms: i as f64,
+                event: Event::Pointer { origin, dir },
+            };
+            authority.push(event).expect("in order");
+            if i % 7 == 0 {
+                authority.advance_to(i as f64);
+            }
+        }
+        assert_eq!(authority.advance_to(3000.0).events_applied, 3000);
+        let late = TimedEvent {
+            t_ms: 10.0,
+            event: Event::Pointer { origin, dir },
+        };
+        assert!(authority.push(late).is_err(), "before the newest snapshot");
+        let light = TimedEvent {
+            t_ms: 4000.0,
+            event: Event::Light {
+                id: 0,
+                motion: crate::trace::LightMotion::At(Vec3::ZERO),
+                color: [1.0; 3],
+                range: 1.0,
+            },
+        };
+        assert!(authority.push(light).is_err(), "lights are keyed up front");
     }
 
     #[test]

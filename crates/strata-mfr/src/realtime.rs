@@ -242,6 +242,8 @@ pub(crate) struct ScGauge {
     /// The shortest time from one frame's start to the next's, in microseconds (0: none). A
     /// live session sets it to make a light scene's SC as slow as a heavy one's.
     min_interval_us: AtomicU64,
+    /// Why the SC stopped, if it failed.
+    failure: Mutex<Option<String>>,
 }
 
 impl ScGauge {
@@ -257,6 +259,21 @@ impl ScGauge {
     pub(crate) fn set_min_interval(&self, interval: Duration) {
         let us = u64::try_from(interval.as_micros()).unwrap_or(u64::MAX);
         self.min_interval_us.store(us, Ordering::Release);
+    }
+
+    /// Why the SC stopped, if it failed.
+    pub(crate) fn failure(&self) -> Option<String> {
+        self.failure
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    fn fail(&self, why: String) {
+        *self
+            .failure
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(why);
     }
 
     fn min_interval(&self) -> Duration {
@@ -303,9 +320,9 @@ impl ScThread {
                     };
                     let start = Instant::now();
                     last_start = Some(start);
-                    let buffer = sc_pool.install(|| {
-                        sc_render(&scene, &mut client, &snapshot, migration, sc_frame)
-                    })?;
+                    let buffer = sc_pool
+                        .install(|| sc_render(&scene, &mut client, &snapshot, migration, sc_frame))
+                        .inspect_err(|e| gauge.fail(e.to_string()))?;
                     let took = start.elapsed();
                     frame_ms.push(took.as_secs_f64() * 1e3);
                     let took_us = u64::try_from(took.as_micros()).unwrap_or(u64::MAX);

@@ -47,6 +47,9 @@ use super::session::{Inbox, Outbox};
 use crate::images::deep_exr_bytes;
 use crate::report::ms;
 
+/// Pointer events kept between two FC ticks once coalesced (see [`Page::take_pointer`]).
+const MAX_POINTER_WAITING: usize = 256;
+
 /// Runs a multi-frame-rate page until it goes away.
 pub(crate) async fn run(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
     let mut page = Page::new(shared);
@@ -72,9 +75,9 @@ pub(crate) async fn run(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
                 continue;
             }
             Some(p) = inbox.pointer.recv() => {
-                page.pointer.push(p);
+                page.take_pointer(p);
                 while let Ok(p) = inbox.pointer.try_recv() {
-                    page.pointer.push(p);
+                    page.take_pointer(p);
                 }
                 continue;
             }
@@ -162,6 +165,8 @@ struct Page {
     pointer: Vec<PointerInput>,
     /// The newest pointer event applied.
     pointer_seq: Option<u64>,
+    /// Pointer events were dropped since the last tick.
+    pointer_overflow: bool,
     live: Option<Live>,
     /// The state to go on from when the session is rebuilt after an error.
     resume: Option<Arc<Snapshot>>,
@@ -178,6 +183,14 @@ struct Page {
 }
 
 impl Page {
+    /// Queues a pointer event (see [`coalesce`]); a flood beyond [`MAX_POINTER_WAITING`] is
+    /// dropped and reported.
+    fn take_pointer(&mut self, p: PointerInput) {
+        if !coalesce(&mut self.pointer, p) {
+            self.pointer_overflow = true;
+        }
+    }
+
     fn new(shared: Arc<Shared>) -> Self {
         Page {
             shared,
@@ -185,6 +198,7 @@ impl Page {
             settings: None,
             pointer: Vec::new(),
             pointer_seq: None,
+            pointer_overflow: false,
             live: None,
             resume: None,
             handle: None,
@@ -216,14 +230,24 @@ impl Page {
         if let Some(next) = self.next.take() {
             self.apply(next)?;
         }
+        if self.pointer_overflow {
+            self.pointer_overflow = false;
+            anyhow::bail!(
+                "more than {MAX_POINTER_WAITING} presses and releases arrived within one frame; \
+                 some were dropped"
+            );
+        }
         let Some(settings) = self.settings.clone() else {
+            self.pointer.clear(); // no session to point into yet
             return Ok(None);
         };
         let live = match &mut self.live {
             Some(live) => live,
             None => {
-                let from = self.resume.take();
+                // The state to go on from is kept until a session has started from it.
+                let from = self.resume.clone();
                 self.start(&settings, from.as_deref())?;
+                self.resume = None;
                 self.live.as_mut().context("the session did not start")?
             }
         };
@@ -248,8 +272,12 @@ impl Page {
         });
         if restart {
             // The objects stay where the person left them; only what is held is let go.
-            let from = self.live.take().map(|live| live.snapshot());
+            if let Some(live) = self.live.take() {
+                self.resume = Some(live.snapshot());
+            }
+            let from = self.resume.clone();
             self.start(&next, from.as_deref())?;
+            self.resume = None;
         }
         let live = self.live.as_mut().context("the session did not start")?;
         let c = &next.camera;
@@ -410,6 +438,10 @@ impl Page {
         };
         let (width, height) = (composed.width(), composed.height());
         match probe {
+            Probe::Pixel(_, _, Some(asked)) if asked != *id => error(
+                Some(*id),
+                &format!("frame {asked} has been replaced by frame {id}; click again"),
+            ),
             Probe::Pixel(x, y, _) if x >= width || y >= height => error(
                 Some(*id),
                 &format!("pixel {x},{y} is outside the {width}x{height} frame"),
@@ -463,6 +495,22 @@ impl Page {
     }
 }
 
+/// Appends `p` to `queue`, coalescing: of each run of events with the button in the same state
+/// only the first (a press or a release happens there) and the newest (where the pointer is
+/// now) matter — a drag follows the pointer, not its path, and hovering picks under the pointer
+/// only. False, and `p` dropped, when [`MAX_POINTER_WAITING`] events wait already.
+fn coalesce(queue: &mut Vec<PointerInput>, p: PointerInput) -> bool {
+    let n = queue.len();
+    if n >= 2 && queue[n - 1].pressed == p.pressed && queue[n - 2].pressed == p.pressed {
+        queue[n - 1] = p;
+    } else if n < MAX_POINTER_WAITING {
+        queue.push(p);
+    } else {
+        return false;
+    }
+    true
+}
+
 fn composition_name(c: Composition) -> &'static str {
     match c {
         Composition::Deep => "deep",
@@ -475,5 +523,60 @@ fn migration_name(m: Migration) -> &'static str {
     match m {
         Migration::Predictive => "predictive",
         Migration::Naive => "naive",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(x: f32, pressed: bool) -> PointerInput {
+        PointerInput {
+            x,
+            y: 0.0,
+            pressed,
+            seq: Some(x as u64),
+        }
+    }
+
+    #[test]
+    fn pointer_runs_keep_their_first_and_newest_events() {
+        let mut queue = Vec::new();
+        // hover 1..3, press at 4, drag 5..7, release at 8, hover 9..10
+        for (x, pressed) in [
+            (1.0, false),
+            (2.0, false),
+            (3.0, false),
+            (4.0, true),
+            (5.0, true),
+            (6.0, true),
+            (7.0, true),
+            (8.0, false),
+            (9.0, false),
+            (10.0, false),
+        ] {
+            assert!(coalesce(&mut queue, at(x, pressed)));
+        }
+        let kept: Vec<(f32, bool)> = queue.iter().map(|p| (p.x, p.pressed)).collect();
+        assert_eq!(
+            kept,
+            [
+                (1.0, false),
+                (3.0, false),
+                (4.0, true),
+                (7.0, true),
+                (8.0, false),
+                (10.0, false)
+            ]
+        );
+        // Presses and releases alone cannot be coalesced: the queue has a bound.
+        let mut queue = Vec::new();
+        let kept = (0..2 * MAX_POINTER_WAITING)
+            .filter(|&i| coalesce(&mut queue, at(i as f32, i % 2 == 0)))
+            .count();
+        assert_eq!(
+            (kept, queue.len()),
+            (MAX_POINTER_WAITING, MAX_POINTER_WAITING)
+        );
     }
 }

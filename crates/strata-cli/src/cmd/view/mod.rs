@@ -199,6 +199,7 @@ fn hello(
             "objects": scene.objects.len(),
             "max_fc_hz": protocol::MAX_FC_HZ,
             "max_sc_interval_ms": protocol::MAX_SC_INTERVAL_MS,
+            "max_side": protocol::MAX_MFR_SIDE,
         })),
     })
     .to_string()

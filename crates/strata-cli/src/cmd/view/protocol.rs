@@ -236,6 +236,11 @@ pub(crate) struct PointerInput {
     pub(crate) seq: Option<u64>,
 }
 
+/// The largest side of a multi-frame-rate frame: each page holds the fast client's, the slow
+/// client's and (audited) the single renderer's fragments, and the buffers between them — about
+/// 0.6 KB a pixel on `mfr-cars`, so 2.5 GB a page at 2048².
+pub(crate) const MAX_MFR_SIDE: u32 = 2048;
+
 /// The highest fast-client rate a page may ask for (frames a second).
 pub(crate) const MAX_FC_HZ: f64 = 240.0;
 
@@ -307,6 +312,14 @@ fn mfr_settings(m: MfrMessage, scene: &Scene) -> Result<MfrJob> {
     use strata_mfr::Composition;
     use strata_mfr::simulate::Migration;
     size(m.width, m.height)?;
+    for (name, side) in [("width", m.width), ("height", m.height)] {
+        if side > MAX_MFR_SIDE {
+            bail!(
+                "{name} {side}: multi-frame-rate frames are at most {MAX_MFR_SIDE} pixels a side \
+                 (both clients keep every fragment); use ?size=WxH in the address"
+            );
+        }
+    }
     let given = camera(&m.camera)?;
     // The clients project with the scene's camera; the page moves its eye, target and up.
     let camera = Camera {
@@ -609,6 +622,10 @@ mod tests {
                 "sc_interval_ms -1",
             ),
             (mfr_request(|v| v["width"] = json!(0)), "width 0"),
+            (
+                mfr_request(|v| v["height"] = json!(3000)),
+                "height 3000: multi-frame-rate",
+            ),
             (
                 mfr_request(|v| v["camera"]["eye"] = json!([0, 0, 0])),
                 "camera",

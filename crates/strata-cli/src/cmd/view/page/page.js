@@ -109,9 +109,12 @@ const isMfr = () => Boolean(S.hello && S.hello.mfr);
 // animation frame (the newest position); presses and releases go at once, after it.
 let pointerPending = null;
 let pointerScheduled = false;
+let pointerLast = null;
 function sendPointer(e, pressed, now) {
-  const at = framePoint(e);
+  // A release outside the frame still releases, where the pointer last was on it.
+  const at = framePoint(e) || (!pressed && pointerLast);
   if (!at) return;
+  pointerLast = at;
   pointerPending = { x: at[0], y: at[1], pressed };
   if (now) flushPointer();
   else if (!pointerScheduled) {
@@ -263,7 +266,7 @@ const sideBySide = () => comparing() && S.show === "side";
 // Frames are rendered at the canvas's size in device pixels (sharp on high-density screens),
 // at most twice its CSS size: the cost grows with the square.
 function frameSize() {
-  const max = S.hello ? S.hello.max_side : 4096;
+  const max = S.hello ? (S.hello.mfr ? S.hello.mfr.max_side : S.hello.max_side) : 4096;
   if (fixedSize) return fixedSize.map((v) => Math.max(1, Math.min(max, v)));
   const r = canvas.getBoundingClientRect();
   const dpr = Math.max(1, Math.min(2, window.devicePixelRatio || 1));
