@@ -568,6 +568,15 @@ class Suite:
             assert after["mfr"]["audit"]["bad_pixels"] == 0, after["mfr"]
             assert after["mfr"]["pointer_seq"] is not None
             self.shot(page, "11-mfr-released")
+            # A click lists the composed pixel's fragments with the client of each: the wheel,
+            # still under the pointer, is the FC's.
+            hx, hy = after["mfr"]["handle_px"]
+            x, y, _ = self.client_point(page, hx, hy)
+            page.mouse.click(x, y)
+            page.wait_for_function("window.strataView.pixel !== null")
+            fragments = page.evaluate("window.strataView.pixel.fragments")
+            assert any(f["name"] == name and f["client"] == "FC" for f in fragments), fragments
+            assert all(f["client"] == ("FC" if f["name"] == name else "SC") for f in fragments)
             page.close()
             assert server.alive()
         finally:

@@ -33,7 +33,6 @@ use anyhow::{Context, Result};
 use axum::extract::ws::Message;
 use glam::Vec3;
 use serde_json::{Value, json};
-use strata_core::DeepFrame;
 use strata_mfr::audit::audit_fc_frame;
 use strata_mfr::client::Client;
 use strata_mfr::simulate::{FcFrame, Migration};
@@ -42,9 +41,9 @@ use strata_scene::Camera;
 
 use super::Shared;
 use super::compare;
+use super::probe::{self, Shown};
 use super::protocol::{self, MfrJob, PointerInput, Probe};
 use super::session::{Inbox, Outbox};
-use crate::images::deep_exr_bytes;
 use crate::report::ms;
 
 /// Pointer events kept between two FC ticks once coalesced (see [`Page::take_pointer`]).
@@ -102,6 +101,9 @@ pub(crate) async fn run(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
             _ = tick.tick() => {
                 if outbox.frames.is_closed() || outbox.answers.is_closed() {
                     return;
+                }
+                if page.idle() {
+                    continue; // nothing new: no worker is woken
                 }
                 let (p, message) = blocking(page, |mut p| {
                     let message = p.step();
@@ -207,6 +209,24 @@ impl Page {
             due: false,
             fc_times: VecDeque::new(),
             sc_counts: VecDeque::new(),
+        }
+    }
+
+    /// True when a tick would find nothing to do: no settings or input waiting, and no new
+    /// state or SC buffer (checked here, on the async task: it costs microseconds when no
+    /// input waits). A session with news is marked due, so the tick's step makes its frame.
+    fn idle(&mut self) -> bool {
+        if self.next.is_some() || !self.pointer.is_empty() || self.due || self.pointer_overflow {
+            return false;
+        }
+        match self.live.as_mut().map(Live::has_news) {
+            Some(true) => {
+                self.due = true;
+                false
+            }
+            Some(false) => true,
+            // No session: idle until settings come, unless one is to be rebuilt.
+            None => self.settings.is_none(),
         }
     }
 
@@ -428,70 +448,35 @@ impl Page {
 
     /// The answer to a question about the frame shown last: its composed fragments.
     fn answer(&self, probe: Probe) -> Message {
-        let error = |id, text: &str| Message::Text(protocol::error_json(id, text).into());
         let Some((id, frame)) = &self.shown else {
-            return error(None, "no frame yet");
+            return Message::Text(protocol::error_json(None, "no frame yet").into());
         };
         let composed = match frame.composed() {
             Ok(f) => f,
-            Err(e) => return error(Some(*id), &format!("cannot compose the frame: {e}")),
-        };
-        let (width, height) = (composed.width(), composed.height());
-        match probe {
-            Probe::Pixel(_, _, Some(asked)) if asked != *id => error(
-                Some(*id),
-                &format!("frame {asked} has been replaced by frame {id}; click again"),
-            ),
-            Probe::Pixel(x, y, _) if x >= width || y >= height => error(
-                Some(*id),
-                &format!("pixel {x},{y} is outside the {width}x{height} frame"),
-            ),
-            Probe::Pixel(x, y, _) => Message::Text(self.pixel(*id, frame, &composed, x, y).into()),
-            Probe::Deep => {
-                let scene = &self.shared.scene;
-                let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
-                let projection = scene.camera.projection(width, height);
-                let near_far = (scene.camera.near, scene.camera.far);
-                match deep_exr_bytes(&composed, near_far, view.matrix(), projection) {
-                    Ok(bytes) => Message::Binary(
-                        protocol::frame_message(
-                            json!({"type": "deep", "frame": id}),
-                            &[("deep", bytes)],
-                        )
-                        .into(),
-                    ),
-                    Err(e) => error(Some(*id), &format!("cannot write the deep EXR: {e:#}")),
-                }
+            Err(e) => {
+                let text = format!("cannot compose the frame: {e}");
+                return Message::Text(protocol::error_json(Some(*id), &text).into());
             }
-        }
-    }
-
-    /// The `pixel` message for `(x, y)` of the composed frame: each fragment with its object
-    /// and the client that drew it.
-    fn pixel(&self, id: u64, frame: &FcFrame, composed: &DeepFrame, x: u32, y: u32) -> String {
+        };
         let scene = &self.shared.scene;
-        let fragments: Vec<Value> = composed
-            .pixel(x, y)
-            .iter()
-            .map(|f| {
-                let name = scene
-                    .objects
-                    .iter()
-                    .find(|o| o.id == f.object)
-                    .map(|o| o.name.as_str());
-                let client = if frame.fc_ids.binary_search(&f.object).is_ok() {
-                    "FC"
-                } else {
-                    "SC"
-                };
-                json!({"depth": f.depth, "rgba": f.color.0, "object": f.object.0, "name": name,
-                       "client": client})
-            })
-            .collect();
-        let method = format!("{} composition", composition_name(frame.composition));
-        json!({"type": "pixel", "frame": id, "x": x, "y": y, "method": method,
-               "fragments": fragments})
-        .to_string()
+        let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
+        let client = |object| {
+            if frame.fc_ids.binary_search(&object).is_ok() {
+                "FC"
+            } else {
+                "SC"
+            }
+        };
+        let shown = Shown {
+            id: *id,
+            frame: &composed,
+            method: format!("{} composition", composition_name(frame.composition)),
+            near_far: (scene.camera.near, scene.camera.far),
+            view: view.matrix(),
+            projection: scene.camera.projection(composed.width(), composed.height()),
+            client: Some(&client),
+        };
+        probe::answer(scene, probe, &shown)
     }
 }
 

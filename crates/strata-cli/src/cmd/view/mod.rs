@@ -21,6 +21,7 @@
 
 mod compare;
 mod mfr;
+mod probe;
 mod protocol;
 mod session;
 

@@ -36,8 +36,8 @@ use tokio::sync::{mpsc, watch};
 
 use super::Shared;
 use super::compare;
+use super::probe::{self, Shown};
 use super::protocol::{self, Job, MethodChoice, MfrJob, PointerInput, Probe, Request};
-use crate::images::deep_exr_bytes;
 use crate::report::{ms, stats_json};
 
 /// Serves one page until it goes away.
@@ -304,42 +304,20 @@ impl Renderer {
                 return Message::Text(protocol::error_json(Some(id), &format!("{e:#}")).into());
             }
         };
-        match probe {
-            Probe::Pixel(_, _, Some(frame)) if frame != id => Message::Text(
-                protocol::error_json(
-                    Some(id),
-                    &format!("frame {frame} has been replaced by frame {id}; click again"),
-                )
-                .into(),
-            ),
-            Probe::Pixel(x, y, _) if x >= width || y >= height => Message::Text(
-                protocol::error_json(
-                    Some(id),
-                    &format!("pixel {x},{y} is outside the {width}x{height} frame"),
-                )
-                .into(),
-            ),
-            Probe::Pixel(x, y, _) => Message::Text(self.pixel(id, &frame, x, y).into()),
-            Probe::Deep => {
-                let projection = camera.projection(width, height);
-                match deep_exr_bytes(&frame, (camera.near, camera.far), camera.view(), projection) {
-                    Ok(bytes) => Message::Binary(
-                        protocol::frame_message(
-                            json!({"type": "deep", "frame": id}),
-                            &[("deep", bytes)],
-                        )
-                        .into(),
-                    ),
-                    Err(e) => Message::Text(
-                        protocol::error_json(
-                            Some(id),
-                            &format!("cannot write the deep EXR: {e:#}"),
-                        )
-                        .into(),
-                    ),
-                }
-            }
-        }
+        let shown = Shown {
+            id,
+            frame: &frame,
+            method: self
+                .store
+                .as_ref()
+                .map(|(_, s)| s.name().to_owned())
+                .unwrap_or_default(),
+            near_far: (camera.near, camera.far),
+            view: camera.view(),
+            projection: camera.projection(width, height),
+            client: None,
+        };
+        probe::answer(&self.shared.scene, probe, &shown)
     }
 
     /// The latest frame's DeepFrame, or why there is none.
@@ -356,27 +334,6 @@ impl Renderer {
                 frame.with_context(|| format!("method {} gave an invalid DeepFrame", store.name()))
             }
         }
-    }
-
-    /// The `pixel` message for `(x, y)` of `frame`.
-    fn pixel(&self, id: u64, frame: &DeepFrame, x: u32, y: u32) -> String {
-        let method = self.store.as_ref().map(|(_, s)| s.name());
-        let scene = &self.shared.scene;
-        let fragments: Vec<serde_json::Value> = frame
-            .pixel(x, y)
-            .iter()
-            .map(|f| {
-                let name = scene
-                    .objects
-                    .iter()
-                    .find(|o| o.id == f.object)
-                    .map(|o| o.name.as_str());
-                json!({"depth": f.depth, "rgba": f.color.0, "object": f.object.0, "name": name})
-            })
-            .collect();
-        json!({"type": "pixel", "frame": id, "x": x, "y": y, "method": method,
-               "fragments": fragments})
-        .to_string()
     }
 
     /// The frame message for `job`, or an error message.
