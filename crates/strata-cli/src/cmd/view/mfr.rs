@@ -422,14 +422,7 @@ impl Page {
             images.extend(maps);
         }
         let start = Instant::now();
-        let mut encoded = Vec::with_capacity(images.len());
-        for (name, image) in &images {
-            let mut png = Vec::new();
-            image
-                .encode_png(&mut png)
-                .with_context(|| format!("cannot encode the {name} image as PNG"))?;
-            encoded.push((*name, png));
-        }
+        let encoded = protocol::encode_pngs(&images)?;
         let header = json!({
             "type": "frame",
             "id": settings.id,

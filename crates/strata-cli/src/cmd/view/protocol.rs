@@ -479,6 +479,22 @@ pub(crate) fn error_json(id: Option<u64>, message: &str) -> String {
     json!({"type": "error", "id": id, "message": message}).to_string()
 }
 
+/// The named images of a frame as PNGs, in order.
+pub(crate) fn encode_pngs<'a>(
+    images: &[(&'a str, strata_core::Rgb8Image)],
+) -> Result<Vec<(&'a str, Vec<u8>)>> {
+    images
+        .iter()
+        .map(|(name, image)| {
+            let mut png = Vec::new();
+            image
+                .encode_png(&mut png)
+                .with_context(|| format!("cannot encode the {name} image as PNG"))?;
+            Ok((*name, png))
+        })
+        .collect()
+}
+
 /// A frame message: header length, header with the list of `images` added, the images.
 pub(crate) fn frame_message(mut header: Value, images: &[(&str, Vec<u8>)]) -> Vec<u8> {
     header["images"] = images

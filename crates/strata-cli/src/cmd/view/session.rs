@@ -389,14 +389,7 @@ impl Renderer {
         }
 
         let start = Instant::now();
-        let mut encoded = Vec::with_capacity(images.len());
-        for (name, image) in &images {
-            let mut png = Vec::new();
-            image
-                .encode_png(&mut png)
-                .with_context(|| format!("cannot encode the {name} image as PNG"))?;
-            encoded.push((*name, png));
-        }
+        let encoded = protocol::encode_pngs(&images)?;
         header["encode_ms"] = json!(ms(start.elapsed()));
         header["png_bytes"] = json!(encoded[0].1.len());
         self.last = Some((job.id, job.width, job.height, job.camera));
