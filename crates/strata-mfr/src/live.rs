@@ -90,6 +90,8 @@ pub struct Live {
     gauge: Arc<ScGauge>,
     fc: Client,
     frames: u64,
+    /// The snapshot the last frame made showed (`None` before the first).
+    framed_snapshot: Option<u64>,
     /// The view of the last frame made (what the person sees), for pointer rays.
     shown_view: ViewPose,
     pressed: bool,
@@ -158,6 +160,7 @@ impl Live {
             sc: Some(sc),
             gauge,
             frames: 0,
+            framed_snapshot: None,
             shown_view,
             pressed: false,
             grab: None,
@@ -273,11 +276,11 @@ impl Live {
     }
 
     /// Applies the input up to now and hands the SC the newest snapshot if it is new; true if a
-    /// frame made now would differ from the last one made (new state or a new SC buffer).
+    /// frame made now would differ from the last one made (another state than it showed, or a
+    /// new SC buffer).
     pub fn has_news(&mut self) -> bool {
-        let before = self.published;
-        self.advance();
-        self.frames == 0 || self.published != before || self.buffers_in.updated()
+        let newest = self.advance().id;
+        self.framed_snapshot != Some(newest) || self.buffers_in.updated()
     }
 
     /// The FC's frame now: input applied up to now, the FC's objects rendered through the newest
@@ -302,6 +305,7 @@ impl Live {
             composition,
         )?;
         self.shown_view = sc.as_ref().map_or(snapshot.view, |sc| sc.view);
+        self.framed_snapshot = Some(snapshot.id);
         let t_ms = snapshot.t_ms;
         let frame = work.into_frame(self.frames, t_ms, snapshot, sc, composition);
         self.frames += 1;
@@ -401,6 +405,17 @@ mod tests {
     use super::*;
     use crate::audit::audit_fc_frame;
 
+    /// A session on `scene` at `size`, predictive, the SC at normal priority.
+    fn live(scene: &Arc<Scene>, size: (u32, u32)) -> Live {
+        Live::start(
+            Arc::clone(scene),
+            size,
+            Migration::Predictive,
+            ScPriority::Normal,
+        )
+        .expect("start")
+    }
+
     fn scene() -> Arc<Scene> {
         let scene = strata_scene::open_scene("mfr-cars", &strata_scene::SearchPath::default())
             .expect("built-in scene");
@@ -446,13 +461,7 @@ mod tests {
     #[test]
     fn a_live_drag_moves_the_object_under_the_pointer_and_deep_composition_stays_exact() {
         let scene = scene();
-        let mut live = Live::start(
-            Arc::clone(&scene),
-            (160, 90),
-            Migration::Predictive,
-            ScPriority::Normal,
-        )
-        .expect("start");
+        let mut live = live(&scene, (160, 90));
         let mut reference = Client::new(160, 90);
         settled(&mut live, Composition::Deep);
         let wheel = scene
@@ -517,13 +526,7 @@ mod tests {
 
     #[test]
     fn pixels_and_rays_are_inverse_and_the_handle_is_under_its_pixel() {
-        let live = Live::start(
-            scene(),
-            (160, 90),
-            Migration::Predictive,
-            ScPriority::Normal,
-        )
-        .expect("start");
+        let live = live(&scene(), (160, 90));
         let view = live.shown_view();
         for (x, y) in [(0.5, 0.5), (80.0, 45.0), (159.5, 10.25)] {
             let (o, d) = live.pixel_ray(&view, x, y);
@@ -548,13 +551,7 @@ mod tests {
     #[test]
     fn a_restarted_session_keeps_the_objects_where_they_were_left() {
         let scene = scene();
-        let mut live = Live::start(
-            Arc::clone(&scene),
-            (160, 90),
-            Migration::Predictive,
-            ScPriority::Normal,
-        )
-        .expect("start");
+        let mut live = live(&scene, (160, 90));
         let (index, point) = live.handle().expect("something to grab");
         let (x, y) = live.project(&live.shown_view(), point).expect("on screen");
         live.pointer(x, y, false).expect("hover");
@@ -622,8 +619,7 @@ mod tests {
 
     #[test]
     fn news_comes_with_input_and_with_sc_buffers_only() {
-        let mut live = Live::start(scene(), (64, 36), Migration::Predictive, ScPriority::Normal)
-            .expect("start");
+        let mut live = live(&scene(), (64, 36));
         settled(&mut live, Composition::Deep);
         assert!(!live.has_news(), "nothing changed since the settled frame");
         let s = live.snapshot();
@@ -634,13 +630,22 @@ mod tests {
             live.view(Vec3::ONE, Vec3::ONE, Vec3::Y).is_err(),
             "eye at the target"
         );
+        // A press that does not move (it selects: the state changes) is news too, though
+        // taking it applies it at once.
+        settled(&mut live, Composition::Deep);
+        let (_, point) = live.handle().expect("something to grab");
+        let (x, y) = live.project(&live.shown_view(), point).expect("on screen");
+        live.pointer(x, y, false).expect("hover");
+        settled(&mut live, Composition::Deep);
+        assert!(!live.has_news());
+        live.pointer(x, y, true).expect("press");
+        assert!(live.has_news(), "the selection is news");
         assert!(live.pointer(f32::NAN, 0.0, false).is_err());
     }
 
     #[test]
     fn a_paced_sc_is_no_faster_than_asked() {
-        let mut live = Live::start(scene(), (32, 18), Migration::Predictive, ScPriority::Normal)
-            .expect("start");
+        let mut live = live(&scene(), (32, 18));
         live.set_sc_interval(Duration::from_millis(200));
         settled(&mut live, Composition::Deep);
         let before = live.sc_status().frames;

@@ -46,6 +46,9 @@ use super::protocol::{self, MfrJob, PointerInput, Probe};
 use super::session::{Inbox, Outbox};
 use crate::report::ms;
 
+/// How long a failed session waits before it is rebuilt.
+const RETRY_AFTER: Duration = Duration::from_secs(1);
+
 /// Pointer events kept between two FC ticks once coalesced (see [`Page::take_pointer`]).
 const MAX_POINTER_WAITING: usize = 256;
 
@@ -172,6 +175,8 @@ struct Page {
     live: Option<Live>,
     /// The state to go on from when the session is rebuilt after an error.
     resume: Option<Arc<Snapshot>>,
+    /// Not before this is a failed session rebuilt.
+    retry_at: Option<Instant>,
     /// The object to point the page at and its point at rest.
     handle: Option<(usize, Vec3)>,
     /// The single renderer, for the audit.
@@ -203,6 +208,7 @@ impl Page {
             pointer_overflow: false,
             live: None,
             resume: None,
+            retry_at: None,
             handle: None,
             reference: None,
             shown: None,
@@ -225,8 +231,8 @@ impl Page {
                 false
             }
             Some(false) => true,
-            // No session: idle until settings come, unless one is to be rebuilt.
-            None => self.settings.is_none(),
+            // No session: idle until settings come, or one is to be rebuilt and its time came.
+            None => self.settings.is_none() || self.retry_at.is_some_and(|t| Instant::now() < t),
         }
     }
 
@@ -237,8 +243,14 @@ impl Page {
         match self.try_step() {
             Ok(message) => message,
             Err(e) => {
-                // The session is rebuilt by the next tick, with the objects where they were.
-                self.resume = self.live.take().map(|live| live.snapshot());
+                // The session is rebuilt a second later (an error that lasts is reported once a
+                // second, not every tick), with the objects where they were: from the session
+                // that failed, or — when it was a restart that failed — from the state it was
+                // to go on from.
+                if let Some(live) = self.live.take() {
+                    self.resume = Some(live.snapshot());
+                }
+                self.retry_at = Some(Instant::now() + RETRY_AFTER);
                 Some(Message::Text(
                     protocol::error_json(id, &format!("{e:#}")).into(),
                 ))
@@ -264,10 +276,15 @@ impl Page {
         let live = match &mut self.live {
             Some(live) => live,
             None => {
+                if self.retry_at.is_some_and(|t| Instant::now() < t) {
+                    self.pointer.clear(); // nothing to point into until the session is back
+                    return Ok(None);
+                }
                 // The state to go on from is kept until a session has started from it.
                 let from = self.resume.clone();
                 self.start(&settings, from.as_deref())?;
                 self.resume = None;
+                self.retry_at = None;
                 self.live.as_mut().context("the session did not start")?
             }
         };
