@@ -615,6 +615,37 @@ mod tests {
             },
         };
         assert!(authority.push(light).is_err(), "lights are keyed up front");
+        let at = |event| TimedEvent {
+            t_ms: 5000.0,
+            event,
+        };
+        for bad in [
+            Event::Drag {
+                by: Vec3::X,
+                duration_ms: 0.0,
+            },
+            Event::Drag {
+                by: Vec3::NAN,
+                duration_ms: 1.0,
+            },
+            Event::Pointer {
+                origin,
+                dir: Vec3::ZERO,
+            },
+            Event::View {
+                eye: origin,
+                target: origin,
+                up: Vec3::Y,
+            },
+        ] {
+            let e = authority.push(at(bad)).expect_err("refused");
+            assert!(e.to_string().starts_with("live input: "), "{e}");
+        }
+        assert_eq!(
+            authority.advance_to(6000.0).events_applied,
+            3000,
+            "none of them applied"
+        );
     }
 
     #[test]

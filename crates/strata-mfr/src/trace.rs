@@ -274,6 +274,38 @@ fn unit(v: Vec3, what: &str) -> Result<Vec3, String> {
     Ok(n)
 }
 
+/// The rules a trace file's events follow, for an event made in code.
+fn check_event(event: &Event) -> Result<(), String> {
+    let finite = |v: Vec3, what: &str| {
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!("{what} {v} is not a finite vector"))
+        }
+    };
+    match *event {
+        Event::View { eye, target, up } => {
+            let (eye, target) = (finite(eye, "view.eye")?, finite(target, "view.target")?);
+            unit(target - eye, "view: target - eye")?;
+            unit(finite(up, "view.up")?, "view.up")?;
+        }
+        Event::Pointer { origin, dir } => {
+            finite(origin, "pointer.origin")?;
+            unit(finite(dir, "pointer.dir")?, "pointer.dir")?;
+        }
+        Event::Drag { by, duration_ms } => {
+            finite(by, "drag.by")?;
+            if !(duration_ms.is_finite() && duration_ms > 0.0) {
+                return Err(format!(
+                    "drag.duration_ms {duration_ms} must be more than 0"
+                ));
+            }
+        }
+        Event::Button(_) | Event::Light { .. } => {}
+    }
+    Ok(())
+}
+
 impl RawEvent {
     fn check(self) -> Result<TimedEvent, String> {
         if !(self.t_ms.is_finite() && self.t_ms >= 0.0) {
@@ -362,8 +394,11 @@ impl Trace {
         Ok(Trace { events })
     }
 
-    /// Appends `event`, which must come at or after the last event (a live session's input).
+    /// Appends `event`, which must come at or after the last event (a live session's input)
+    /// and hold what a trace file's event may: finite vectors, a view's target away from its
+    /// eye and a non-zero up, a pointer's non-zero direction, a drag's positive duration.
     pub fn push(&mut self, event: TimedEvent) -> Result<(), TraceError> {
+        check_event(&event.event).map_err(|what| TraceError::new("live input", what))?;
         let last = self.duration_ms();
         if !(event.t_ms.is_finite() && event.t_ms >= last) {
             return Err(TraceError::new(

@@ -21,6 +21,11 @@
 //! Each connection has its own store and rasterizer (their buffers reused from frame to frame);
 //! all share the server's worker threads. A render that fails or panics becomes an error
 //! message for the page; the server and the other pages go on.
+//!
+//! With `--mfr` the same connection feeds [`super::mfr::run`] instead of the render loop: the
+//! page's settings go through a watch like a view's, its pointer events through a queue of
+//! [`POINTER_WAITING`] (in order: a press must not overtake the move before it), and frames
+//! come back at the fast client's pace through the same frame watch.
 
 use std::sync::Arc;
 use std::time::Instant;
