@@ -25,6 +25,15 @@
 //! (`OnFault::Drop`) — and its link reconnects in the background with a growing delay (0.1 s to
 //! 2 s). Under the `difference` transfer a missed frame breaks the chain of deltas, so a stalled
 //! node is always disconnected and restarted with a reset. Nothing waits longer than `timeout`.
+//!
+//! # Steering
+//!
+//! The [`Observer`] that receives the frames may also steer the run: it gives each frame's
+//! camera ([`Observer::camera`], asked once a frame, when the frame's first request is written,
+//! so every node and every fixup of that frame renders through the same matrices) and may stop
+//! the run before any frame ([`Observer::stop`]). `strata display` does neither (the scene's
+//! camera, a fixed number of frames); `strata view --nodes` follows the page's camera and runs
+//! until the page goes.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -32,7 +41,7 @@ use std::time::{Duration, Instant};
 
 use glam::Mat4;
 use strata_core::{DeepFrame, DeepFrameError, ObjectId, Rgb8Image};
-use strata_scene::Scene;
+use strata_scene::{Camera, Scene};
 use strata_wire::{
     Codec, DecodeOptions, FrameDecoder, FrameMessage, Hello, MessageType, NodeStats, PixelMask,
     Request, RequestKind, decode_error,
@@ -191,8 +200,21 @@ pub fn check_address(address: &str) -> Result<(), AddressError> {
     Ok(())
 }
 
-/// Receives each composed frame and each incident as they happen.
+/// Receives each composed frame and each incident as they happen, and may steer the run (see
+/// the module's "Steering").
 pub trait Observer {
+    /// The camera to render frame `frame` through (its projection at the run's size), or `None`
+    /// for the scene's. Asked once per frame, when the driver writes the first request for it —
+    /// `in_flight` frames ahead of the frame being composed, so a camera given here is shown
+    /// that many frames later at the earliest.
+    fn camera(&mut self, _frame: u64) -> Option<Camera> {
+        None
+    }
+    /// Asked before each frame is composed: true ends the run there, with the frames composed
+    /// so far. A stop is seen within one frame, or within the timeout while nodes are silent.
+    fn stop(&mut self) -> bool {
+        false
+    }
     /// A frame was composed.
     fn frame(&mut self, _stats: &FrameStats, _image: &Rgb8Image) {}
     /// True if [`Observer::deep_frame`] should receive every composed frame's merged fragments
@@ -389,10 +411,12 @@ struct Driver<'o> {
     per_frame: Vec<FrameStats>,
     first_composed: Option<Instant>,
     last_composed: Option<Instant>,
-    /// The camera every request carries, column-major.
-    view: [f32; 16],
-    /// The projection every request carries, column-major.
-    projection: [f32; 16],
+    /// The scene's camera, column-major view and projection: what a frame is rendered through
+    /// unless the observer gives another.
+    scene_camera: ([f32; 16], [f32; 16]),
+    /// The camera of every frame requested and not yet composed, decided when its first
+    /// request was written: every node and every fixup of the frame uses the same.
+    cameras: std::collections::BTreeMap<u64, ([f32; 16], [f32; 16])>,
     /// Every object of the scene (the reprojection view shades any node's fragments).
     all_objects: Vec<ObjectId>,
     /// The composed image, resolved into again for every frame (no fresh pages per frame).
@@ -431,7 +455,7 @@ impl<'o> Driver<'o> {
                 spare,
             });
         }
-        let (view, projection) = request_camera(&config);
+        let scene_camera = request_camera(&config);
         let all_objects = config.scene.objects.iter().map(|o| o.id).collect();
         Driver {
             config,
@@ -443,8 +467,8 @@ impl<'o> Driver<'o> {
             per_frame: Vec::new(),
             first_composed: None,
             last_composed: None,
-            view,
-            projection,
+            scene_camera,
+            cameras: std::collections::BTreeMap::new(),
             all_objects,
             image: Rgb8Image::filled(0, 0, [0; 3]),
         }
@@ -455,6 +479,9 @@ impl<'o> Driver<'o> {
         self.wait_for_first_connections().await;
         let end = self.config.first_frame + self.config.frames;
         for t in self.config.first_frame..end {
+            if self.observer.stop() {
+                break;
+            }
             self.request_ahead(t, end).await?;
             self.wait_for_frames(t).await;
             let apply_start = Instant::now();
@@ -464,8 +491,9 @@ impl<'o> Driver<'o> {
             if self.needs_fixups() {
                 merge_ms += self.fixup_round(&mut work).await?;
             }
-            // Late or superseded messages are of no use any more.
+            // Late or superseded messages are of no use any more, nor is this frame's camera.
             self.buffer.retain(|&(_, f, _), _| f > t);
+            self.cameras.retain(|&f, _| f > t);
             self.compose(work, merge_ms);
         }
         let elapsed_s = match (self.first_composed, self.last_composed) {
@@ -494,15 +522,33 @@ impl<'o> Driver<'o> {
         }
     }
 
+    /// The view and projection (column-major) frame `frame` is rendered through: decided the
+    /// first time it is asked for, the same for every later request of that frame.
+    fn camera_for(&mut self, frame: u64) -> ([f32; 16], [f32; 16]) {
+        if let Some(&c) = self.cameras.get(&frame) {
+            return c;
+        }
+        let (width, height) = (self.config.width, self.config.height);
+        let c = match self.observer.camera(frame) {
+            Some(camera) => (
+                camera.view().to_cols_array(),
+                camera.projection(width, height).to_cols_array(),
+            ),
+            None => self.scene_camera,
+        };
+        self.cameras.insert(frame, c);
+        c
+    }
+
     /// The request for frame `frame` of node `node`, encoded.
-    fn request(&self, frame: u64, node: usize, kind: RequestKind) -> Result<Vec<u8>, DisplayError> {
-        encode_request(
-            &self.config,
-            (&self.view, &self.projection),
-            frame,
-            node,
-            kind,
-        )
+    fn request(
+        &mut self,
+        frame: u64,
+        node: usize,
+        kind: RequestKind,
+    ) -> Result<Vec<u8>, DisplayError> {
+        let (view, projection) = self.camera_for(frame);
+        encode_request(&self.config, (&view, &projection), frame, node, kind)
     }
 
     /// Hands node `i`'s link a request for frame `frame` on its current connection.
@@ -589,7 +635,8 @@ impl<'o> Driver<'o> {
     }
 
     /// Empty per-node figures for frame `t`, and its view under the reprojection transfer.
-    fn frame_work(&self, t: u64) -> Result<FrameWork, DisplayError> {
+    fn frame_work(&mut self, t: u64) -> Result<FrameWork, DisplayError> {
+        let (view, projection) = self.camera_for(t);
         let config = &self.config;
         let reproj_view = match config.transfer {
             Transfer::Reprojection => {
@@ -603,8 +650,8 @@ impl<'o> Driver<'o> {
                     &self.all_objects,
                     pose,
                     (config.width, config.height),
-                    Mat4::from_cols_array(&self.view),
-                    Mat4::from_cols_array(&self.projection),
+                    Mat4::from_cols_array(&view),
+                    Mat4::from_cols_array(&projection),
                 ))
             }
             _ => None,
@@ -670,6 +717,7 @@ impl<'o> Driver<'o> {
         s: &mut NodeFrame,
         reproj_view: Option<&View>,
     ) -> Result<(), String> {
+        let (view, projection) = self.camera_for(t);
         let n = &mut self.nodes[i];
         match (msg.changed, msg.stale, msg.removals, reproj_view) {
             (Some(changed), Some(stale), None, None) => {
@@ -677,7 +725,7 @@ impl<'o> Driver<'o> {
                 n.spare.put(msg.frame);
             }
             (Some(_), None, Some(_), Some(_))
-                if msg.header.view != self.view || msg.header.projection != self.projection =>
+                if msg.header.view != view || msg.header.projection != projection =>
             {
                 return Err(format!(
                     "rendered frame {t} with other matrices than the display sent"

@@ -510,3 +510,90 @@ fn config_for(
         ..config(scene, &[], transfer, frames)
     }
 }
+
+/// Steers a run as `strata view --nodes` does: a camera of its own per frame (orbiting the
+/// scene's target), a stop after `stop_after` frames; keeps each frame with the camera it was
+/// asked for.
+struct Steer {
+    scene: Arc<Scene>,
+    stop_after: usize,
+    asked: std::collections::BTreeMap<u64, strata_scene::Camera>,
+    images: Vec<(u64, Rgb8Image)>,
+}
+
+impl Steer {
+    fn camera(scene: &Scene, frame: u64) -> strata_scene::Camera {
+        let mut c = scene.camera;
+        let turn = glam::Quat::from_rotation_y(0.2 * frame as f32);
+        c.eye = c.target + turn * (c.eye - c.target);
+        c
+    }
+}
+
+impl Observer for Steer {
+    fn camera(&mut self, frame: u64) -> Option<strata_scene::Camera> {
+        assert!(
+            !self.asked.contains_key(&frame),
+            "frame {frame}: asked twice"
+        );
+        let c = Self::camera(&self.scene, frame);
+        self.asked.insert(frame, c);
+        Some(c)
+    }
+    fn stop(&mut self) -> bool {
+        self.images.len() >= self.stop_after
+    }
+    fn frame(&mut self, stats: &FrameStats, image: &Rgb8Image) {
+        self.images.push((stats.frame, image.clone()));
+    }
+}
+
+#[test]
+fn a_steered_run_renders_every_frame_through_the_observers_camera_and_stops_when_told() {
+    // The still scene: only the camera moves, and every transfer must follow it — difference
+    // and reprojection with overlapping nodes, whose fixups must use the frame's camera too.
+    let mut still = open_scene("mixed", &SearchPath::new([])).unwrap();
+    still.animation = None;
+    let s = Arc::new(still);
+    let (a, b) = (Node::start(&s, &[0, 3]), Node::start(&s, &[1, 2, 4]));
+    let mut raster = Rasterizer::default();
+    for (transfer, tolerance, max_error) in [
+        (Transfer::Full, 0, 0),
+        (Transfer::Difference, 0, 0),
+        (Transfer::Reprojection, 1, 2),
+    ] {
+        let mut steer = Steer {
+            scene: s.clone(),
+            stop_after: 5,
+            asked: Default::default(),
+            images: Vec::new(),
+        };
+        // Far more frames than it will run: the observer ends it.
+        let mut cfg = config(&s, &[&a, &b], transfer, 1000);
+        cfg.tolerance = tolerance;
+        let r = display::run(cfg, &mut steer).unwrap();
+        assert!(r.incidents.is_empty(), "{transfer:?}: {:?}", r.incidents);
+        assert_eq!(steer.images.len(), 5, "{transfer:?}");
+        let mut previous: Option<&Rgb8Image> = None;
+        for (f, image) in &steer.images {
+            let mut posed = (*s).clone();
+            posed.camera = steer.asked[f];
+            let want = exact_image(&posed, *f, W, H, &mut raster).unwrap();
+            let error = image
+                .as_bytes()
+                .iter()
+                .zip(want.as_bytes())
+                .map(|(x, y)| x.abs_diff(*y))
+                .max()
+                .unwrap_or(0);
+            assert!(error <= max_error, "{transfer:?} frame {f}: off by {error}");
+            assert!(
+                previous != Some(image),
+                "{transfer:?} frame {f}: did not move"
+            );
+            previous = Some(image);
+        }
+        // Frames asked ahead of the stop were requested but never composed.
+        assert!(steer.asked.len() >= 5, "{transfer:?}");
+    }
+}
