@@ -525,3 +525,256 @@ fn an_mfr_page_grabs_and_drags_an_object_and_the_composite_stays_exact() {
     assert_eq!(released["mfr"]["selected"], Value::Null);
     assert_eq!(released["mfr"]["moved"], m["moved"]);
 }
+
+/// A `strata node` process serving some objects of a scene, killed when dropped.
+struct Node {
+    child: Child,
+    addr: String,
+}
+
+impl Node {
+    fn start(scene: &str, objects: &str) -> Node {
+        let mut child = StdCommand::cargo_bin("strata")
+            .expect("the strata binary")
+            .args(["node", "--listen", "127.0.0.1:0", "--scene", scene])
+            .args(["--objects", objects])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("strata node starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("a first line");
+        let addr = line
+            .trim()
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| panic!("the first line names the address: {line:?}"))
+            .to_owned();
+        Node { child, addr }
+    }
+}
+
+impl Drop for Node {
+    fn drop(&mut self) {
+        self.child.kill().ok();
+        self.child.wait().ok();
+    }
+}
+
+/// Built-in scene `scene` as a file in `dir`, without its animation (a remote display poses
+/// the scene at its frame number, which grows for as long as the page is open).
+fn still_scene(scene: &str, dir: &TempDir) -> (String, String) {
+    let source = Command::cargo_bin("strata")
+        .expect("strata")
+        .args(["scenes", "--print", scene])
+        .output()
+        .expect("runs");
+    let source = String::from_utf8(source.stdout).expect("utf-8");
+    let still = match source.find("[animation]") {
+        None => source,
+        Some(at) => {
+            let rest = &source[at..];
+            let end = rest.find("\n[").map_or(source.len(), |e| at + e + 1);
+            format!("{}{}", &source[..at], &source[end..])
+        }
+    };
+    let path = dir.path().join(format!("{scene}.toml"));
+    std::fs::write(&path, &still).expect("write");
+    (path.to_str().expect("utf-8").to_owned(), still)
+}
+
+/// The PNG `strata render` makes of the scene file `source` through the view a frame reports.
+fn rendered(source: &str, camera_toml: &str, dir: &TempDir) -> Vec<u8> {
+    let objects = &source[source.find("[[objects]]").expect("objects")..];
+    let background = source
+        .lines()
+        .find(|l| l.starts_with("background"))
+        .expect("a background");
+    let (size, camera) = camera_toml.split_once("[camera]").expect("a camera table");
+    let file = dir.path().join("view.toml");
+    let out = dir.path().join("render.png");
+    std::fs::write(
+        &file,
+        format!("{size}{background}\n\n[camera]{camera}\n{objects}"),
+    )
+    .expect("write");
+    Command::cargo_bin("strata")
+        .expect("strata")
+        .args(["render", file.to_str().expect("utf-8"), "-j", "1"])
+        .arg("--out")
+        .arg(&out)
+        .assert()
+        .success();
+    std::fs::read(&out).expect("render output")
+}
+
+/// The next frame message whose header meets `wanted`, with its PNG; errors in between fail.
+fn frame_and_png_where(ws: &mut Socket, wanted: impl Fn(&Value) -> bool) -> (Value, Vec<u8>) {
+    for _ in 0..2000 {
+        match next(ws).expect("a message") {
+            m @ Message::Binary(_) => {
+                let (header, png) = frame(m);
+                if wanted(&header) {
+                    return (header, png);
+                }
+            }
+            other => panic!("expected frames, got {other:?}"),
+        }
+    }
+    panic!("no frame as wanted in 2000");
+}
+
+#[test]
+fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
+    let dir = TempDir::new().expect("temp dir");
+    let (scene, source) = still_scene("mixed", &dir);
+    let a = Node::start(&scene, "opaque cube,glass slab");
+    let b = Node::start(&scene, "1,2,4");
+    let nodes = format!("{},{}", a.addr, b.addr);
+    // Difference transfer: the nodes' objects overlap on screen, so every camera move needs
+    // the fixup round, which must render through the same camera as the frame.
+    let v = Viewer::start_scene(
+        &scene,
+        &[
+            "--nodes",
+            &nodes,
+            "--transfer",
+            "difference",
+            "--timeout",
+            "1",
+        ],
+    );
+    let mut ws = v.socket();
+    let hello = text(next(&mut ws).expect("hello"));
+    assert_eq!(hello["remote"]["nodes"], json!([a.addr, b.addr]));
+    assert_eq!(hello["remote"]["transfer"], "difference");
+    assert_eq!(hello["remote"]["codec"], "deep-lz4");
+
+    let settings = |id: u64, eye: [f32; 3], width: u32| {
+        let camera = json!({"eye": eye, "target": [0, 0, 0], "up": [0, 1, 0],
+                            "fovy_deg": 45, "near": 0.01, "far": 100});
+        Message::text(
+            json!({"type": "remote", "id": id, "width": width, "height": 64, "camera": camera,
+                   "max_fps": 60})
+            .to_string(),
+        )
+    };
+    let mut shown = Vec::new();
+    for (id, eye) in [(1, [0.35, 0.45, 1.7]), (2, [-1.2, 0.3, 1.1])] {
+        ws.send(settings(id, eye, 96)).expect("send");
+        let (header, png) = frame_and_png_where(&mut ws, |h| h["id"] == id);
+        let r = &header["remote"];
+        assert_eq!(r["nodes"].as_array().map(Vec::len), Some(2), "{r}");
+        for n in r["nodes"].as_array().expect("nodes") {
+            assert_eq!(n["status"], "ok", "{r}");
+        }
+        assert_eq!(header["camera"]["eye"], json!(eye));
+        let (w, h, got) = pixels(&png);
+        assert_eq!((w, h), (96, 64));
+        // Merged from two nodes, it is what one machine renders of the whole scene.
+        let camera_toml = header["camera_toml"].as_str().expect("camera_toml");
+        let (_, _, expected) = pixels(&rendered(&source, camera_toml, &dir));
+        assert!(got == expected, "frame {id} differs from strata render's");
+        shown.push(got);
+    }
+    assert!(shown[0] != shown[1], "the camera moved the image");
+
+    // A pixel of the cube, behind the glass: fragments of both nodes' objects.
+    ws.send(Message::text(
+        json!({"type": "inspect", "x": 48, "y": 32, "frame": 2}).to_string(),
+    ))
+    .expect("send");
+    let pixel = loop {
+        match next(&mut ws).expect("a message") {
+            Message::Binary(_) => continue,
+            m => break text(m),
+        }
+    };
+    assert_eq!(pixel["type"], "pixel", "{pixel}");
+    assert!(
+        pixel["method"]
+            .as_str()
+            .is_some_and(|m| m.contains("difference from 2 node(s)")),
+        "{pixel}"
+    );
+    let fragments = pixel["fragments"].as_array().expect("fragments");
+    assert!(!fragments.is_empty(), "{pixel}");
+    let depths: Vec<f64> = fragments
+        .iter()
+        .filter_map(|f| f["depth"].as_f64())
+        .collect();
+    assert!(
+        depths.windows(2).all(|d| d[0] <= d[1]),
+        "front to back: {pixel}"
+    );
+
+    // Settings it refuses leave the display running.
+    ws.send(settings(3, [0.35, 0.45, 1.7], 5000)).expect("send");
+    let refusal = loop {
+        match next(&mut ws).expect("a message") {
+            Message::Binary(_) => continue,
+            m => break text(m),
+        }
+    };
+    assert!(
+        refusal["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("width 5000")),
+        "{refusal}"
+    );
+
+    // A node dies: the page goes on with its last frame held, and says so.
+    drop(b);
+    let (header, png) = frame_and_png_where(&mut ws, |h| {
+        h["remote"]["nodes"][1]["status"] == "held"
+            && h["remote"]["incidents"]
+                .as_array()
+                .is_some_and(|i| !i.is_empty())
+    });
+    let r = &header["remote"];
+    assert_eq!(r["nodes"][0]["status"], "ok", "{r}");
+    let incident = &r["incidents"][0];
+    assert_eq!(incident["node"], json!(v_addr(&nodes, 1)), "{r}");
+    assert!(r["incident_count"].as_u64() >= Some(1), "{r}");
+    // Held, the still scene looks as it did.
+    assert!(
+        pixels(&png).2 == shown[1],
+        "a held node keeps its part of the image"
+    );
+
+    // A new size restarts the display, the dead node still left out.
+    ws.send(settings(4, [0.35, 0.45, 1.7], 80)).expect("send");
+    let (header, png) = frame_and_png_where(&mut ws, |h| h["id"] == 4);
+    assert_eq!(pixels(&png).0, 80);
+    assert_ne!(header["remote"]["nodes"][0]["status"], json!(null));
+}
+
+/// The `i`th address of a `--nodes` list.
+fn v_addr(nodes: &str, i: usize) -> String {
+    nodes.split(',').nth(i).expect("a node").to_owned()
+}
+
+#[test]
+fn remote_options_need_nodes_and_nodes_need_a_remote_page() {
+    refused(
+        &["view", "mixed", "--transfer", "difference"],
+        "apply to the remote mode only: add --nodes",
+    );
+    refused(&["view", "mixed", "--nodes", "nowhere"], "is not HOST:PORT");
+    refused(
+        &["view", "mixed", "--nodes", "127.0.0.1:9", "--mfr"],
+        "cannot be used with",
+    );
+    refused(
+        &[
+            "view",
+            "mixed",
+            "--nodes",
+            "127.0.0.1:9",
+            "--tolerance",
+            "3",
+        ],
+        "--tolerance applies to --transfer difference and reprojection only",
+    );
+}

@@ -35,29 +35,9 @@ pub(crate) struct Args {
     #[arg(long, value_delimiter = ',', required = true, value_parser = parse_node_address)]
     pub(crate) nodes: Vec<String>,
 
-    /// Transfer method: full, depth-limited (with --layers), difference, reprojection.
-    #[arg(long, default_value = "full")]
-    pub(crate) transfer: String,
-
-    /// depth-limited: fragments per pixel to send (the N nearest).
-    #[arg(long)]
-    pub(crate) layers: Option<u32>,
-
-    /// depth-limited: stop a pixel once the opacity in front reaches this, in (0, 1].
-    #[arg(long)]
-    pub(crate) opacity_threshold: Option<f32>,
-
-    /// difference: colour changes of at most this many 8-bit steps are not sent (default 0:
-    /// exact; 2: no bad pixels at the default --threshold, with fewer fragments).
-    /// reprojection: a reprojected fragment is kept while it shades within this many steps of
-    /// the node's render (default 1: at most 2 steps off with the normal packing, so no bad
-    /// pixels at the default --threshold; 0: equal colours).
-    #[arg(long)]
-    pub(crate) tolerance: Option<u8>,
-
-    /// Codec the nodes encode with: raw, lz4, zstd or zstd:LEVEL, deep-lz4, deep-zstd or deep-zstd:LEVEL.
-    #[arg(long, default_value = "deep-lz4")]
-    pub(crate) codec: Codec,
+    /// How the nodes choose and encode fragments, and how the display waits for them.
+    #[command(flatten)]
+    pub(crate) link: LinkArgs,
 
     /// Frames to compose.
     #[arg(long, default_value_t = 72)]
@@ -70,18 +50,6 @@ pub(crate) struct Args {
     /// Frame size WIDTHxHEIGHT (default: the scene's).
     #[arg(long, value_parser = crate::options::parse_size)]
     pub(crate) size: Option<(u32, u32)>,
-
-    /// Frames requested ahead of the one being composed, so nodes render while frames travel.
-    #[arg(long, default_value_t = 2)]
-    pub(crate) in_flight: usize,
-
-    /// Seconds to wait for a node's frame (and for a connection) before reporting it.
-    #[arg(long, default_value_t = 5.0)]
-    pub(crate) timeout: f64,
-
-    /// Without a node's frame: compose with its last frame (hold) or without it (drop).
-    #[arg(long, default_value = "hold", value_parser = ["hold", "drop"])]
-    pub(crate) on_fault: String,
 
     /// Compare every frame with the exact local render after the run (off: --no-check).
     #[arg(long = "no-check", action = clap::ArgAction::SetFalse)]
@@ -116,7 +84,115 @@ pub(crate) struct Args {
     pub(crate) model_dirs: Vec<PathBuf>,
 }
 
-fn parse_node_address(s: &str) -> Result<String, String> {
+/// The display's side of the link to its nodes: what it asks them to send and how it waits —
+/// shared by `strata display` and `strata view --nodes`.
+#[derive(clap::Args, Debug, Clone)]
+pub(crate) struct LinkArgs {
+    /// Transfer method: full, depth-limited (with --layers), difference, reprojection.
+    #[arg(long, default_value = "full")]
+    pub(crate) transfer: String,
+
+    /// depth-limited: fragments per pixel to send (the N nearest).
+    #[arg(long)]
+    pub(crate) layers: Option<u32>,
+
+    /// depth-limited: stop a pixel once the opacity in front reaches this, in (0, 1].
+    #[arg(long)]
+    pub(crate) opacity_threshold: Option<f32>,
+
+    /// difference: colour changes of at most this many 8-bit steps are not sent (default 0:
+    /// exact; 2: no bad pixels at the default --threshold, with fewer fragments).
+    /// reprojection: a reprojected fragment is kept while it shades within this many steps of
+    /// the node's render (default 1: at most 2 steps off with the normal packing, so no bad
+    /// pixels at the default --threshold; 0: equal colours).
+    #[arg(long)]
+    pub(crate) tolerance: Option<u8>,
+
+    /// Codec the nodes encode with: raw, lz4, zstd or zstd:LEVEL, deep-lz4, deep-zstd or deep-zstd:LEVEL.
+    #[arg(long, default_value = "deep-lz4")]
+    pub(crate) codec: Codec,
+
+    /// Frames requested ahead of the one being composed, so nodes render while frames travel.
+    #[arg(long, default_value_t = 2)]
+    pub(crate) in_flight: usize,
+
+    /// Seconds to wait for a node's frame (and for a connection) before reporting it.
+    #[arg(long, default_value_t = 5.0)]
+    pub(crate) timeout: f64,
+
+    /// Without a node's frame: compose with its last frame (hold) or without it (drop).
+    #[arg(long, default_value = "hold", value_parser = ["hold", "drop"])]
+    pub(crate) on_fault: String,
+}
+
+/// [`LinkArgs`] checked.
+#[derive(Clone, Debug)]
+pub(crate) struct Link {
+    pub(crate) transfer: transfer::Transfer,
+    pub(crate) tolerance: u8,
+    pub(crate) codec: Codec,
+    pub(crate) in_flight: usize,
+    pub(crate) timeout: Duration,
+    pub(crate) on_fault: OnFault,
+}
+
+impl LinkArgs {
+    /// Checks the options together (`--layers` only with depth-limited, …).
+    pub(crate) fn check(&self) -> Result<Link> {
+        let t = transfer::parse(&self.transfer, self.layers, self.opacity_threshold)?;
+        if !(self.timeout > 0.0 && self.timeout <= 3600.0) {
+            bail!("--timeout must be within (0, 3600] seconds");
+        }
+        let tolerance = match (t, self.tolerance) {
+            (transfer::Transfer::Difference, tol) => tol.unwrap_or(0),
+            (transfer::Transfer::Reprojection, tol) => tol.unwrap_or(1),
+            (_, None) => 0,
+            (_, Some(_)) => {
+                bail!("--tolerance applies to --transfer difference and reprojection only")
+            }
+        };
+        self.codec
+            .validate()
+            .map_err(|e| anyhow::anyhow!("--codec {}: {e}", self.codec))?;
+        if self.in_flight == 0 {
+            bail!("--in-flight must be at least 1");
+        }
+        Ok(Link {
+            transfer: t,
+            tolerance,
+            codec: self.codec,
+            in_flight: self.in_flight,
+            timeout: Duration::from_secs_f64(self.timeout),
+            on_fault: if self.on_fault == "drop" {
+                OnFault::Drop
+            } else {
+                OnFault::Hold
+            },
+        })
+    }
+
+    /// True when every option is at its default (`strata view` without `--nodes` refuses
+    /// the others).
+    pub(crate) fn is_default(&self) -> bool {
+        self.transfer == "full"
+            && self.layers.is_none()
+            && self.opacity_threshold.is_none()
+            && self.tolerance.is_none()
+            && self.codec == Codec::DeepLz4
+            && self.in_flight == 2
+            && self.timeout == 5.0
+            && self.on_fault == "hold"
+    }
+}
+
+impl Link {
+    /// The transfer method and its options as the summary names them.
+    pub(crate) fn label(&self) -> String {
+        transfer_label(self.transfer, self.tolerance)
+    }
+}
+
+pub(crate) fn parse_node_address(s: &str) -> Result<String, String> {
     display::check_address(s).map_err(|e| e.to_string())?;
     Ok(s.to_string())
 }
@@ -198,18 +274,8 @@ impl Observer for Progress {
 }
 
 pub(crate) fn run(args: Args) -> Result<()> {
-    let t = transfer::parse(&args.transfer, args.layers, args.opacity_threshold)?;
-    if !(args.timeout > 0.0 && args.timeout <= 3600.0) {
-        bail!("--timeout must be within (0, 3600] seconds");
-    }
-    let tolerance = match (t, args.tolerance) {
-        (transfer::Transfer::Difference, tol) => tol.unwrap_or(0),
-        (transfer::Transfer::Reprojection, tol) => tol.unwrap_or(1),
-        (_, None) => 0,
-        (_, Some(_)) => {
-            bail!("--tolerance applies to --transfer difference and reprojection only")
-        }
-    };
+    let link = args.link.check()?;
+    let (t, tolerance) = (link.transfer, link.tolerance);
     if args.frames == 0 {
         bail!("--frames must be at least 1");
     }
@@ -222,19 +288,15 @@ pub(crate) fn run(args: Args) -> Result<()> {
         scene: scene.clone(),
         nodes: args.nodes.clone(),
         transfer: t,
-        codec: args.codec,
+        codec: link.codec,
         tolerance,
         first_frame: args.first_frame,
         frames: args.frames,
         width,
         height,
-        in_flight: args.in_flight,
-        timeout: Duration::from_secs_f64(args.timeout),
-        on_fault: if args.on_fault == "drop" {
-            OnFault::Drop
-        } else {
-            OnFault::Hold
-        },
+        in_flight: link.in_flight,
+        timeout: link.timeout,
+        on_fault: link.on_fault,
         limits: DecodeOptions::default(),
     };
     let summary = |incidents, per_frame| {
@@ -242,8 +304,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
             scene.name.clone(),
             width,
             height,
-            transfer_label(t, tolerance),
-            args.codec.to_string(),
+            link.label(),
+            link.codec.to_string(),
             args.nodes.clone(),
             args.threshold,
             incidents,

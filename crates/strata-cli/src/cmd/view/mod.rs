@@ -7,6 +7,8 @@
 //!                              requests (JSON text) → render on the shared workers → PNG frames
 //!                              with --mfr: settings and pointer events → mfr::run, a slow and
 //!                              a fast client composed (seed 004) → PNG frames at the FC's pace
+//!                              with --nodes: settings → remote::run, a display of render nodes
+//!                              (seed 000) steered by the page → PNG frames as they are composed
 //! ```
 //!
 //! The server is axum on tokio; rendering runs on one rayon pool shared by every page
@@ -23,6 +25,7 @@ mod compare;
 mod mfr;
 mod probe;
 mod protocol;
+mod remote;
 mod session;
 
 use std::net::SocketAddr;
@@ -41,7 +44,9 @@ use serde_json::{Value, json};
 use strata_scene::Scene;
 use strata_stores::MethodOptions;
 
+use crate::cmd::display::{Link, LinkArgs, parse_node_address};
 use crate::options::{open_scene, search_path, thread_pool};
+use protocol::Mode;
 
 /// Serve a web page that shows a scene rendered by strata: orbit, pan and zoom with the mouse or
 /// touch, switch the method and its options, and read each frame's statistics.
@@ -75,6 +80,21 @@ pub(crate) struct Args {
     #[arg(long, conflicts_with = "method")]
     pub(crate) mfr: bool,
 
+    /// Remote mode (seed 000): the page is the display of these render nodes (`strata node`),
+    /// comma-separated `host:port`. Every frame is requested from every node through the page's
+    /// camera, merged and resolved here; the panel shows each node's status, what it sent and
+    /// took, and its incidents (a node that dies is held or dropped and reconnected). The
+    /// nodes must serve the same scene. `--transfer`, `--codec` and the other options below are
+    /// `strata display`'s. Try `strata node mixed --listen 127.0.0.1:7400 &` then
+    /// `strata view mixed --nodes 127.0.0.1:7400`.
+    #[arg(long, value_delimiter = ',', value_parser = parse_node_address,
+          conflicts_with_all = ["mfr", "method"])]
+    pub(crate) nodes: Vec<String>,
+
+    /// With --nodes: how the nodes send fragments and how the display waits for them.
+    #[command(flatten)]
+    pub(crate) link: LinkArgs,
+
     /// Pages served at once; more are refused with a message until one closes.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..=256))]
     pub(crate) max_pages: u16,
@@ -98,6 +118,14 @@ pub(crate) struct Shared {
     max_pages: usize,
     /// Pages run the multi-frame-rate session instead of rendering views.
     mfr: bool,
+    /// Pages display these render nodes instead of rendering views.
+    remote: Option<Remote>,
+}
+
+/// What a remote page's display connects to and asks for.
+pub(crate) struct Remote {
+    pub(crate) nodes: Vec<String>,
+    pub(crate) link: Link,
 }
 
 /// A page's place among the `--max-pages`; given back when dropped.
@@ -110,6 +138,15 @@ impl Drop for Seat<'_> {
 }
 
 impl Shared {
+    /// What the pages do.
+    fn mode(&self) -> Mode {
+        match (self.mfr, &self.remote) {
+            (true, _) => Mode::Mfr,
+            (false, Some(_)) => Mode::Remote,
+            (false, None) => Mode::Views,
+        }
+    }
+
     /// A seat for one more page, or `None` if every seat is taken.
     fn enter(&self) -> Option<Seat<'_>> {
         self.pages
@@ -169,6 +206,7 @@ fn hello(
     method: &str,
     settings: serde_json::Map<String, Value>,
     mfr: bool,
+    remote: Option<&Remote>,
 ) -> String {
     let methods: Vec<Value> = strata_stores::METHODS
         .iter()
@@ -202,6 +240,19 @@ fn hello(
             "max_sc_interval_ms": protocol::MAX_SC_INTERVAL_MS,
             "max_side": protocol::MAX_MFR_SIDE,
         })),
+        "remote": remote.map(|r| json!({
+            "nodes": r.nodes,
+            "transfer": r.link.label(),
+            "codec": r.link.codec.to_string(),
+            "in_flight": r.link.in_flight,
+            "timeout_s": r.link.timeout.as_secs_f64(),
+            "on_fault": match r.link.on_fault {
+                strata_remote::display::OnFault::Hold => "hold",
+                strata_remote::display::OnFault::Drop => "drop",
+            },
+            "max_fps": protocol::MAX_FC_HZ,
+            "max_side": protocol::MAX_REMOTE_SIDE,
+        })),
     })
     .to_string()
 }
@@ -209,10 +260,32 @@ fn hello(
 /// Runs `strata view`.
 pub(crate) fn run(args: Args) -> Result<()> {
     let (method, settings) = initial_method(&args.method)?;
+    let remote = if args.nodes.is_empty() {
+        if !args.link.is_default() {
+            anyhow::bail!(
+                "--transfer, --layers, --opacity-threshold, --tolerance, --codec, --in-flight, \
+                 --timeout and --on-fault apply to the remote mode only: add --nodes"
+            );
+        }
+        None
+    } else {
+        if args.nodes.len() > strata_remote::merge::MAX_NODES {
+            anyhow::bail!(
+                "--nodes: {} nodes given; one display merges at most {}",
+                args.nodes.len(),
+                strata_remote::merge::MAX_NODES
+            );
+        }
+        Some(Remote {
+            nodes: args.nodes.clone(),
+            link: args.link.check()?,
+        })
+    };
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     let pool = thread_pool(args.threads)?;
     let shared = Arc::new(Shared {
-        hello: hello(&scene, &method, settings, args.mfr),
+        hello: hello(&scene, &method, settings, args.mfr, remote.as_ref()),
+        remote,
         scene: Arc::new(scene),
         pool,
         pages: AtomicUsize::new(0),

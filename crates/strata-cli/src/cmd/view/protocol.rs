@@ -17,6 +17,9 @@
 //!    "view"        "sc_interval_ms": 0, "audit": false}   the multi-frame-rate session's settings
 //!                 {"type": "pointer", "x": 120.5, "y": 40, "pressed": true, "seq": 9}
 //!                                                the pointer over pixel (x, y) of the frame shown
+//!   with --nodes  {"type": "remote", "id": 7, "width", "height", "camera": {…}, "max_fps": 30}
+//!    instead of                                  the display's settings: every frame requested
+//!    "view"                                      from then on is rendered through this camera
 //! server → page   {"type": "hello", …}        once, on connecting: the scene, its camera and
 //!                                             size, the methods and their options (see `hello`)
 //!                 {"type": "error", "id": 7, "message": "…"}   a request refused or failed
@@ -137,6 +140,19 @@ fn default_fc_hz() -> f64 {
     30.0
 }
 
+/// The settings of a remote page (`strata view --nodes`).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RemoteMessage {
+    id: u64,
+    width: u32,
+    height: u32,
+    camera: CameraMessage,
+    /// The most frames a second the display composes (it asks the nodes no faster).
+    #[serde(default = "default_fc_hz")]
+    max_fps: f64,
+}
+
 /// What a page may send.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
@@ -145,6 +161,8 @@ pub(crate) enum PageMessage {
     View(Box<ViewMessage>),
     /// The multi-frame-rate session's settings; they replace the previous ones.
     Mfr(Box<MfrMessage>),
+    /// The remote display's settings; they replace the previous ones.
+    Remote(Box<RemoteMessage>),
     /// The pointer over a pixel of the frame shown, pressed or not (multi-frame-rate pages).
     Pointer {
         x: f32,
@@ -173,6 +191,8 @@ pub(crate) enum Request {
     View(Box<Job>),
     /// Run the multi-frame-rate session with these settings.
     Mfr(Box<MfrJob>),
+    /// Display the render nodes' frames with these settings.
+    Remote(Box<RemoteJob>),
     /// The pointer moved or its button changed.
     Pointer(PointerInput),
     /// A question about the latest frame, answered between frames.
@@ -227,6 +247,41 @@ pub(crate) struct MfrJob {
     pub(crate) audit: bool,
 }
 
+/// Checked remote-display settings.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct RemoteJob {
+    pub(crate) id: u64,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) camera: Camera,
+    pub(crate) max_fps: f64,
+}
+
+/// What a viewer serves, and so which messages it takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Mode {
+    /// Views rendered with a chosen method (`view`).
+    Views,
+    /// The multi-frame-rate session (`mfr`, `pointer`).
+    Mfr,
+    /// A display of render nodes (`remote`).
+    Remote,
+}
+
+impl Mode {
+    /// How to start a viewer that takes what this one refuses.
+    fn command(self) -> &'static str {
+        match self {
+            Mode::Views => "`strata view SCENE`",
+            Mode::Mfr => "`strata view SCENE --mfr`",
+            Mode::Remote => "`strata view SCENE --nodes HOST:PORT,…`",
+        }
+    }
+}
+
+/// The largest side of a remote frame: the display keeps a copy of every node's fragments.
+pub(crate) const MAX_REMOTE_SIDE: u32 = 2048;
+
 /// A pointer event of a multi-frame-rate page.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct PointerInput {
@@ -255,22 +310,38 @@ pub(crate) fn request_id(text: &str) -> Option<u64> {
         .as_u64()
 }
 
-/// Parses and checks one text message from a page; `mfr` says whether the server runs the
-/// multi-frame-rate session (which takes `mfr` and `pointer` messages instead of `view`).
-pub(crate) fn parse(text: &str, scene: &Scene, mfr: bool) -> Result<Request> {
+/// Parses and checks one text message from a page; `mode` is what the server serves (each
+/// mode takes its own settings message: `view`, `mfr` and `pointer`, or `remote`).
+pub(crate) fn parse(text: &str, scene: &Scene, mode: Mode) -> Result<Request> {
     let message: PageMessage =
         serde_json::from_str(text).map_err(|e| anyhow!("malformed message: {e}"))?;
+    let belongs = match &message {
+        PageMessage::View(_) => Some(Mode::Views),
+        PageMessage::Mfr(_) | PageMessage::Pointer { .. } => Some(Mode::Mfr),
+        PageMessage::Remote(_) => Some(Mode::Remote),
+        PageMessage::Inspect { .. } | PageMessage::SaveDeep => None,
+    };
+    if let Some(wanted) = belongs
+        && wanted != mode
+    {
+        let (serves, takes) = match mode {
+            Mode::Views => ("renders views", "\"view\" requests"),
+            Mode::Mfr => (
+                "runs the multi-frame-rate session",
+                "\"mfr\" settings and \"pointer\" events",
+            ),
+            Mode::Remote => ("displays render nodes", "\"remote\" settings"),
+        };
+        bail!(
+            "this viewer {serves} ({}): send {takes}; start it with {} for that message",
+            mode.command(),
+            wanted.command()
+        );
+    }
     match message {
-        PageMessage::View(_) if mfr => bail!(
-            "this viewer runs the multi-frame-rate session (strata view --mfr): send \"mfr\" \
-             settings and \"pointer\" events, not \"view\""
-        ),
-        PageMessage::Mfr(_) | PageMessage::Pointer { .. } if !mfr => bail!(
-            "this viewer renders views; start it with `strata view --mfr` for the \
-             multi-frame-rate session"
-        ),
         PageMessage::View(m) => view(*m, scene).map(|job| Request::View(Box::new(job))),
         PageMessage::Mfr(m) => mfr_settings(*m, scene).map(|job| Request::Mfr(Box::new(job))),
+        PageMessage::Remote(m) => remote_settings(*m).map(|job| Request::Remote(Box::new(job))),
         PageMessage::Pointer { x, y, pressed, seq } => {
             if !(x.is_finite() && y.is_finite() && x.abs() <= 1e6 && y.abs() <= 1e6) {
                 bail!("pointer at ({x}, {y}): expected pixel coordinates");
@@ -362,6 +433,33 @@ fn mfr_settings(m: MfrMessage, scene: &Scene) -> Result<MfrJob> {
         fc_hz: m.fc_hz,
         sc_interval_ms: m.sc_interval_ms,
         audit: m.audit,
+    })
+}
+
+/// Checks remote-display settings.
+fn remote_settings(m: RemoteMessage) -> Result<RemoteJob> {
+    size(m.width, m.height)?;
+    for (name, side) in [("width", m.width), ("height", m.height)] {
+        if side > MAX_REMOTE_SIDE {
+            bail!(
+                "{name} {side}: remote frames are at most {MAX_REMOTE_SIDE} pixels a side (the \
+                 display keeps every node's fragments); use ?size=WxH in the address"
+            );
+        }
+    }
+    let camera = camera(&m.camera)?;
+    if !(m.max_fps.is_finite() && m.max_fps >= 1.0 && m.max_fps <= MAX_FC_HZ) {
+        bail!(
+            "max_fps {} is outside 1..={MAX_FC_HZ} frames a second",
+            m.max_fps
+        );
+    }
+    Ok(RemoteJob {
+        id: m.id,
+        width: m.width,
+        height: m.height,
+        camera,
+        max_fps: m.max_fps,
     })
 }
 
@@ -533,7 +631,7 @@ mod tests {
     }
 
     fn refused(text: &str) -> String {
-        match parse(text, &scene(), false) {
+        match parse(text, &scene(), Mode::Views) {
             Ok(request) => panic!("accepted {text}: {request:?}"),
             Err(e) => format!("{e:#}"),
         }
@@ -541,7 +639,7 @@ mod tests {
 
     #[test]
     fn a_good_request_becomes_a_job() {
-        let Ok(Request::View(job)) = parse(&request(|_| {}), &scene(), false) else {
+        let Ok(Request::View(job)) = parse(&request(|_| {}), &scene(), Mode::Views) else {
             panic!("a valid view request");
         };
         assert_eq!((job.id, job.width, job.height, job.frame), (3, 64, 48, 0));
@@ -607,7 +705,7 @@ mod tests {
     #[test]
     fn mfr_settings_are_checked_and_only_an_mfr_viewer_takes_them() {
         let scene = scene();
-        let Ok(Request::Mfr(job)) = parse(&mfr_request(|_| {}), &scene, true) else {
+        let Ok(Request::Mfr(job)) = parse(&mfr_request(|_| {}), &scene, Mode::Mfr) else {
             panic!("valid settings");
         };
         assert_eq!(
@@ -618,7 +716,7 @@ mod tests {
         // The eye moves; the projection stays the scene's.
         assert_eq!(job.camera.eye, glam::Vec3::new(0.0, 0.0, 2.0));
         assert_eq!(job.camera.fovy_deg, scene.camera.fovy_deg);
-        let mfr_refused = |text: String| match parse(&text, &scene, true) {
+        let mfr_refused = |text: String| match parse(&text, &scene, Mode::Mfr) {
             Ok(r) => panic!("accepted {text}: {r:?}"),
             Err(e) => format!("{e:#}"),
         };
@@ -648,6 +746,12 @@ mod tests {
             ),
             (request(|_| {}), "--mfr"),
             (
+                json!({"type": "remote", "id": 1, "width": 8, "height": 8,
+                       "camera": mfr_request(|_| {}).parse::<Value>().unwrap()["camera"]})
+                .to_string(),
+                "--nodes",
+            ),
+            (
                 json!({"type": "pointer", "x": 1e9, "y": 0, "pressed": false}).to_string(),
                 "pointer at",
             ),
@@ -656,13 +760,56 @@ mod tests {
             assert!(e.contains(expected), "{text}: {e}");
         }
         let pointer = json!({"type": "pointer", "x": 3.5, "y": 2, "pressed": true, "seq": 9});
-        let Ok(Request::Pointer(p)) = parse(&pointer.to_string(), &scene, true) else {
+        let Ok(Request::Pointer(p)) = parse(&pointer.to_string(), &scene, Mode::Mfr) else {
             panic!("a valid pointer event");
         };
         assert_eq!((p.x, p.y, p.pressed, p.seq), (3.5, 2.0, true, Some(9)));
         for text in [mfr_request(|_| {}), pointer.to_string()] {
-            assert!(refused(&text).contains("strata view --mfr"), "{text}");
+            assert!(refused(&text).contains("strata view SCENE --mfr"), "{text}");
         }
+    }
+
+    #[test]
+    fn remote_settings_are_checked_and_only_a_remote_viewer_takes_them() {
+        let scene = scene();
+        let remote = |patch: &dyn Fn(&mut Value)| {
+            let mut v: Value = mfr_request(|_| {}).parse().unwrap();
+            v["type"] = json!("remote");
+            patch(&mut v);
+            v.to_string()
+        };
+        let Ok(Request::Remote(job)) = parse(&remote(&|_| {}), &scene, Mode::Remote) else {
+            panic!("valid settings");
+        };
+        // The whole camera is the page's, projection included.
+        assert_eq!((job.id, job.width, job.max_fps), (4, 64, 30.0));
+        assert_eq!(
+            (job.camera.fovy_deg, job.camera.near, job.camera.far),
+            (10.0, 0.5, 5.0)
+        );
+        for (text, expected) in [
+            (remote(&|v| v["max_fps"] = json!(0)), "max_fps 0"),
+            (remote(&|v| v["max_fps"] = json!(1e9)), "max_fps 1000000000"),
+            (remote(&|v| v["width"] = json!(2049)), "width 2049: remote"),
+            (remote(&|v| v["camera"]["near"] = json!(-1)), "near"),
+            (
+                remote(&|v| v["composition"] = json!("deep")),
+                "unknown field",
+            ),
+            (request(|_| {}), "displays render nodes"),
+            (mfr_request(|_| {}), "--mfr"),
+        ] {
+            match parse(&text, &scene, Mode::Remote) {
+                Ok(r) => panic!("accepted {text}: {r:?}"),
+                Err(e) => assert!(format!("{e:#}").contains(expected), "{text}: {e:#}"),
+            }
+        }
+        // Questions about the frame are every mode's.
+        let inspect = json!({"type": "inspect", "x": 1, "y": 2}).to_string();
+        assert!(matches!(
+            parse(&inspect, &scene, Mode::Remote),
+            Ok(Request::About(Probe::Pixel(1, 2, None)))
+        ));
     }
 
     #[test]

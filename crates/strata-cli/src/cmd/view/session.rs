@@ -26,6 +26,9 @@
 //! page's settings go through a watch like a view's, its pointer events through a queue of
 //! [`POINTER_WAITING`] (in order: a press must not overtake the move before it), and frames
 //! come back at the fast client's pace through the same frame watch.
+//!
+//! With `--nodes` it feeds [`super::remote::run`]: the page's settings (camera, size) go through
+//! a watch, and frames come back as the display composes them, through the frame watch.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -42,7 +45,9 @@ use tokio::sync::{mpsc, watch};
 use super::Shared;
 use super::compare;
 use super::probe::{self, Shown};
-use super::protocol::{self, Job, MethodChoice, MfrJob, PointerInput, Probe, Request};
+use super::protocol::{
+    self, Job, MethodChoice, MfrJob, Mode, PointerInput, Probe, RemoteJob, Request,
+};
 use crate::report::{ms, stats_json};
 
 /// Serves one page until it goes away.
@@ -64,6 +69,7 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
     }
     let (job_tx, job_rx) = watch::channel::<Option<Job>>(None);
     let (mfr_tx, mfr_rx) = watch::channel::<Option<MfrJob>>(None);
+    let (remote_tx, remote_rx) = watch::channel::<Option<RemoteJob>>(None);
     let (pointer_tx, pointer_rx) = mpsc::channel::<PointerInput>(POINTER_WAITING);
     let (frame_tx, mut frame_rx) = watch::channel::<Option<Message>>(None);
     let (probe_tx, probe_rx) = mpsc::channel::<Probe>(PROBES_WAITING);
@@ -71,6 +77,7 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
     let inbox = Inbox {
         jobs: job_rx,
         mfr: mfr_rx,
+        remote: remote_rx,
         pointer: pointer_rx,
         probes: probe_rx,
     };
@@ -78,10 +85,10 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
         frames: frame_tx,
         answers: answer_tx,
     };
-    let renderer = if shared.mfr {
-        tokio::spawn(super::mfr::run(inbox, outbox, shared.clone()))
-    } else {
-        tokio::spawn(render_loop(inbox, outbox, shared.clone()))
+    let renderer = match shared.mode() {
+        Mode::Views => tokio::spawn(render_loop(inbox, outbox, shared.clone())),
+        Mode::Mfr => tokio::spawn(super::mfr::run(inbox, outbox, shared.clone())),
+        Mode::Remote => tokio::spawn(super::remote::run(inbox, outbox, shared.clone())),
     };
     let mut heartbeat =
         tokio::time::interval_at(tokio::time::Instant::now() + HEARTBEAT, HEARTBEAT);
@@ -91,13 +98,17 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
             incoming = socket.recv() => {
                 last_heard = Instant::now();
                 let reply = match incoming {
-                    Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene, shared.mfr) {
+                    Some(Ok(Message::Text(text))) => match protocol::parse(&text, &shared.scene, shared.mode()) {
                         Ok(Request::View(job)) => {
                             job_tx.send_replace(Some(*job));
                             None
                         }
                         Ok(Request::Mfr(job)) => {
                             mfr_tx.send_replace(Some(*job));
+                            None
+                        }
+                        Ok(Request::Remote(job)) => {
+                            remote_tx.send_replace(Some(*job));
                             None
                         }
                         Ok(Request::Pointer(p)) => pointer_tx.try_send(p).err().map(|_| {
@@ -166,7 +177,9 @@ pub(crate) async fn run(mut socket: WebSocket, shared: Arc<Shared>) {
     // Every channel to and from the render loop closes, so it ends after the work in hand even
     // if it was waiting to hand over an answer nobody will read; the seat is given back when it
     // has.
-    drop((job_tx, mfr_tx, pointer_tx, probe_tx, frame_rx, answer_rx));
+    drop((
+        job_tx, mfr_tx, remote_tx, pointer_tx, probe_tx, frame_rx, answer_rx,
+    ));
     let _ = renderer.await;
 }
 
@@ -196,6 +209,7 @@ const POINTER_WAITING: usize = 1024;
 pub(crate) struct Inbox {
     pub(crate) jobs: watch::Receiver<Option<Job>>,
     pub(crate) mfr: watch::Receiver<Option<MfrJob>>,
+    pub(crate) remote: watch::Receiver<Option<RemoteJob>>,
     pub(crate) pointer: mpsc::Receiver<PointerInput>,
     pub(crate) probes: mpsc::Receiver<Probe>,
 }
