@@ -11,7 +11,9 @@ statistics `strata render --stats` reports; bad input of every kind gets an erro
 never takes the server down; a killed socket reconnects; pages beyond --max-pages are told why;
 in the multi-frame-rate mode, dragging an object moves it on the fast client ahead of a held-back
 slow client, deep composition stays exact against the single renderer, and digital composition
-shows the seed's artefact while the object is behind the windscreen.
+shows the seed's artefact while the object is behind the windscreen; in the remote mode, the page
+orbits two render nodes' merged frame, which is what `strata render` makes of the view, and shows
+a node that dies as held, with its incident.
 Screenshots of each state go to --out (default target/browser-tests).
 
 Exit status 0 if every test passed, 1 if one failed. Without Chromium or Playwright it says so and
@@ -80,11 +82,51 @@ class Server:
             self.proc.kill()
 
 
-def scene_with_view(strata, view_toml, path):
-    """The built-in scene's file with the page's size and camera pasted in."""
-    source = subprocess.run(
-        [strata, "scenes", "--print", SCENE], check=True, capture_output=True, text=True
+class Node:
+    """A `strata node` process serving some objects of a scene file on a free port."""
+
+    def __init__(self, strata, scene, objects):
+        self.proc = subprocess.Popen(
+            [strata, "node", "--listen", "127.0.0.1:0", "--scene", str(scene),
+             "--objects", objects],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        line = self.proc.stdout.readline()
+        m = re.match(r"listening on (\S+)", line)
+        if not m:
+            self.proc.kill()
+            raise RuntimeError(f"strata node did not start: {line!r}")
+        self.addr = m.group(1)
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+
+def scene_source(strata, scene=SCENE):
+    """A built-in scene's file."""
+    return subprocess.run(
+        [strata, "scenes", "--print", scene], check=True, capture_output=True, text=True
     ).stdout
+
+
+def without_animation(source):
+    """A scene file's text without its [animation] table."""
+    out, skipping = [], False
+    for l in source.splitlines():
+        if l.startswith("["):
+            skipping = l.strip() == "[animation]"
+        if not skipping:
+            out.append(l)
+    return "\n".join(out) + "\n"
+
+
+def scene_with_view(strata, view_toml, path, source=None):
+    """The built-in scene's file (or `source`) with the page's size and camera pasted in."""
+    source = source if source is not None else scene_source(strata)
     lines = source.splitlines()
     first_table = next(i for i, l in enumerate(lines) if l.startswith("["))
     preamble = [l for l in lines[:first_table] if not re.match(r"(width|height)\s*=", l)]
@@ -182,8 +224,9 @@ class Suite:
     def shot(self, page, name):
         page.screenshot(path=str(self.out / f"{name}.png"))
 
-    def compare_with_render(self, page, header, name, *method_args, x0=0):
-        scene = scene_with_view(self.strata, header["camera_toml"], self.tmp / f"{name}.toml")
+    def compare_with_render(self, page, header, name, *method_args, x0=0, source=None):
+        scene = scene_with_view(self.strata, header["camera_toml"], self.tmp / f"{name}.toml",
+                                source)
         png = self.tmp / f"{name}.png"
         stats = render(self.strata, scene, png, *method_args)
         self.compare_with_png(page, png, name, x0)
@@ -581,6 +624,53 @@ class Suite:
             assert server.alive()
         finally:
             server.stop()
+
+    def test_remote_orbits_the_nodes_and_shows_a_dead_one(self):
+        # The scene still: a remote display poses it at its frame number, which keeps growing.
+        source = without_animation(scene_source(self.strata))
+        scene = self.tmp / "still.toml"
+        scene.write_text(source)
+        nodes = [Node(self.strata, scene, objects) for objects in ("0,1,2", "3,4,5")]
+        server = None
+        try:
+            addrs = ",".join(n.addr for n in nodes)
+            server = Server(self.strata, "--nodes", addrs, "--transfer", "difference",
+                            "--timeout", "1", scene=str(scene))
+            page = self.open_page(server.url)
+            header = page.evaluate("window.strataView.frame")
+            assert [n["status"] for n in header["remote"]["nodes"]] == ["ok", "ok"], header
+            # Merged from two nodes, the frame is what one machine renders of the view.
+            self.compare_with_render(page, header, "remote-first", source=source)
+            rows = page.locator("#nodes tbody tr")
+            assert rows.count() == 2
+            assert "difference" in page.locator("#remote-note").inner_text()
+            # Orbiting steers every node: the camera the frame reports renders to the canvas.
+            self.drag(page, 100, 30)
+            orbited = self.wait_frame(page, header["id"])
+            assert orbited["camera"]["eye"] != header["camera"]["eye"]
+            self.compare_with_render(page, orbited, "remote-orbited", source=source)
+            self.shot(page, "12-remote-orbited")
+            # A node dies: its part is held, the table and the incidents say so.
+            nodes[1].stop()
+            page.wait_for_function(
+                "() => document.querySelector('#nodes tbody tr:nth-child(2)')"
+                " && document.querySelector('#nodes tbody tr:nth-child(2)').dataset.status === 'held'"
+                " && document.querySelectorAll('#incidents li').length > 0",
+                timeout=30000,
+            )
+            incidents = page.locator("#incidents").inner_text()
+            assert nodes[1].addr in incidents, incidents
+            held = page.evaluate("window.strataView.frame")
+            assert held["remote"]["nodes"][0]["status"] == "ok", held["remote"]
+            self.compare_with_render(page, held, "remote-held", source=source)
+            self.shot(page, "13-remote-node-held")
+            page.close()
+            assert server.alive()
+        finally:
+            if server:
+                server.stop()
+            for n in nodes:
+                n.stop()
 
     # ---- driver ---------------------------------------------------------------------------
     def run(self, only):

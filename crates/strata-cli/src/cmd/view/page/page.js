@@ -9,6 +9,11 @@
 // instead: it sends its settings as an "mfr" message and the pointer as "pointer" events; frames
 // come at the fast client's pace with the clients' rates in `header.mfr` (see
 // crates/strata-cli/src/cmd/view/mfr.rs).
+//
+// With `strata view --nodes …` (the hello says `remote`) the page is the display of render nodes:
+// it sends its camera and size as a "remote" message, and frames come as the display composes
+// them, with every node's status, figures and incidents in `header.remote` (see
+// crates/strata-cli/src/cmd/view/remote.rs).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -43,6 +48,8 @@ const S = {
   pointerSent: new Map(),
   pointerShown: null,
   pointerLatencyMs: null,
+  // Remote mode: the display's settings beside the camera and size.
+  remote: { max_fps: 30 },
 };
 window.strataView = S;
 
@@ -104,6 +111,7 @@ function zoom(factor) {
 }
 
 const isMfr = () => Boolean(S.hello && S.hello.mfr);
+const isRemote = () => Boolean(S.hello && S.hello.remote);
 
 // Multi-frame rate: the pointer as the session sees it. Moves are coalesced to one event per
 // animation frame (the newest position); presses and releases go at once, after it.
@@ -266,7 +274,8 @@ const sideBySide = () => comparing() && S.show === "side";
 // Frames are rendered at the canvas's size in device pixels (sharp on high-density screens),
 // at most twice its CSS size: the cost grows with the square.
 function frameSize() {
-  const max = S.hello ? (S.hello.mfr ? S.hello.mfr.max_side : S.hello.max_side) : 4096;
+  const h = S.hello;
+  const max = h ? (h.mfr || h.remote || h).max_side : 4096;
   if (fixedSize) return fixedSize.map((v) => Math.max(1, Math.min(max, v)));
   const r = canvas.getBoundingClientRect();
   const dpr = Math.max(1, Math.min(2, window.devicePixelRatio || 1));
@@ -284,6 +293,10 @@ function sendView() {
   S.lastSentId = id;
   if (isMfr()) {
     S.socket.send(JSON.stringify({ type: "mfr", id, width, height, camera: S.camera, ...S.mfr }));
+    return;
+  }
+  if (isRemote()) {
+    S.socket.send(JSON.stringify({ type: "remote", id, width, height, camera: S.camera, ...S.remote }));
     return;
   }
   const request = {
@@ -337,6 +350,72 @@ function buildMfr() {
     S.split = $("split").value / 100;
     draw();
   };
+}
+
+// ---- remote settings -----------------------------------------------------------------------
+function buildRemote() {
+  const r = S.hello.remote;
+  $("remote-section").hidden = false;
+  $("method-section").hidden = true;
+  $("compare-section").hidden = true;
+  $("histogram-box").hidden = true;
+  $("remote-note").textContent =
+    `${r.nodes.length} node${r.nodes.length === 1 ? "" : "s"} · ${r.transfer} · ${r.codec} · ` +
+    `${r.in_flight} frame${r.in_flight === 1 ? "" : "s"} in flight · a node silent for ` +
+    `${r.timeout_s} s is ${r.on_fault === "hold" ? "held" : "dropped"}`;
+  const fps = $("max-fps");
+  fps.max = String(r.max_fps);
+  fps.onchange = () => {
+    const v = Number(fps.value);
+    S.remote.max_fps = Number.isFinite(v) ? Math.max(1, Math.min(r.max_fps, v)) : 30;
+    fps.value = String(S.remote.max_fps);
+    requestView();
+  };
+}
+
+// The display's numbers: every node's row, the incidents, the frame's totals.
+function showRemoteStats(h) {
+  const r = h.remote;
+  const nodes = $("nodes").tBodies[0];
+  nodes.replaceChildren();
+  for (const n of r.nodes) {
+    const tr = nodes.insertRow();
+    tr.dataset.status = n.status;
+    tr.insertCell().textContent = n.node;
+    tr.cells[0].title = n.node;
+    const status = tr.insertCell();
+    status.textContent = n.status;
+    status.className = n.status;
+    tr.insertCell().textContent = fmt(Math.round(n.bytes / 1024));
+    const sent = tr.insertCell();
+    sent.textContent = fmt(n.fragments_sent);
+    sent.title = `${fmt(n.fragments_sent)} of ${fmt(n.fragments_rendered)} fragments rendered`;
+    const ms = (v) => Math.round(v).toString();
+    tr.insertCell().textContent =
+      `${ms(n.render_ms + n.select_ms + n.encode_ms)} / ${ms(n.transfer_ms)} / ${ms(n.decode_ms)}`;
+  }
+  $("incident-count").textContent = r.incident_count ? `(${fmt(r.incident_count)})` : "(none)";
+  $("incidents").replaceChildren(...r.incidents.map((i) => {
+    const li = document.createElement("li");
+    li.textContent = `frame ${i.frame}: ${i.node}: ${i.what}`;
+    return li;
+  }));
+  const tbody = $("stats").tBodies[0];
+  tbody.replaceChildren();
+  row(tbody, "frame", fmt(r.frame));
+  row(tbody, "display frames a second", fmt(r.fps));
+  row(tbody, "transfer", r.transfer);
+  row(tbody, "codec", r.codec);
+  row(tbody, "fragments displayed", fmt(r.fragments_displayed));
+  row(tbody, "received KiB", fmt(r.bytes / 1024));
+  row(tbody, "as raw lists KiB", fmt(r.raw_bytes / 1024), "pass");
+  row(tbody, "apply ms", fmt(r.merge_ms));
+  row(tbody, "merge + resolve ms", fmt(r.resolve_ms));
+  row(tbody, "since the last frame ms", fmt(r.interval_ms));
+  if (S.latencyMs !== null) row(tbody, "camera → frame ms", fmt(Math.round(S.latencyMs)));
+  row(tbody, "PNG encode ms", fmt(h.encode_ms));
+  row(tbody, "PNG KiB", fmt(h.png_bytes / 1024));
+  $("camera").value = h.camera_toml;
 }
 
 // ---- method and options --------------------------------------------------------------------
@@ -580,6 +659,10 @@ function showStats(h) {
     showMfrStats(h);
     return;
   }
+  if (h.remote) {
+    showRemoteStats(h);
+    return;
+  }
   const s = h.stats;
   const tbody = $("stats").tBodies[0];
   tbody.replaceChildren();
@@ -625,7 +708,12 @@ function showStatus() {
   }
   const parts = [`${S.shownTimes.length} fps`];
   const m = S.frame && S.frame.mfr;
-  if (m) {
+  const r = S.frame && S.frame.remote;
+  if (r) {
+    const ok = r.nodes.filter((n) => n.status === "ok").length;
+    parts.push(`frame ${r.frame}`, `${ok} of ${r.nodes.length} nodes ok`);
+    if (S.latencyMs !== null) parts.push(`latency ${Math.round(S.latencyMs)} ms`);
+  } else if (m) {
     parts.push(`SC ${fmt(m.sc_fps)} fps`);
     if (m.sc_age_ms !== null) parts.push(`SC age ${Math.round(m.sc_age_ms)} ms`);
     parts.push(m.composition);
@@ -667,7 +755,7 @@ function connect() {
       $("error").hidden = true; // whatever kept the page out (too many pages) is over
       const first = S.hello === null;
       // A server restarted with another scene, mode or method list: start the page afresh.
-      const offer = (h) => JSON.stringify([h.scene, h.origin, h.mfr, h.methods, h.options]);
+      const offer = (h) => JSON.stringify([h.scene, h.origin, h.mfr, h.remote, h.methods, h.options]);
       if (!first && offer(m) !== offer(S.hello)) {
         location.reload();
         return;
@@ -681,7 +769,8 @@ function connect() {
         document.title = `strata view: ${m.scene}`;
         buildMethods();
         if (m.mfr) buildMfr();
-        if (m.frames > 1) {
+        if (m.remote) buildRemote();
+        if (m.frames > 1 && !m.mfr && !m.remote) {
           const input = $("animation");
           input.max = String(m.frames - 1);
           $("animation-row").hidden = false;
