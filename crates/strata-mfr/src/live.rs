@@ -88,6 +88,8 @@ pub struct Live {
     stop: Arc<AtomicBool>,
     sc: Option<ScThread>,
     gauge: Arc<ScGauge>,
+    /// What went wrong without stopping the session (the SC's priority could not be lowered).
+    incidents: Incidents,
     fc: Client,
     frames: u64,
     /// The snapshot the last frame made showed (`None` before the first).
@@ -128,6 +130,7 @@ impl Live {
         let (buffers_out, buffers_in) = exchange::<TransferBuffer>();
         let stop = Arc::new(AtomicBool::new(false));
         let gauge = Arc::new(ScGauge::default());
+        let incidents = Incidents::new(origin);
         let mut config = RealConfig::new(size, 0);
         config.migration = migration;
         config.sc_priority = priority;
@@ -137,8 +140,9 @@ impl Live {
             snapshots_in,
             buffers_out,
             Arc::clone(&stop),
-            &Incidents::new(origin),
+            &incidents,
             Arc::clone(&gauge),
+            false,
         )?;
         let authority = match from {
             Some(snapshot) => Authority::resume(&scene, Trace::default(), snapshot),
@@ -159,6 +163,7 @@ impl Live {
             stop,
             sc: Some(sc),
             gauge,
+            incidents,
             frames: 0,
             framed_snapshot: None,
             shown_view,
@@ -187,6 +192,12 @@ impl Live {
     /// Holds the SC to at most one frame every `interval` (zero: as fast as it can).
     pub fn set_sc_interval(&self, interval: Duration) {
         self.gauge.set_min_interval(interval);
+    }
+
+    /// What went wrong since the last call without stopping the session — the SC's priority
+    /// could not be lowered (off Linux, or refused), say — each once.
+    pub fn take_incidents(&self) -> Vec<crate::Incident> {
+        self.incidents.take()
     }
 
     /// What the SC has done so far.
@@ -378,6 +389,9 @@ impl Live {
         if snapshot.id != self.published {
             drop(self.snapshots_out.publish(Arc::clone(&snapshot)));
             self.published = snapshot.id;
+            if let Some(sc) = &self.sc {
+                sc.wake();
+            }
         }
         snapshot
     }
@@ -390,6 +404,7 @@ impl Drop for Live {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Release);
         if let Some(sc) = self.sc.take() {
+            sc.wake();
             // Its result is the SC's timings, of no use now; a failure was shown by `frame`.
             let reaper = std::thread::Builder::new()
                 .name("strata-mfr-sc-join".into())

@@ -5,8 +5,9 @@
 //!   every 1/fc_hz:                                           loop until stopped:
 //!     snapshot = authority.advance_to(now)                     s = newest snapshot (latest wins)
 //!     publish snapshot ──────── triple buffer ───────────────► if s is new: render its objects
-//!     sc = newest SC buffer ◄── triple buffer ──────────────── publish TransferBuffer
-//!     render F through sc's view, compose                      else: sleep 1 ms
+//!       and wake the SC                                          publish TransferBuffer
+//!     sc = newest SC buffer ◄── triple buffer ────────────────┘
+//!     render F through sc's view, compose                      else: sleep until woken
 //!     sleep to the next deadline
 //! ```
 //!
@@ -281,12 +282,26 @@ impl ScGauge {
     }
 }
 
-/// The in-process SC: renders the newest snapshot whenever it is free, until `stop`.
+/// The longest an idle SC sleeps before it looks for a snapshot again by itself; it is woken
+/// at once by [`ScThread::wake`] when one is published, so this only bounds the cost of a
+/// publisher that forgets to wake it.
+const SC_IDLE_WAIT: Duration = Duration::from_millis(100);
+
+/// The in-process SC: renders the newest snapshot whenever it is free, until `stop`. Between
+/// frames it sleeps until woken ([`ScThread::wake`], after each snapshot published and at the
+/// stop) or until its pacing lets it render again: an idle SC costs nothing.
 pub(crate) struct ScThread {
     handle: std::thread::JoinHandle<Result<ScTimes, SimulateError>>,
 }
 
 impl ScThread {
+    /// Starts the SC; with `keep_times`, it records every frame's render and publish times
+    /// (returned by [`ScThread::join`]; a live session, which never reads them, does not keep
+    /// them, so it does not grow with every frame).
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the SC's channels, each its own type"
+    )]
     pub(crate) fn spawn(
         scene: Arc<Scene>,
         config: &RealConfig,
@@ -295,6 +310,7 @@ impl ScThread {
         stop: Arc<AtomicBool>,
         incidents: &Incidents,
         gauge: Arc<ScGauge>,
+        keep_times: bool,
     ) -> Result<Self, SimulateError> {
         let low = config.sc_priority == ScPriority::Low;
         let sc_pool = pool("strata-mfr-sc", low, incidents)?;
@@ -315,7 +331,11 @@ impl ScThread {
                     let paced = last_start.is_some_and(|t| t.elapsed() < gauge.min_interval());
                     let newest = snapshots_in.latest().cloned();
                     let Some(snapshot) = newest.filter(|s| !paced && Some(s.id) != last) else {
-                        std::thread::sleep(Duration::from_millis(1));
+                        let wait = match last_start {
+                            Some(t) if paced => gauge.min_interval().saturating_sub(t.elapsed()),
+                            _ => SC_IDLE_WAIT,
+                        };
+                        std::thread::park_timeout(wait.min(SC_IDLE_WAIT));
                         continue;
                     };
                     let start = Instant::now();
@@ -324,13 +344,17 @@ impl ScThread {
                         .install(|| sc_render(&scene, &mut client, &snapshot, migration, sc_frame))
                         .inspect_err(|e| gauge.fail(e.to_string()))?;
                     let took = start.elapsed();
-                    frame_ms.push(took.as_secs_f64() * 1e3);
+                    if keep_times {
+                        frame_ms.push(took.as_secs_f64() * 1e3);
+                    }
                     let took_us = u64::try_from(took.as_micros()).unwrap_or(u64::MAX);
                     gauge.last_us.store(took_us, Ordering::Release);
                     let buffer = Arc::new(buffer);
                     let start = Instant::now();
                     let old = buffers_out.publish(buffer);
-                    publish_us.push(start.elapsed().as_secs_f64() * 1e6);
+                    if keep_times {
+                        publish_us.push(start.elapsed().as_secs_f64() * 1e6);
+                    }
                     drop(old);
                     gauge.frames.fetch_add(1, Ordering::AcqRel);
                     last = Some(snapshot.id);
@@ -342,8 +366,14 @@ impl ScThread {
         Ok(ScThread { handle })
     }
 
+    /// Wakes the SC if it sleeps: a snapshot was published, or `stop` was set.
+    pub(crate) fn wake(&self) {
+        self.handle.thread().unpark();
+    }
+
     /// Joins the thread (after `stop` was set); its frame times and publish times.
     pub(crate) fn join(self) -> Result<ScTimes, SimulateError> {
+        self.wake();
         self.handle
             .join()
             .map_err(|_| SimulateError::Thread("the slow client's thread panicked".into()))?
@@ -392,6 +422,7 @@ pub fn run_real(
             Arc::clone(&stop),
             &incidents,
             Arc::default(),
+            true,
         )?),
         (Transport::Tcp(options), _) => Sc::Tcp(Box::new(FcLink::start(
             &scene,
@@ -422,6 +453,9 @@ pub fn run_real(
                 let old = snapshots_out.publish(shared);
                 stats.publish_us.push(p.elapsed().as_secs_f64() * 1e6);
                 drop(old);
+                if let Sc::Thread(thread) = &sc {
+                    thread.wake();
+                }
             }
             let r = Instant::now();
             let sc = buffers_in.latest().cloned();

@@ -19,7 +19,8 @@
 //!
 //! The frame header (`type` "frame") carries `mfr`:
 //! `{fc_fps, sc_fps, fc_ms, sc_ms, sc_age_ms, sc_frame, snapshot, composition, migration,
-//!   fc_objects, over, selected, moved: [{name, offset}], handle_px, pointer_seq, audit}`,
+//!   fc_objects, over, selected, moved: [{name, offset}], handle_px, pointer_seq, incidents,
+//!   audit}`,
 //! where `sc_age_ms` is how much older the SC buffer's state is than the frame's, `handle_px`
 //! the pixel of something to grab, `pointer_seq` the newest pointer event the frame shows, and
 //! `audit` (with `audit` set) the bad, ghost, hole and blend pixels against the whole scene
@@ -187,7 +188,12 @@ struct Page {
     due: bool,
     fc_times: VecDeque<Instant>,
     sc_counts: VecDeque<(Instant, u64)>,
+    /// What went wrong without stopping the session, newest last (at most [`INCIDENTS_SHOWN`]).
+    incidents: VecDeque<String>,
 }
+
+/// Incidents sent with every frame (the newest).
+const INCIDENTS_SHOWN: usize = 10;
 
 impl Page {
     /// Queues a pointer event (see [`coalesce`]); a flood beyond [`MAX_POINTER_WAITING`] is
@@ -215,6 +221,7 @@ impl Page {
             due: false,
             fc_times: VecDeque::new(),
             sc_counts: VecDeque::new(),
+            incidents: VecDeque::new(),
         }
     }
 
@@ -350,6 +357,12 @@ impl Page {
     /// The frame message: the header of the module docs and the images.
     fn frame_message(&mut self, settings: &MfrJob, frame: FcFrame, fc_ms: f64) -> Result<Message> {
         let live = self.live.as_ref().context("the session did not start")?;
+        for incident in live.take_incidents() {
+            self.incidents.push_back(incident.what);
+            if self.incidents.len() > INCIDENTS_SHOWN {
+                self.incidents.pop_front();
+            }
+        }
         let scene = &self.shared.scene;
         let now = Instant::now();
         let second = Duration::from_secs(1);
@@ -418,6 +431,7 @@ impl Page {
             "moved": moved,
             "handle_px": handle_px,
             "pointer_seq": self.pointer_seq,
+            "incidents": self.incidents,
             "audit": null,
         });
         let mut images = vec![("main", frame.image.clone())];

@@ -642,6 +642,7 @@ function showMfrStats(h) {
   row(tbody, "selected", m.selected ?? "nothing");
   for (const o of m.moved) row(tbody, `${o.name} moved by`, o.offset.map((v) => v.toFixed(3)).join(", "), "pass");
   if (S.pointerLatencyMs !== null) row(tbody, "pointer → frame ms", fmt(Math.round(S.pointerLatencyMs)));
+  for (const what of m.incidents || []) row(tbody, "incident", what, "bad");
   const a = m.audit;
   if (a) {
     row(tbody, "bad pixels (audit)", fmt(a.bad_pixels));
