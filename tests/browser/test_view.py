@@ -635,7 +635,7 @@ class Suite:
         try:
             addrs = ",".join(n.addr for n in nodes)
             server = Server(self.strata, "--nodes", addrs, "--transfer", "difference",
-                            "--timeout", "1", scene=str(scene))
+                            "--timeout", "10", scene=str(scene))
             page = self.open_page(server.url)
             header = page.evaluate("window.strataView.frame")
             assert [n["status"] for n in header["remote"]["nodes"]] == ["ok", "ok"], header

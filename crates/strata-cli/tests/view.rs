@@ -534,9 +534,13 @@ struct Node {
 
 impl Node {
     fn start(scene: &str, objects: &str) -> Node {
+        Node::start_at(scene, objects, "127.0.0.1:0")
+    }
+
+    fn start_at(scene: &str, objects: &str, listen: &str) -> Node {
         let mut child = StdCommand::cargo_bin("strata")
             .expect("the strata binary")
-            .args(["node", "--listen", "127.0.0.1:0", "--scene", scene])
+            .args(["node", "--listen", listen, "--scene", scene])
             .args(["--objects", objects])
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -631,6 +635,7 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     let (scene, source) = still_scene("mixed", &dir);
     let a = Node::start(&scene, "opaque cube,glass slab");
     let b = Node::start(&scene, "1,2,4");
+    let b_addr = b.addr.clone();
     let nodes = format!("{},{}", a.addr, b.addr);
     // Difference transfer: the nodes' objects overlap on screen, so every camera move needs
     // the fixup round, which must render through the same camera as the frame.
@@ -642,7 +647,7 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
             "--transfer",
             "difference",
             "--timeout",
-            "1",
+            "10",
         ],
     );
     let mut ws = v.socket();
@@ -734,8 +739,9 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     });
     let r = &header["remote"];
     assert_eq!(r["nodes"][0]["status"], "ok", "{r}");
-    let incident = &r["incidents"][0];
-    assert_eq!(incident["node"], json!(v_addr(&nodes, 1)), "{r}");
+    let dead = json!(b_addr);
+    let incidents = r["incidents"].as_array().expect("incidents");
+    assert!(incidents.iter().any(|i| i["node"] == dead), "{r}");
     assert!(r["incident_count"].as_u64() >= Some(1), "{r}");
     // Held, the still scene looks as it did.
     assert!(
@@ -747,12 +753,23 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     ws.send(settings(4, [0.35, 0.45, 1.7], 80)).expect("send");
     let (header, png) = frame_and_png_where(&mut ws, |h| h["id"] == 4);
     assert_eq!(pixels(&png).0, 80);
-    assert_ne!(header["remote"]["nodes"][0]["status"], json!(null));
-}
+    let r = &header["remote"];
+    assert_eq!(r["nodes"][0]["status"], "ok", "{r}");
+    assert!(
+        r["nodes"][1]["status"] == "held" || r["nodes"][1]["status"] == "dropped",
+        "{r}"
+    );
 
-/// The `i`th address of a `--nodes` list.
-fn v_addr(nodes: &str, i: usize) -> String {
-    nodes.split(',').nth(i).expect("a node").to_owned()
+    // The node comes back on its address: it rejoins, and the frame is whole again.
+    let _b = Node::start_at(&scene, "1,2,4", &b_addr);
+    let (header, png) = frame_and_png_where(&mut ws, |h| {
+        h["remote"]["nodes"]
+            .as_array()
+            .is_some_and(|n| n.iter().all(|n| n["status"] == "ok"))
+    });
+    let camera_toml = header["camera_toml"].as_str().expect("camera_toml");
+    let (_, _, expected) = pixels(&rendered(&source, camera_toml, &dir));
+    assert!(pixels(&png).2 == expected, "back, the frame is exact again");
 }
 
 #[test]

@@ -31,7 +31,8 @@
 //! The [`Observer`] that receives the frames may also steer the run: it gives each frame's
 //! camera ([`Observer::camera`], asked once a frame, when the frame's first request is written,
 //! so every node and every fixup of that frame renders through the same matrices) and may stop
-//! the run before any frame ([`Observer::stop`]). `strata display` does neither (the scene's
+//! the run ([`Observer::stop`], asked before each frame and every [`STOP_POLL`] while the driver
+//! waits, so a stop never waits out a silent node's timeout). `strata display` does neither (the scene's
 //! camera, a fixed number of frames); `strata view --nodes` follows the page's camera and runs
 //! until the page goes.
 
@@ -210,10 +211,16 @@ pub trait Observer {
     fn camera(&mut self, _frame: u64) -> Option<Camera> {
         None
     }
-    /// Asked before each frame is composed: true ends the run there, with the frames composed
-    /// so far. A stop is seen within one frame, or within the timeout while nodes are silent.
+    /// Asked before each frame, and every [`STOP_POLL`] while the driver waits for nodes:
+    /// true ends the run there, with the frames composed so far.
     fn stop(&mut self) -> bool {
         false
+    }
+    /// Whether the run's result should hold every frame's figures and every incident (`strata
+    /// display` summarises them). An observer of an endless run (a viewer) says no, so the
+    /// driver's memory does not grow with every frame; it sees each frame and incident anyway.
+    fn keep_history(&self) -> bool {
+        true
     }
     /// A frame was composed.
     fn frame(&mut self, _stats: &FrameStats, _image: &Rgb8Image) {}
@@ -228,15 +235,18 @@ pub trait Observer {
     fn incident(&mut self, _incident: &NodeIncident) {}
 }
 
+/// How often a driver waiting for nodes asks the observer whether to stop.
+pub const STOP_POLL: Duration = Duration::from_millis(100);
+
 /// An observer that ignores everything.
 impl Observer for () {}
 
 /// What a run produced.
 #[derive(Debug)]
 pub struct RunResult {
-    /// Every composed frame.
+    /// Every composed frame (none when the observer keeps no history).
     pub per_frame: Vec<FrameStats>,
-    /// Faults and reconnections.
+    /// Faults and reconnections (none when the observer keeps no history).
     pub incidents: Vec<NodeIncident>,
     /// Seconds from the first composed frame to the last.
     pub elapsed_s: f64,
@@ -380,6 +390,17 @@ struct NodeState {
     spare: Spare<DeepFrame>,
 }
 
+/// What waiting for the next link event gave.
+enum Next {
+    Event(LinkEvent),
+    /// Every link is gone.
+    Closed,
+    /// The deadline passed.
+    Deadline,
+    /// The observer asked to stop.
+    Stop,
+}
+
 /// Arrivals not yet applied, by node, frame number and whether they answer a fixup request.
 type Buffer = HashMap<(usize, u64, bool), Box<Arrival>>;
 
@@ -421,6 +442,10 @@ struct Driver<'o> {
     all_objects: Vec<ObjectId>,
     /// The composed image, resolved into again for every frame (no fresh pages per frame).
     image: Rgb8Image,
+    /// Keep every frame's figures and every incident for the result.
+    keep_history: bool,
+    /// The observer asked to stop while the driver waited.
+    stopping: bool,
 }
 
 impl<'o> Driver<'o> {
@@ -457,6 +482,7 @@ impl<'o> Driver<'o> {
         }
         let scene_camera = request_camera(&config);
         let all_objects = config.scene.objects.iter().map(|o| o.id).collect();
+        let keep_history = observer.keep_history();
         Driver {
             config,
             observer,
@@ -471,6 +497,8 @@ impl<'o> Driver<'o> {
             cameras: std::collections::BTreeMap::new(),
             all_objects,
             image: Rgb8Image::filled(0, 0, [0; 3]),
+            keep_history,
+            stopping: false,
         }
     }
 
@@ -479,17 +507,28 @@ impl<'o> Driver<'o> {
         self.wait_for_first_connections().await;
         let end = self.config.first_frame + self.config.frames;
         for t in self.config.first_frame..end {
-            if self.observer.stop() {
+            // A node that came back while no frame was awaited (every node was down) joins
+            // here: its link's news is read only while the driver waits.
+            while let Ok(e) = self.events.try_recv() {
+                self.on_event(e, (t, t));
+            }
+            if self.stopping || self.observer.stop() {
                 break;
             }
             self.request_ahead(t, end).await?;
             self.wait_for_frames(t).await;
+            if self.stopping {
+                break;
+            }
             let apply_start = Instant::now();
             let mut work = self.frame_work(t)?;
             self.apply_arrivals(&mut work).await;
             let mut merge_ms = apply_start.elapsed().as_secs_f64() * 1e3;
             if self.needs_fixups() {
                 merge_ms += self.fixup_round(&mut work).await?;
+                if self.stopping {
+                    break;
+                }
             }
             // Late or superseded messages are of no use any more, nor is this frame's camera.
             self.buffer.retain(|&(_, f, _), _| f > t);
@@ -509,14 +548,33 @@ impl<'o> Driver<'o> {
         })
     }
 
+    /// The next link event before `deadline`; every [`STOP_POLL`] meanwhile the observer is
+    /// asked whether to stop, so a stop never waits for a silent node's timeout.
+    async fn next_event(&mut self, deadline: tokio::time::Instant) -> Next {
+        loop {
+            let slice = deadline.min(tokio::time::Instant::now() + STOP_POLL);
+            match timeout_at(slice, self.events.recv()).await {
+                Ok(Some(e)) => return Next::Event(e),
+                Ok(None) => return Next::Closed,
+                Err(_) if tokio::time::Instant::now() >= deadline => return Next::Deadline,
+                Err(_) => {
+                    if self.observer.stop() {
+                        self.stopping = true;
+                        return Next::Stop;
+                    }
+                }
+            }
+        }
+    }
+
     /// Waits for the first connections (up to the timeout) so the first frame is not composed
     /// without nodes that are merely slow to answer.
     async fn wait_for_first_connections(&mut self) {
         let first = self.config.first_frame;
         let deadline = tokio::time::Instant::now() + self.config.timeout;
         while self.nodes.iter().any(|n| !n.up && !n.refused) {
-            match timeout_at(deadline, self.events.recv()).await {
-                Ok(Some(e)) => self.on_event(e, (first, first)),
+            match self.next_event(deadline).await {
+                Next::Event(e) => self.on_event(e, (first, first)),
                 _ => break,
             }
         }
@@ -615,10 +673,10 @@ impl<'o> Driver<'o> {
     async fn wait_for_frames(&mut self, t: u64) {
         let deadline = tokio::time::Instant::now() + self.config.timeout;
         while (0..self.nodes.len()).any(|i| self.waiting_for(i, t)) {
-            match timeout_at(deadline, self.events.recv()).await {
-                Ok(Some(e)) => self.on_event(e, (t, t + 1)),
-                Ok(None) => return,
-                Err(_) => {
+            match self.next_event(deadline).await {
+                Next::Event(e) => self.on_event(e, (t, t + 1)),
+                Next::Closed | Next::Stop => return,
+                Next::Deadline => {
                     let what = format!(
                         "no frame within {:.1} s: stalled; reconnecting",
                         self.config.timeout.as_secs_f64()
@@ -817,9 +875,10 @@ impl<'o> Driver<'o> {
             .iter()
             .any(|&i| self.nodes[i].up && !self.buffer.contains_key(&(i, t, true)))
         {
-            match timeout_at(deadline, self.events.recv()).await {
-                Ok(Some(e)) => self.on_event(e, (t, t + 1)),
-                _ => {
+            match self.next_event(deadline).await {
+                Next::Event(e) => self.on_event(e, (t, t + 1)),
+                Next::Stop => return,
+                Next::Closed | Next::Deadline => {
                     for &i in asked {
                         if !self.buffer.contains_key(&(i, t, true)) {
                             let what = "no fixup reply within the timeout; reconnecting";
@@ -895,7 +954,9 @@ impl<'o> Driver<'o> {
                 observer.deep_frame(work.t, merged.as_ref());
             });
         }
-        self.per_frame.push(fs);
+        if self.keep_history {
+            self.per_frame.push(fs);
+        }
     }
 
     /// Reports `what` about node `i` at frame `t` and drops its connection: the link
@@ -916,7 +977,9 @@ impl<'o> Driver<'o> {
             what,
         };
         self.observer.incident(&inc);
-        self.incidents.push(inc);
+        if self.keep_history {
+            self.incidents.push(inc);
+        }
     }
 
     /// Handles one link event while composing frame `t`; a node that (re)connects joins at

@@ -597,3 +597,104 @@ fn a_steered_run_renders_every_frame_through_the_observers_camera_and_stops_when
         assert!(steer.asked.len() >= 5, "{transfer:?}");
     }
 }
+
+#[test]
+fn the_only_node_that_dies_and_comes_back_rejoins() {
+    // While no node is up nobody awaits a frame: the driver must still notice the node's
+    // return. The run is endless; the observer stops it once the node delivers again.
+    let s = scene();
+    let node = Node::start(&s, &[0, 1, 2, 3, 4]);
+    let addr = node.addr.clone();
+    struct Phoenix {
+        scene: Arc<Scene>,
+        addr: String,
+        node: Option<Node>,
+        composed: u64,
+        statuses: Vec<NodeStatus>,
+        since: std::time::Instant,
+    }
+    impl Observer for Phoenix {
+        fn frame(&mut self, stats: &FrameStats, _: &Rgb8Image) {
+            self.composed += 1;
+            self.statuses.push(stats.nodes[0].status);
+            if self.composed == 3 {
+                self.node.as_mut().unwrap().kill();
+            }
+            if self.composed == 6 {
+                self.node = Some(Node::start_at(&self.scene, &[0, 1, 2, 3, 4], &self.addr));
+            }
+            // Paced as a viewer is: the link retries with a growing delay meanwhile.
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        fn stop(&mut self) -> bool {
+            let back = self.composed > 6 && self.statuses.last() == Some(&NodeStatus::Ok);
+            back || self.since.elapsed() > Duration::from_secs(60)
+        }
+        fn keep_history(&self) -> bool {
+            false
+        }
+    }
+    let mut phoenix = Phoenix {
+        scene: s.clone(),
+        addr,
+        node: Some(node),
+        composed: 0,
+        statuses: Vec::new(),
+        since: std::time::Instant::now(),
+    };
+    let mut cfg = display_config(
+        &s,
+        vec![phoenix.addr.clone()],
+        Transfer::Full,
+        1 << 32,
+        (W, H),
+    );
+    cfg.timeout = Duration::from_secs(2);
+    let r = display::run(cfg, &mut phoenix).unwrap();
+    assert!(
+        r.per_frame.is_empty() && r.incidents.is_empty(),
+        "no history kept"
+    );
+    let held = phoenix.statuses.iter().position(|s| *s == NodeStatus::Held);
+    assert!(held.is_some(), "{:?}", phoenix.statuses);
+    assert_eq!(
+        phoenix.statuses.last(),
+        Some(&NodeStatus::Ok),
+        "the node came back: {:?}",
+        phoenix.statuses
+    );
+}
+
+#[test]
+fn a_stop_is_honoured_while_a_node_is_silent() {
+    // A "node" that accepts and says nothing: the driver waits for its hello (up to the
+    // timeout, an hour here); the observer's stop must end the run long before.
+    let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = silent.local_addr().unwrap().to_string();
+    let held = std::thread::spawn(move || {
+        let kept: Vec<_> = silent.incoming().take(4).collect();
+        std::thread::sleep(Duration::from_secs(120));
+        drop(kept);
+    });
+    struct StopSoon(std::time::Instant);
+    impl Observer for StopSoon {
+        fn stop(&mut self) -> bool {
+            self.0.elapsed() > Duration::from_millis(300)
+        }
+    }
+    let s = scene();
+    let mut cfg = display_config(&s, vec![addr], Transfer::Full, 1 << 32, (W, H));
+    cfg.timeout = Duration::from_secs(3600);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let r = display::run(cfg, &mut StopSoon(std::time::Instant::now()));
+        let _ = tx.send(r.map(|r| r.per_frame.len()));
+    });
+    // A bound for a hung run (the timeout is an hour), not a measure of speed.
+    let composed = rx
+        .recv_timeout(Duration::from_secs(60))
+        .expect("the run stopped while the node was silent")
+        .unwrap();
+    assert_eq!(composed, 0, "stopped before the first frame");
+    drop(held);
+}

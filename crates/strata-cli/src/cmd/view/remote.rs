@@ -17,7 +17,10 @@
 //! The display is the same driver as `strata display`'s — links that reconnect, frames
 //! requested `--in-flight` ahead, a node that misses a frame held or dropped — on a thread and
 //! runtime of its own, so a page's display never stalls the server's sockets. The animation
-//! plays: frame *t* poses the scene at *t*, as `strata display` does.
+//! plays: frame *t* poses the scene at *t*, as `strata display` does (a restart at a new size
+//! starts again at frame 0). The driver keeps no history for a page (see
+//! [`Observer::keep_history`]), and asks [`Observer::stop`] while it waits for silent nodes, so
+//! a page that goes gives its seat back within a tenth of a second.
 //!
 //! The frame header (`type` "frame") carries `remote`:
 //! `{frame, fps, transfer, codec, nodes: [NodeFrame…], merge_ms, resolve_ms, interval_ms,
@@ -283,6 +286,11 @@ impl PageDisplay<'_> {
 }
 
 impl Observer for PageDisplay<'_> {
+    /// A page's display runs until the page goes: it keeps only what the page is shown.
+    fn keep_history(&self) -> bool {
+        false
+    }
+
     fn camera(&mut self, frame: u64) -> Option<Camera> {
         let s = self.steering.settings();
         self.asked.insert(frame, (s.id, s.camera));
