@@ -595,8 +595,13 @@ function draw() {
   if (!main) return;
   const w = main.width, h = main.height;
   const show = reference && comparing() ? S.show : "main";
-  canvas.width = show === "side" ? 2 * w : w;
-  canvas.height = h;
+  // Setting a canvas's size, even to the same value, gives it a fresh backing store: only when
+  // it changes (each frame covers the whole canvas anyway).
+  const width = show === "side" ? 2 * w : w;
+  if (canvas.width !== width || canvas.height !== h) {
+    canvas.width = width;
+    canvas.height = h;
+  }
   if (show === "side") {
     ctx.drawImage(main, 0, 0);
     ctx.drawImage(reference, w, 0);
