@@ -713,6 +713,12 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
         depths.windows(2).all(|d| d[0] <= d[1]),
         "front to back: {pixel}"
     );
+    // Each fragment names the node that rendered it.
+    for f in fragments {
+        let a_renders = matches!(f["name"].as_str(), Some("opaque cube" | "glass slab"));
+        let node = if a_renders { &a.addr } else { &b_addr };
+        assert_eq!(f["client"], json!(node), "{pixel}");
+    }
 
     // Settings it refuses leave the display running.
     ws.send(settings(3, [0.35, 0.45, 1.7], 5000)).expect("send");

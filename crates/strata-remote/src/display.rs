@@ -233,6 +233,9 @@ pub trait Observer {
     fn deep_frame(&mut self, _frame: u64, _deep: Result<&DeepFrame, &DeepFrameError>) {}
     /// Something happened to a node.
     fn incident(&mut self, _incident: &NodeIncident) {}
+    /// Node `node` (its address) connected, or reconnected, and serves the display's scene:
+    /// its hello says which objects it renders.
+    fn node_up(&mut self, _node: &str, _hello: &Hello) {}
 }
 
 /// How often a driver waiting for nodes asks the observer whether to stop.
@@ -1014,6 +1017,7 @@ impl<'o> Driver<'o> {
         }
         n.up = true;
         n.generation = generation;
+        self.observer.node_up(&n.addr, hello);
         // It joins with the next frame not yet composed, from a clean state.
         n.next_request = join_at;
         n.first_request = join_at;

@@ -486,9 +486,9 @@ impl Page {
         let view = frame.sc.as_ref().map_or(frame.snapshot.view, |sc| sc.view);
         let client = |object| {
             if frame.fc_ids.binary_search(&object).is_ok() {
-                "FC"
+                "FC".to_owned()
             } else {
-                "SC"
+                "SC".to_owned()
             }
         };
         let shown = Shown {

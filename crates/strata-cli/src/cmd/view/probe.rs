@@ -22,8 +22,9 @@ pub(crate) struct Shown<'a> {
     pub(crate) near_far: (f32, f32),
     pub(crate) view: Mat4,
     pub(crate) projection: Mat4,
-    /// Which client drew a fragment of this object (multi-frame rate), if that is told.
-    pub(crate) client: Option<&'a dyn Fn(ObjectId) -> &'static str>,
+    /// Who drew a fragment of this object — the client (multi-frame rate), the render node
+    /// (remote) — if that is told.
+    pub(crate) client: Option<&'a dyn Fn(ObjectId) -> String>,
 }
 
 /// The answer to `probe` about `shown`: a `pixel` text, a `deep` binary message, or an error.

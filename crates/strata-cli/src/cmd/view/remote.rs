@@ -29,18 +29,18 @@
 //! `held` or `dropped`, bytes, fragments rendered and sent, its render, select, encode,
 //! transfer and decode milliseconds), and `incidents` the newest [`INCIDENTS_SHOWN`].
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use axum::extract::ws::Message;
 use serde_json::{Value, json};
-use strata_core::{DeepFrame, DeepFrameError, Rgb8Image};
+use strata_core::{DeepFrame, DeepFrameError, ObjectId, Rgb8Image};
 use strata_remote::display::{self, DisplayConfig, Observer};
 use strata_remote::report::{FrameStats, NodeIncident};
 use strata_scene::Camera;
-use strata_wire::DecodeOptions;
+use strata_wire::{DecodeOptions, Hello};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use super::Shared;
@@ -205,6 +205,7 @@ fn run_display(shared: &Shared, steering: Arc<Steering>) -> anyhow::Result<()> {
         shown: None,
         sent: VecDeque::new(),
         next_at: None,
+        owners: HashMap::new(),
     };
     display::run(config, &mut page)?;
     Ok(())
@@ -224,6 +225,8 @@ struct PageDisplay<'a> {
     sent: VecDeque<Instant>,
     /// Not before this is the next frame composed (`max_fps`).
     next_at: Option<Instant>,
+    /// The node (address) that renders each object, from the nodes' hellos.
+    owners: HashMap<u32, String>,
 }
 
 impl PageDisplay<'_> {
@@ -337,6 +340,13 @@ impl Observer for PageDisplay<'_> {
         let answers: Vec<Message> = match (deep, self.shown) {
             (Ok(deep), Some((t, id, camera))) if t == frame => {
                 let remote = self.shared.remote.as_ref();
+                let owners = &self.owners;
+                let node = |object: ObjectId| {
+                    owners
+                        .get(&object.0)
+                        .cloned()
+                        .unwrap_or_else(|| "no node".to_owned())
+                };
                 let shown = Shown {
                     id,
                     frame: deep,
@@ -348,7 +358,7 @@ impl Observer for PageDisplay<'_> {
                     near_far: (camera.near, camera.far),
                     view: camera.view(),
                     projection: camera.projection(deep.width(), deep.height()),
-                    client: None,
+                    client: Some(&node),
                 };
                 probes
                     .into_iter()
@@ -363,6 +373,12 @@ impl Observer for PageDisplay<'_> {
         };
         for a in answers {
             let _ = self.steering.answers.try_send(a);
+        }
+    }
+
+    fn node_up(&mut self, node: &str, hello: &Hello) {
+        for (id, _) in &hello.objects {
+            self.owners.insert(*id, node.to_owned());
         }
     }
 
