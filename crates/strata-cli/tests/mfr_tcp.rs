@@ -3,53 +3,24 @@
 //! another scene is refused before the run with a message that says so; TCP without the real
 //! clock is a usage error.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command as StdCommand, Stdio};
-
 use assert_cmd::Command;
-use assert_cmd::cargo::cargo_bin;
 use serde_json::Value;
 use tempfile::TempDir;
 
-/// A `strata mfr-slow` process, killed when dropped.
-struct SlowClient {
-    child: Child,
-    addr: String,
-}
+mod common;
 
-impl SlowClient {
-    fn start(scene: &str) -> SlowClient {
-        let mut child = StdCommand::new(cargo_bin("strata"))
-            .args([
-                "mfr-slow",
-                scene,
-                "--listen",
-                "127.0.0.1:0",
-                "--threads",
-                "1",
-            ])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("strata mfr-slow starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout"))
-            .read_line(&mut line)
-            .expect("a first line");
-        let addr = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("the first line names the address: {line:?}"))
-            .to_string();
-        SlowClient { child, addr }
-    }
-}
+use common::Service;
 
-impl Drop for SlowClient {
-    fn drop(&mut self) {
-        self.child.kill().ok();
-        self.child.wait().ok();
-    }
+/// `strata mfr-slow SCENE` on a free loopback port (one thread), killed when dropped.
+fn slow_client(scene: &str) -> Service {
+    Service::start(&[
+        "mfr-slow",
+        scene,
+        "--listen",
+        "127.0.0.1:0",
+        "--threads",
+        "1",
+    ])
 }
 
 fn strata() -> Command {
@@ -58,7 +29,7 @@ fn strata() -> Command {
 
 #[test]
 fn a_tcp_run_is_exact_and_reports_its_transfers() {
-    let sc = SlowClient::start("mixed");
+    let sc = slow_client("mixed");
     let dir = TempDir::new().expect("temp dir");
     let out = strata()
         .args(["mfr", "mixed", "--clock", "real:fc_hz=60", "--frames", "30"])
@@ -91,7 +62,7 @@ fn a_tcp_run_is_exact_and_reports_its_transfers() {
 
 #[test]
 fn a_slow_client_with_another_scene_is_refused() {
-    let sc = SlowClient::start("overlap");
+    let sc = slow_client("overlap");
     let out = strata()
         .args([
             "mfr",

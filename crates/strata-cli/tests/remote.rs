@@ -2,54 +2,31 @@
 //! holding complementary objects, a display that merges them, its summary, its errors and its
 //! exit statuses (0 complete, 1 nothing delivered, 2 usage, 3 degraded).
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::{Shutdown, TcpListener, TcpStream};
-use std::process::{Child, Command as StdCommand, Output, Stdio};
+use std::process::Output;
 
 use assert_cmd::Command;
-use assert_cmd::cargo::cargo_bin;
 use serde_json::Value;
 use strata_wire::{DecodeOptions, MessageType, PREFIX_LEN, Request, inspect_frame, parse_prefix};
 use tempfile::TempDir;
 
-/// A `strata node` process, killed when dropped.
-struct NodeProcess {
-    child: Child,
-    addr: String,
+mod common;
+
+use common::Service;
+
+/// `strata node --listen 127.0.0.1:0 --scene SCENE --objects OBJECTS`, killed when dropped.
+fn node(scene: &str, objects: &str) -> Service {
+    node_with(&["--scene", scene, "--objects", objects])
 }
 
-impl NodeProcess {
-    fn start(scene: &str, objects: &str) -> NodeProcess {
-        Self::start_with(&["--scene", scene, "--objects", objects])
-    }
-
-    /// `strata node --listen 127.0.0.1:0 ARGS`.
-    fn start_with(args: &[&str]) -> NodeProcess {
-        let mut child = StdCommand::new(cargo_bin("strata"))
-            .args(["node", "--listen", "127.0.0.1:0"])
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("strata node starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("first line names the address: {line:?}"))
-            .to_string();
-        NodeProcess { child, addr }
-    }
-}
-
-impl Drop for NodeProcess {
-    fn drop(&mut self) {
-        self.child.kill().ok();
-        self.child.wait().ok();
-    }
+/// `strata node --listen 127.0.0.1:0 ARGS`, killed when dropped.
+fn node_with(args: &[&str]) -> Service {
+    let all: Vec<&str> = ["node", "--listen", "127.0.0.1:0"]
+        .into_iter()
+        .chain(args.iter().copied())
+        .collect();
+    Service::start(&all)
 }
 
 fn strata() -> Command {
@@ -58,8 +35,8 @@ fn strata() -> Command {
 
 #[test]
 fn two_node_processes_merge_into_the_exact_image() {
-    let a = NodeProcess::start("mixed", "opaque cube,glass slab");
-    let b = NodeProcess::start("mixed", "1,2,4");
+    let a = node("mixed", "opaque cube,glass slab");
+    let b = node("mixed", "1,2,4");
     let dir = TempDir::new().unwrap();
     for transfer in [
         vec!["--transfer", "full"],
@@ -106,8 +83,8 @@ fn two_node_processes_merge_into_the_exact_image() {
 /// the PNG `--save-frames` wrote for it, and that holds both nodes' objects.
 #[test]
 fn display_saves_merged_deep_frames() {
-    let a = NodeProcess::start("mixed", "opaque cube,glass slab");
-    let b = NodeProcess::start("mixed", "1,2,4");
+    let a = node("mixed", "opaque cube,glass slab");
+    let b = node("mixed", "1,2,4");
     let dir = TempDir::new().unwrap();
     let out = strata()
         .args([
@@ -254,7 +231,7 @@ fn a_recorded_node_replays_to_a_display_and_serves_a_discarding_one() {
     let dir = TempDir::new().unwrap();
     let rec = dir.path().join("mixed.rec");
     let rec_arg = rec.display().to_string();
-    let run = |node: &NodeProcess, extra: &[&str], out: &str| {
+    let run = |node: &Service, extra: &[&str], out: &str| {
         let out_dir = dir.path().join(out);
         let o = strata()
             .args(["display", "--scene", "mixed", "--nodes", &node.addr])
@@ -272,10 +249,10 @@ fn a_recorded_node_replays_to_a_display_and_serves_a_discarding_one() {
         (stdout, json)
     };
     let (_, live) = {
-        let node = NodeProcess::start_with(&["--scene", "mixed", "--record", &rec_arg]);
+        let node = node_with(&["--scene", "mixed", "--record", &rec_arg]);
         run(&node, &[], "live")
     };
-    let replay = NodeProcess::start_with(&["--replay", &rec_arg]);
+    let replay = node_with(&["--replay", &rec_arg]);
     let (_, replayed) = run(&replay, &[], "replayed");
     // The same frames, bytes and exactness as when the node rendered them.
     for key in [
@@ -358,7 +335,7 @@ fn no_node_listening_is_a_failed_run() {
 
 #[test]
 fn a_node_serving_another_scene_is_a_failed_run() {
-    let node = NodeProcess::start("mixed", "0");
+    let node = node("mixed", "0");
     let dir = TempDir::new().unwrap();
     let out = display("spheres", &node.addr, "2", "10", &dir);
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -458,8 +435,8 @@ fn dying_proxy(node: String, frames: u64) -> String {
 
 #[test]
 fn a_lost_node_makes_a_degraded_run() {
-    let a = NodeProcess::start("mixed", "0,1");
-    let b = NodeProcess::start("mixed", "2,3,4");
+    let a = node("mixed", "0,1");
+    let b = node("mixed", "2,3,4");
     let lost = dying_proxy(b.addr.clone(), 2);
     let dir = TempDir::new().unwrap();
     let out = display("mixed", &format!("{},{lost}", a.addr), "6", "10", &dir);

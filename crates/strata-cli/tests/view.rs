@@ -11,6 +11,10 @@ use serde_json::{Value, json};
 use tempfile::TempDir;
 use tungstenite::Message;
 
+mod common;
+
+use common::Service;
+
 /// A `strata view` process on a free port, killed when dropped.
 struct Viewer {
     child: Child,
@@ -526,44 +530,17 @@ fn an_mfr_page_grabs_and_drags_an_object_and_the_composite_stays_exact() {
     assert_eq!(released["mfr"]["moved"], m["moved"]);
 }
 
-/// A `strata node` process serving some objects of a scene, killed when dropped.
-struct Node {
-    child: Child,
-    addr: String,
-}
-
-impl Node {
-    fn start(scene: &str, objects: &str) -> Node {
-        Node::start_at(scene, objects, "127.0.0.1:0")
-    }
-
-    fn start_at(scene: &str, objects: &str, listen: &str) -> Node {
-        let mut child = StdCommand::cargo_bin("strata")
-            .expect("the strata binary")
-            .args(["node", "--listen", listen, "--scene", scene])
-            .args(["--objects", objects])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("strata node starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout"))
-            .read_line(&mut line)
-            .expect("a first line");
-        let addr = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("the first line names the address: {line:?}"))
-            .to_owned();
-        Node { child, addr }
-    }
-}
-
-impl Drop for Node {
-    fn drop(&mut self) {
-        self.child.kill().ok();
-        self.child.wait().ok();
-    }
+/// `strata node` serving some objects of a scene on `listen`.
+fn node_at(scene: &str, objects: &str, listen: &str) -> Service {
+    Service::start(&[
+        "node",
+        "--listen",
+        listen,
+        "--scene",
+        scene,
+        "--objects",
+        objects,
+    ])
 }
 
 /// Built-in scene `scene` as a file in `dir`, without its animation (a remote display poses
@@ -633,8 +610,8 @@ fn frame_and_png_where(ws: &mut Socket, wanted: impl Fn(&Value) -> bool) -> (Val
 fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     let dir = TempDir::new().expect("temp dir");
     let (scene, source) = still_scene("mixed", &dir);
-    let a = Node::start(&scene, "opaque cube,glass slab");
-    let b = Node::start(&scene, "1,2,4");
+    let a = node_at(&scene, "opaque cube,glass slab", "127.0.0.1:0");
+    let b = node_at(&scene, "1,2,4", "127.0.0.1:0");
     let b_addr = b.addr.clone();
     let nodes = format!("{},{}", a.addr, b.addr);
     // Difference transfer: the nodes' objects overlap on screen, so every camera move needs
@@ -767,7 +744,7 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     );
 
     // The node comes back on its address: it rejoins, and the frame is whole again.
-    let _b = Node::start_at(&scene, "1,2,4", &b_addr);
+    let _b = node_at(&scene, "1,2,4", &b_addr);
     let (header, png) = frame_and_png_where(&mut ws, |h| {
         h["remote"]["nodes"]
             .as_array()

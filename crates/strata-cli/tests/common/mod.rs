@@ -116,3 +116,48 @@ pub(crate) fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
 pub(crate) fn bytes(path: &Path) -> Vec<u8> {
     std::fs::read(path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
 }
+
+/// A `strata` service process (`node`, `mfr-slow`) that prints `listening on ADDR` first on its
+/// standard output; killed when dropped.
+pub(crate) struct Service {
+    child: std::process::Child,
+    /// The address it listens on.
+    pub(crate) addr: String,
+}
+
+impl Service {
+    /// Runs `strata ARGS` and waits for the line that names its address.
+    pub(crate) fn start(args: &[&str]) -> Service {
+        use std::io::{BufRead, BufReader};
+        let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("strata"))
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("strata {args:?} starts: {e}"));
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("a first line");
+        let addr = line
+            .trim()
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| {
+                panic!("strata {args:?}: the first line names the address: {line:?}")
+            })
+            .to_owned();
+        Service { child, addr }
+    }
+
+    /// Kills the process now.
+    pub(crate) fn kill(&mut self) {
+        self.child.kill().ok();
+        self.child.wait().ok();
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
