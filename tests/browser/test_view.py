@@ -653,6 +653,15 @@ class Suite:
             assert orbited["camera"]["eye"] != header["camera"]["eye"]
             self.compare_with_render(page, orbited, "remote-orbited", source=source)
             self.shot(page, "12-remote-orbited")
+            # The page switches the transfer; the display restarts with it.
+            page.select_option("#transfer", "full")
+            page.wait_for_function(
+                "() => window.strataView.frame.remote.transfer === 'full'"
+                " && window.strataView.frame.remote.nodes.every((n) => n.status === 'ok')",
+                timeout=30000,
+            )
+            full = page.evaluate("window.strataView.frame")
+            self.compare_with_render(page, full, "remote-full", source=source)
             # A node dies: its part is held, the table and the incidents say so.
             nodes[1].stop()
             page.wait_for_function(

@@ -753,6 +753,26 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     let camera_toml = header["camera_toml"].as_str().expect("camera_toml");
     let (_, _, expected) = pixels(&rendered(&source, camera_toml, &dir));
     assert!(pixels(&png).2 == expected, "back, the frame is exact again");
+
+    // The page switches the transfer: the display restarts with it, still exact.
+    let camera = json!({"eye": [0.35, 0.45, 1.7], "target": [0, 0, 0], "up": [0, 1, 0],
+                        "fovy_deg": 45, "near": 0.01, "far": 100});
+    let switch = json!({"type": "remote", "id": 5, "width": 80, "height": 64, "camera": camera,
+                        "max_fps": 60, "transfer": "depth-limited", "layers": 64});
+    ws.send(Message::text(switch.to_string())).expect("send");
+    let (header, png) = frame_and_png_where(&mut ws, |h| {
+        h["id"] == 5
+            && h["remote"]["nodes"]
+                .as_array()
+                .is_some_and(|n| n.iter().all(|n| n["status"] == "ok"))
+    });
+    assert_eq!(header["remote"]["transfer"], "depth-limited --layers 64");
+    let camera_toml = header["camera_toml"].as_str().expect("camera_toml");
+    let (_, _, expected) = pixels(&rendered(&source, camera_toml, &dir));
+    assert!(
+        pixels(&png).2 == expected,
+        "64 layers keep every fragment here"
+    );
 }
 
 #[test]

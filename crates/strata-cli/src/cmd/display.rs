@@ -139,18 +139,15 @@ pub(crate) struct Link {
 impl LinkArgs {
     /// Checks the options together (`--layers` only with depth-limited, …).
     pub(crate) fn check(&self) -> Result<Link> {
-        let t = transfer::parse(&self.transfer, self.layers, self.opacity_threshold)?;
+        let (t, tolerance) = choose_transfer(
+            &self.transfer,
+            self.layers,
+            self.opacity_threshold,
+            self.tolerance,
+        )?;
         if !(self.timeout > 0.0 && self.timeout <= 3600.0) {
             bail!("--timeout must be within (0, 3600] seconds");
         }
-        let tolerance = match (t, self.tolerance) {
-            (transfer::Transfer::Difference, tol) => tol.unwrap_or(0),
-            (transfer::Transfer::Reprojection, tol) => tol.unwrap_or(1),
-            (_, None) => 0,
-            (_, Some(_)) => {
-                bail!("--tolerance applies to --transfer difference and reprojection only")
-            }
-        };
         self.codec
             .validate()
             .map_err(|e| anyhow::anyhow!("--codec {}: {e}", self.codec))?;
@@ -183,6 +180,27 @@ impl LinkArgs {
             && self.timeout == 5.0
             && self.on_fault == "hold"
     }
+}
+
+/// The transfer method `name` with its options, and its tolerance (the default per transfer
+/// when none is given): the rules of `--transfer`, `--layers`, `--opacity-threshold` and
+/// `--tolerance`, for the command line and the viewer's page alike.
+pub(crate) fn choose_transfer(
+    name: &str,
+    layers: Option<u32>,
+    opacity_threshold: Option<f32>,
+    tolerance: Option<u8>,
+) -> Result<(transfer::Transfer, u8)> {
+    let t = transfer::parse(name, layers, opacity_threshold)?;
+    let tolerance = match (t, tolerance) {
+        (transfer::Transfer::Difference, tol) => tol.unwrap_or(0),
+        (transfer::Transfer::Reprojection, tol) => tol.unwrap_or(1),
+        (_, None) => 0,
+        (_, Some(_)) => {
+            bail!("--tolerance applies to --transfer difference and reprojection only")
+        }
+    };
+    Ok((t, tolerance))
 }
 
 impl Link {
@@ -394,7 +412,7 @@ fn check_frames(
 }
 
 /// The transfer method and its options as the summary names them.
-fn transfer_label(t: transfer::Transfer, tolerance: u8) -> String {
+pub(crate) fn transfer_label(t: transfer::Transfer, tolerance: u8) -> String {
     match t {
         transfer::Transfer::DepthLimited {
             layers,

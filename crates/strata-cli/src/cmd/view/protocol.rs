@@ -151,6 +151,16 @@ pub(crate) struct RemoteMessage {
     /// The most frames a second the display composes (it asks the nodes no faster).
     #[serde(default = "default_fc_hz")]
     max_fps: f64,
+    /// The transfer method, as `--transfer` names it (absent: the command line's), with its
+    /// options as `--layers`, `--opacity-threshold` and `--tolerance` take them.
+    #[serde(default)]
+    transfer: Option<String>,
+    #[serde(default)]
+    layers: Option<u32>,
+    #[serde(default)]
+    opacity_threshold: Option<f32>,
+    #[serde(default)]
+    tolerance: Option<u8>,
 }
 
 /// What a page may send.
@@ -255,6 +265,8 @@ pub(crate) struct RemoteJob {
     pub(crate) height: u32,
     pub(crate) camera: Camera,
     pub(crate) max_fps: f64,
+    /// The transfer method and its tolerance, if the page chose one.
+    pub(crate) transfer: Option<(strata_remote::Transfer, u8)>,
 }
 
 /// What a viewer serves, and so which messages it takes.
@@ -454,12 +466,23 @@ fn remote_settings(m: RemoteMessage) -> Result<RemoteJob> {
             m.max_fps
         );
     }
+    let transfer = match &m.transfer {
+        Some(name) => Some(
+            crate::cmd::display::choose_transfer(name, m.layers, m.opacity_threshold, m.tolerance)
+                .context("transfer")?,
+        ),
+        None if m.layers.is_some() || m.opacity_threshold.is_some() || m.tolerance.is_some() => {
+            bail!("layers, opacity_threshold and tolerance go with a transfer")
+        }
+        None => None,
+    };
     Ok(RemoteJob {
         id: m.id,
         width: m.width,
         height: m.height,
         camera,
         max_fps: m.max_fps,
+        transfer,
     })
 }
 
@@ -783,6 +806,24 @@ mod tests {
         };
         // The whole camera is the page's, projection included.
         assert_eq!((job.id, job.width, job.max_fps), (4, 64, 30.0));
+        assert_eq!(job.transfer, None, "the command line's transfer");
+        let chosen = remote(&|v| {
+            v["transfer"] = json!("depth-limited");
+            v["layers"] = json!(6);
+        });
+        let Ok(Request::Remote(job)) = parse(&chosen, &scene, Mode::Remote) else {
+            panic!("a transfer with its layers");
+        };
+        assert_eq!(
+            job.transfer,
+            Some((
+                strata_remote::Transfer::DepthLimited {
+                    layers: 6,
+                    opacity_threshold: None
+                },
+                0
+            ))
+        );
         assert_eq!(
             (job.camera.fovy_deg, job.camera.near, job.camera.far),
             (10.0, 0.5, 5.0)
@@ -796,6 +837,22 @@ mod tests {
                 remote(&|v| v["composition"] = json!("deep")),
                 "unknown field",
             ),
+            (
+                remote(&|v| v["transfer"] = json!("depth-limited")),
+                "transfer: --transfer depth-limited needs --layers",
+            ),
+            (
+                remote(&|v| v["transfer"] = json!("magic")),
+                "unknown transfer 'magic'",
+            ),
+            (
+                remote(&|v| {
+                    v["transfer"] = json!("full");
+                    v["tolerance"] = json!(2);
+                }),
+                "--tolerance applies to",
+            ),
+            (remote(&|v| v["layers"] = json!(4)), "go with a transfer"),
             (request(|_| {}), "displays render nodes"),
             (mfr_request(|_| {}), "--mfr"),
         ] {

@@ -8,7 +8,7 @@
 //!                                       ▼
 //!  display thread: strata_remote::display::run(nodes, the page's size, PageDisplay)
 //!     camera(t)   the newest settings' camera — every node renders frame t through it
-//!     stop()      the page went, or asked for another size (the run restarts at that size)
+//!     stop()      the page went, or asked for another size or transfer (the run restarts)
 //!     frame()     PNG + header → frame watch (newest wins), then wait out 1 / max_fps
 //!     deep_frame  the merged fragments, asked only while a question waits → its answer
 //!     incident()  kept; the newest are sent with every frame
@@ -182,12 +182,13 @@ fn run_display(shared: &Shared, steering: Arc<Steering>) -> anyhow::Result<()> {
         .ok_or_else(|| anyhow::anyhow!("this viewer has no render nodes"))?;
     let settings = steering.settings();
     let link = &remote.link;
+    let (transfer, tolerance) = settings.transfer.unwrap_or((link.transfer, link.tolerance));
     let config = DisplayConfig {
         scene: shared.scene.clone(),
         nodes: remote.nodes.clone(),
-        transfer: link.transfer,
+        transfer,
         codec: link.codec,
-        tolerance: link.tolerance,
+        tolerance,
         first_frame: 0,
         frames: FRAMES,
         width: settings.width,
@@ -201,6 +202,7 @@ fn run_display(shared: &Shared, steering: Arc<Steering>) -> anyhow::Result<()> {
         shared,
         steering,
         size: (settings.width, settings.height),
+        transfer: (transfer, tolerance),
         asked: BTreeMap::new(),
         shown: None,
         sent: VecDeque::new(),
@@ -217,6 +219,8 @@ struct PageDisplay<'a> {
     steering: Arc<Steering>,
     /// The size this run composes at.
     size: (u32, u32),
+    /// The transfer method and tolerance this run asks the nodes for.
+    transfer: (strata_remote::Transfer, u8),
     /// Each frame requested and not yet composed: the settings id and camera it was asked with.
     asked: BTreeMap<u64, (u64, Camera)>,
     /// The frame composed last: its number, settings id and camera.
@@ -230,6 +234,19 @@ struct PageDisplay<'a> {
 }
 
 impl PageDisplay<'_> {
+    /// The run's transfer method and its options, as `strata display` names them.
+    fn label(&self) -> String {
+        crate::cmd::display::transfer_label(self.transfer.0, self.transfer.1)
+    }
+
+    /// The transfer the page asks for now: its own choice, or the command line's.
+    fn wanted_transfer(&self, s: &RemoteJob) -> (strata_remote::Transfer, u8) {
+        let link = self.shared.remote.as_ref().map(|r| &r.link);
+        s.transfer
+            .or(link.map(|l| (l.transfer, l.tolerance)))
+            .unwrap_or(self.transfer)
+    }
+
     /// The frame message for a composed frame, or an error message.
     fn message(&mut self, stats: &FrameStats, image: &Rgb8Image) -> Message {
         let Some((_, id, camera)) = self.shown else {
@@ -253,7 +270,7 @@ impl PageDisplay<'_> {
         let remote_json = json!({
             "frame": stats.frame,
             "fps": self.sent.len(),
-            "transfer": remote.map(|r| r.link.label()),
+            "transfer": self.label(),
             "codec": remote.map(|r| r.link.codec.to_string()),
             "nodes": nodes,
             "merge_ms": stats.merge_ms,
@@ -305,6 +322,7 @@ impl Observer for PageDisplay<'_> {
         self.steering.gone.load(Ordering::Acquire)
             || self.steering.frames.is_closed()
             || (s.width, s.height) != self.size
+            || self.wanted_transfer(&s) != self.transfer
     }
 
     fn frame(&mut self, stats: &FrameStats, image: &Rgb8Image) {
@@ -352,7 +370,7 @@ impl Observer for PageDisplay<'_> {
                     frame: deep,
                     method: format!(
                         "the display (frame {frame}, {} from {} node(s))",
-                        remote.map_or(String::new(), |r| r.link.label()),
+                        self.label(),
                         remote.map_or(0, |r| r.nodes.len())
                     ),
                     near_far: (camera.near, camera.far),

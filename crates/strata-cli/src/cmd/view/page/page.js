@@ -363,6 +363,24 @@ function buildRemote() {
     `${r.nodes.length} node${r.nodes.length === 1 ? "" : "s"} · ${r.transfer} · ${r.codec} · ` +
     `${r.in_flight} frame${r.in_flight === 1 ? "" : "s"} in flight · a node silent for ` +
     `${r.timeout_s} s is ${r.on_fault === "hold" ? "held" : "dropped"}`;
+  // A transfer chosen here restarts the display with it (the nodes start over from a full frame).
+  const transfer = $("transfer"), layers = $("layers");
+  transfer.options[0].textContent = `as started (${r.transfer})`;
+  const setTransfer = () => {
+    delete S.remote.transfer;
+    delete S.remote.layers;
+    const name = transfer.value;
+    $("layers-row").hidden = name !== "depth-limited";
+    if (name) S.remote.transfer = name;
+    if (name === "depth-limited") {
+      const v = Math.round(Number(layers.value));
+      S.remote.layers = Number.isFinite(v) ? Math.max(1, Math.min(1024, v)) : 6;
+      layers.value = String(S.remote.layers);
+    }
+    requestView();
+  };
+  transfer.onchange = setTransfer;
+  layers.onchange = setTransfer;
   const fps = $("max-fps");
   fps.max = String(r.max_fps);
   fps.onchange = () => {
