@@ -31,10 +31,10 @@
 //! The [`Observer`] that receives the frames may also steer the run: it gives each frame's
 //! camera ([`Observer::camera`], asked once a frame, when the frame's first request is written,
 //! so every node and every fixup of that frame renders through the same matrices) and may stop
-//! the run ([`Observer::stop`], asked before each frame and every [`STOP_POLL`] while the driver
-//! waits, so a stop never waits out a silent node's timeout). `strata display` does neither (the scene's
-//! camera, a fixed number of frames); `strata view --nodes` follows the page's camera and runs
-//! until the page goes.
+//! the run ([`Observer::stop`], asked before each frame and every [`STOP_POLL`] while the
+//! driver waits, so a stop never waits out a silent node's timeout). `strata display` does
+//! neither (the scene's camera, a fixed number of frames); `strata view --nodes` follows the
+//! page's camera and runs until the page goes.
 
 use std::collections::HashMap;
 use std::sync::Arc;

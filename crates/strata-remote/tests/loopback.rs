@@ -593,8 +593,6 @@ fn a_steered_run_renders_every_frame_through_the_observers_camera_and_stops_when
             );
             previous = Some(image);
         }
-        // Frames asked ahead of the stop were requested but never composed.
-        assert!(steer.asked.len() >= 5, "{transfer:?}");
     }
 }
 

@@ -86,7 +86,7 @@ pub(crate) struct Args {
 
 /// The display's side of the link to its nodes: what it asks them to send and how it waits —
 /// shared by `strata display` and `strata view --nodes`.
-#[derive(clap::Args, Debug, Clone)]
+#[derive(clap::Args, Debug, Clone, PartialEq)]
 pub(crate) struct LinkArgs {
     /// Transfer method: full, depth-limited (with --layers), difference, reprojection.
     #[arg(long, default_value = "full")]
@@ -170,15 +170,16 @@ impl LinkArgs {
 
     /// True when every option is at its default (`strata view` without `--nodes` refuses
     /// the others).
+    /// The defaults are read from the arguments' own declarations (an empty command line
+    /// parsed), so they cannot drift apart.
     pub(crate) fn is_default(&self) -> bool {
-        self.transfer == "full"
-            && self.layers.is_none()
-            && self.opacity_threshold.is_none()
-            && self.tolerance.is_none()
-            && self.codec == Codec::DeepLz4
-            && self.in_flight == 2
-            && self.timeout == 5.0
-            && self.on_fault == "hold"
+        use clap::{Args as _, FromArgMatches as _};
+        let command = LinkArgs::augment_args(clap::Command::new("defaults"));
+        command
+            .try_get_matches_from(["defaults"])
+            .ok()
+            .and_then(|m| LinkArgs::from_arg_matches(&m).ok())
+            .is_some_and(|defaults| &defaults == self)
     }
 }
 

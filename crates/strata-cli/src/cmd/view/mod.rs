@@ -85,7 +85,7 @@ pub(crate) struct Args {
     /// camera, merged and resolved here; the panel shows each node's status, what it sent and
     /// took, and its incidents (a node that dies is held or dropped and reconnected). The
     /// nodes must serve the same scene. `--transfer`, `--codec` and the other options below are
-    /// `strata display`'s. Try `strata node mixed --listen 127.0.0.1:7400 &` then
+    /// `strata display`'s. Try `strata node --scene mixed --listen 127.0.0.1:7400 &` then
     /// `strata view mixed --nodes 127.0.0.1:7400`.
     #[arg(long, value_delimiter = ',', value_parser = parse_node_address,
           conflicts_with_all = ["mfr", "method"])]

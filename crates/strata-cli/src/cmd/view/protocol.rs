@@ -375,6 +375,19 @@ fn size(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
+/// Refuses a frame side above a mode's own limit `max`, saying what `frames` keep (`why`).
+fn at_most((width, height): (u32, u32), max: u32, frames: &str, why: &str) -> Result<()> {
+    for (name, side) in [("width", width), ("height", height)] {
+        if side > max {
+            bail!(
+                "{name} {side}: {frames} are at most {max} pixels a side ({why}); use ?size=WxH \
+                 in the address"
+            );
+        }
+    }
+    Ok(())
+}
+
 /// A page's camera, checked as a scene file's is.
 fn camera(c: &CameraMessage) -> Result<Camera> {
     let v = |a: [f64; 3]| glam::Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
@@ -395,14 +408,12 @@ fn mfr_settings(m: MfrMessage, scene: &Scene) -> Result<MfrJob> {
     use strata_mfr::Composition;
     use strata_mfr::simulate::Migration;
     size(m.width, m.height)?;
-    for (name, side) in [("width", m.width), ("height", m.height)] {
-        if side > MAX_MFR_SIDE {
-            bail!(
-                "{name} {side}: multi-frame-rate frames are at most {MAX_MFR_SIDE} pixels a side \
-                 (both clients keep every fragment); use ?size=WxH in the address"
-            );
-        }
-    }
+    at_most(
+        (m.width, m.height),
+        MAX_MFR_SIDE,
+        "multi-frame-rate frames",
+        "both clients keep every fragment",
+    )?;
     let given = camera(&m.camera)?;
     // The clients project with the scene's camera; the page moves its eye, target and up.
     let camera = Camera {
@@ -451,14 +462,12 @@ fn mfr_settings(m: MfrMessage, scene: &Scene) -> Result<MfrJob> {
 /// Checks remote-display settings.
 fn remote_settings(m: RemoteMessage) -> Result<RemoteJob> {
     size(m.width, m.height)?;
-    for (name, side) in [("width", m.width), ("height", m.height)] {
-        if side > MAX_REMOTE_SIDE {
-            bail!(
-                "{name} {side}: remote frames are at most {MAX_REMOTE_SIDE} pixels a side (the \
-                 display keeps every node's fragments); use ?size=WxH in the address"
-            );
-        }
-    }
+    at_most(
+        (m.width, m.height),
+        MAX_REMOTE_SIDE,
+        "remote frames",
+        "the display keeps every node's fragments",
+    )?;
     let camera = camera(&m.camera)?;
     if !(m.max_fps.is_finite() && m.max_fps >= 1.0 && m.max_fps <= MAX_FC_HZ) {
         bail!(

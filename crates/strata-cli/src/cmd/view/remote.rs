@@ -133,9 +133,17 @@ pub(crate) async fn run(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
                     }
                 }
                 Some(probe) = inbox.probes.recv() => {
-                    let mut probes = lock(&steering.probes);
-                    if probes.len() < PROBES_WAITING {
-                        probes.push(probe);
+                    let full = {
+                        let mut probes = lock(&steering.probes);
+                        let full = probes.len() >= PROBES_WAITING;
+                        if !full {
+                            probes.push(probe);
+                        }
+                        full
+                    };
+                    if full {
+                        let text = "too many questions at once; wait for the answers";
+                        let _ = outbox.answers.try_send(error(None, text));
                     }
                 }
                 result = &mut done => break result,
@@ -145,7 +153,7 @@ pub(crate) async fn run(mut inbox: Inbox, outbox: Outbox, shared: Arc<Shared>) {
             return;
         }
         match ended {
-            // Stopped for a new size: start again at once.
+            // Stopped for a new size or transfer: start again at once.
             Ok(Ok(())) => {}
             Ok(Err(e)) => {
                 let id = Some(steering.settings().id);
@@ -173,8 +181,8 @@ fn error(id: Option<u64>, text: &str) -> Message {
     Message::Text(protocol::error_json(id, text).into())
 }
 
-/// Runs the display at the newest settings' size until it is stopped (the page went, or wants
-/// another size).
+/// Runs the display at the newest settings' size and transfer until it is stopped (the page
+/// went, or wants another size or transfer).
 fn run_display(shared: &Shared, steering: Arc<Steering>) -> anyhow::Result<()> {
     let remote = shared
         .remote
@@ -286,10 +294,12 @@ impl PageDisplay<'_> {
             "incident_count": incident_count,
         });
         let start = Instant::now();
-        let encoded = match protocol::encode_pngs(&[("main", image.clone())]) {
-            Ok(e) => e,
-            Err(e) => return error(Some(id), &format!("{e:#}")),
-        };
+        // Encoded where it lies: the display resolves into the same image every frame.
+        let mut png = Vec::new();
+        if let Err(e) = image.encode_png(&mut png) {
+            return error(Some(id), &format!("cannot encode the frame as PNG: {e}"));
+        }
+        let encoded = [("main", png)];
         let (w, h) = self.size;
         let header = json!({
             "type": "frame",
@@ -341,11 +351,17 @@ impl Observer for PageDisplay<'_> {
                 let _ = self.steering.answers.try_send(other);
             }
         }
-        // Held to max_fps: the driver asks for the next frames only after this returns.
+        // Held to max_fps: the driver asks for the next frames only after this returns. The
+        // wait is cut short when the page goes or wants another size or transfer.
         let period = Duration::from_secs_f64(1.0 / self.steering.settings().max_fps);
         let now = Instant::now();
         let due = self.next_at.map_or(now, |at| at.max(now));
-        std::thread::sleep(due - now);
+        while Instant::now() < due && !self.stop() {
+            std::thread::sleep(
+                due.saturating_duration_since(Instant::now())
+                    .min(display::STOP_POLL),
+            );
+        }
         self.next_at = Some(due + period);
     }
 
