@@ -216,7 +216,7 @@ impl Triangle {
 
 /// A micro-triangle set up in `i32`: its vertices lie within 5 pixels of each other and of every
 /// sample of its 4 × 4 block, so twice its area stays below 2^21 and every edge value below 2^23.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Micro {
     /// Which input vertex is vertex 0, 1, 2 after orientation.
     pub order: [usize; 3],
@@ -301,6 +301,208 @@ impl Micro {
     }
 }
 
+/// Triangles classified together by [`Batch`], one per SIMD lane.
+pub const LANES: usize = 8;
+
+/// What [`Batch::classify`] decided for each lane, as lane bitmasks (bit `l` for lane `l`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Verdict {
+    /// All three vertices outside one plane of the view volume.
+    pub outside: u32,
+    /// Not outside, but a vertex crosses the near plane or the guard band: to be clipped.
+    pub clip: u32,
+    /// Neither, and more than [`SMALL`] × [`SMALL`] pixel centres in the bounding box: to be set
+    /// up in `i64` by [`Triangle::new`] and binned.
+    pub large: u32,
+    /// Micro-triangles that cover at least one sample; [`Batch::micro`] gives each one.
+    pub micro: u32,
+}
+
+impl Verdict {
+    /// Lanes that are none of the above: zero area, or no covered pixel centre.
+    pub fn empty(&self, lanes: usize) -> u32 {
+        let valid = if lanes >= 32 { !0 } else { (1u32 << lanes) - 1 };
+        valid & !(self.outside | self.clip | self.large | self.micro)
+    }
+}
+
+/// Up to [`LANES`] consecutive triangles, classified and — for micro-triangles — set up and
+/// covered together, lane by lane, without branches.
+///
+/// Layout: structure of arrays, one `[_; LANES]` per quantity, so every step of
+/// [`Micro::new`] and [`Micro::coverage`] is one vector operation over the batch (LLVM
+/// vectorises the lane loops; compiled for AVX2, a lane array is one register). Lanes whose
+/// triangles turn out not to be micro-triangles compute garbage with wrapping arithmetic, and
+/// their results are never read. A micro-triangle's values are exactly those of [`Micro::new`],
+/// so which setup ran is invisible downstream (tested against it below).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Batch {
+    x: [[i32; LANES]; 3],
+    y: [[i32; LANES]; 3],
+    code_and: [u32; LANES],
+    code_or: [u32; LANES],
+    // Micro-triangle set-up, valid in `Verdict::micro` lanes.
+    swapped: [bool; LANES],
+    area: [i32; LANES],
+    bounds: [[i32; LANES]; 4],
+    e: [[i32; LANES]; 3],
+    dx: [[i32; LANES]; 3],
+    dy: [[i32; LANES]; 3],
+    bias: [[i32; LANES]; 3],
+    mask: [u32; LANES],
+}
+
+impl Batch {
+    /// Puts a triangle's window positions and vertex outcodes in `lane`.
+    #[inline(always)]
+    pub fn set(&mut self, lane: usize, pos: [ScreenPos; 3], codes: [u8; 3]) {
+        for (k, p) in pos.iter().enumerate() {
+            self.x[k][lane] = p.x;
+            self.y[k][lane] = p.y;
+        }
+        self.code_and[lane] = u32::from(codes[0] & codes[1] & codes[2]);
+        self.code_or[lane] = u32::from(codes[0] | codes[1] | codes[2]);
+    }
+
+    /// Classifies the first `lanes` lanes for a `width` × `height` image, given the outcode bits
+    /// `view` (culled if all three vertices share one) and `clip` (clipped if any vertex has
+    /// one); see [`Verdict`].
+    #[inline(always)]
+    pub fn classify(
+        &mut self,
+        lanes: usize,
+        width: i32,
+        height: i32,
+        view: u8,
+        clip: u8,
+    ) -> Verdict {
+        let mut outside = [false; LANES];
+        let mut clipped = [false; LANES];
+        let mut large = [false; LANES];
+        let mut micro = [false; LANES];
+        let [[ax, bx0, cx0], [ay, by0, cy0]] = [self.x, self.y];
+        for l in 0..LANES {
+            outside[l] = self.code_and[l] & u32::from(view) != 0;
+            clipped[l] = !outside[l] && self.code_or[l] & u32::from(clip) != 0;
+            // pixel_bounds, lane by lane.
+            let min_x = ax[l].min(bx0[l]).min(cx0[l]);
+            let max_x = ax[l].max(bx0[l]).max(cx0[l]);
+            let min_y = ay[l].min(by0[l]).min(cy0[l]);
+            let max_y = ay[l].max(by0[l]).max(cy0[l]);
+            let x0 = (min_x.wrapping_add(ONE - 1 - HALF) >> SUBPIXEL_BITS).max(0);
+            let x1 = (max_x.wrapping_sub(HALF) >> SUBPIXEL_BITS).min(width - 1);
+            let y0 = (min_y.wrapping_add(ONE - 1 - HALF) >> SUBPIXEL_BITS).max(0);
+            let y1 = (max_y.wrapping_sub(HALF) >> SUBPIXEL_BITS).min(height - 1);
+            let some = x0 <= x1 && y0 <= y1;
+            let (last_x, last_y) = (x1.wrapping_sub(x0), y1.wrapping_sub(y0));
+            let small = last_x < SMALL && last_y < SMALL;
+            let candidate = !outside[l] && !clipped[l] && some;
+            large[l] = candidate && !small;
+            // Micro::new, lane by lane, in wrapping i32 (exact for micro-triangles).
+            let (bx, by, cx, cy) = (bx0[l], by0[l], cx0[l], cy0[l]);
+            let (ax, ay) = (ax[l], ay[l]);
+            let area = (bx.wrapping_sub(ax))
+                .wrapping_mul(cy.wrapping_sub(ay))
+                .wrapping_sub((cx.wrapping_sub(ax)).wrapping_mul(by.wrapping_sub(ay)));
+            let swap = area < 0;
+            let (bx, by, cx, cy) = if swap {
+                (cx, cy, bx, by)
+            } else {
+                (bx, by, cx, cy)
+            };
+            let sx = x0.wrapping_mul(ONE).wrapping_add(HALF);
+            let sy = y0.wrapping_mul(ONE).wrapping_add(HALF);
+            let edge = |px: i32, py: i32, qx: i32, qy: i32| {
+                let (ex, ey) = (qx.wrapping_sub(px), qy.wrapping_sub(py));
+                let bias = i32::from(!(ey < 0 || (ey == 0 && ex > 0)));
+                let e = ex
+                    .wrapping_mul(sy.wrapping_sub(py))
+                    .wrapping_sub(ey.wrapping_mul(sx.wrapping_sub(px)))
+                    .wrapping_sub(bias);
+                (
+                    e,
+                    ey.wrapping_neg().wrapping_mul(ONE),
+                    ex.wrapping_mul(ONE),
+                    bias,
+                )
+            };
+            let edges = [
+                edge(bx, by, cx, cy),
+                edge(cx, cy, ax, ay),
+                edge(ax, ay, bx, by),
+            ];
+            // Coverage of the 4 × 4 block, masked to the bounding box.
+            let mut mask = 0u32;
+            for j in 0..SMALL {
+                for i in 0..SMALL {
+                    let v = |k: usize| {
+                        let (e, dx, dy, _) = edges[k];
+                        e.wrapping_add(dx.wrapping_mul(i))
+                            .wrapping_add(dy.wrapping_mul(j))
+                    };
+                    let inside = (v(0) | v(1) | v(2)) >= 0 && i <= last_x && j <= last_y;
+                    mask |= u32::from(inside) << (j * SMALL + i);
+                }
+            }
+            micro[l] = candidate && small && area != 0 && mask != 0;
+            self.swapped[l] = swap;
+            self.area[l] = area.wrapping_abs();
+            self.bounds[0][l] = x0;
+            self.bounds[1][l] = x1;
+            self.bounds[2][l] = y0;
+            self.bounds[3][l] = y1;
+            for (k, &(e, dx, dy, bias)) in edges.iter().enumerate() {
+                self.e[k][l] = e;
+                self.dx[k][l] = dx;
+                self.dy[k][l] = dy;
+                self.bias[k][l] = bias;
+            }
+            self.mask[l] = mask;
+        }
+        let bits = |flags: [bool; LANES]| {
+            let mut m = 0u32;
+            for (l, &f) in flags.iter().enumerate().take(lanes) {
+                m |= u32::from(f) << l;
+            }
+            m
+        };
+        Verdict {
+            outside: bits(outside),
+            clip: bits(clipped),
+            large: bits(large),
+            micro: bits(micro),
+        }
+    }
+
+    /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]) and its coverage mask, as
+    /// [`Micro::new`] and [`Micro::coverage`] would give them.
+    #[inline(always)]
+    pub fn micro(&self, lane: usize) -> (Micro, u32) {
+        let l = lane;
+        (
+            Micro {
+                order: if self.swapped[l] {
+                    [0, 2, 1]
+                } else {
+                    [0, 1, 2]
+                },
+                area: self.area[l],
+                bounds: [
+                    self.bounds[0][l],
+                    self.bounds[1][l],
+                    self.bounds[2][l],
+                    self.bounds[3][l],
+                ],
+                e: [self.e[0][l], self.e[1][l], self.e[2][l]],
+                dx: [self.dx[0][l], self.dx[1][l], self.dx[2][l]],
+                dy: [self.dy[0][l], self.dy[1][l], self.dy[2][l]],
+                bias: [self.bias[0][l], self.bias[1][l], self.bias[2][l]],
+            },
+            self.mask[l],
+        )
+    }
+}
+
 /// Bits of the samples inside a box of `(last_x + 1) × (last_y + 1)` pixels.
 #[inline(always)]
 fn box_mask(last_x: i32, last_y: i32) -> u32 {
@@ -332,6 +534,118 @@ mod tests {
             let e = ex * (s.1 - i64::from(p.y)) - ey * (s.0 - i64::from(p.x));
             e > 0 || (e == 0 && (ey < 0 || (ey == 0 && ex > 0)))
         })
+    }
+
+    /// What the per-triangle path makes of lane `l` of a batch: outside, clip, large (with
+    /// `Setup`), micro with coverage, or empty.
+    #[derive(Debug, PartialEq)]
+    enum Kind {
+        Outside,
+        Clip,
+        Large,
+        Micro(Micro, u32),
+        Empty,
+    }
+
+    fn one_by_one(t: [ScreenPos; 3], codes: [u8; 3], w: i32, h: i32) -> Kind {
+        use crate::vertex::outcode;
+        if codes[0] & codes[1] & codes[2] & outcode::VIEW != 0 {
+            return Kind::Outside;
+        }
+        if (codes[0] | codes[1] | codes[2]) & outcode::CLIP != 0 {
+            return Kind::Clip;
+        }
+        match Triangle::new(t, w, h) {
+            None => Kind::Empty,
+            Some(Triangle::Large(_)) => Kind::Large,
+            Some(Triangle::Micro(m)) => match m.coverage() {
+                0 => Kind::Empty,
+                mask => Kind::Micro(m, mask),
+            },
+        }
+    }
+
+    #[test]
+    fn batch_classifies_and_covers_exactly_like_one_triangle_at_a_time() {
+        use crate::vertex::outcode;
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut rand = |n: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 33) as u32 % n
+        };
+        let (w, h) = (40, 30);
+        let mut counts = [0usize; 5];
+        let mut batch = Batch::default();
+        for _ in 0..4000 {
+            let lanes = 1 + rand(LANES as u32) as usize;
+            let mut expected = Vec::new();
+            for l in 0..lanes {
+                // Mostly micro-sized triangles near the image (some off its edges, some between
+                // pixel centres, some degenerate), and now and then a large one, one far outside
+                // the image or one with clip and view outcodes.
+                let spread = [2, 5, 9, 60, 3000][rand(5) as usize] * 256;
+                let (bx, by) = (
+                    rand(50 * 256) as i32 - 5 * 256,
+                    rand(40 * 256) as i32 - 5 * 256,
+                );
+                let mut v = || ScreenPos {
+                    x: bx + rand(spread) as i32 - spread as i32 / 2,
+                    y: by + rand(spread) as i32 - spread as i32 / 2,
+                };
+                let mut t = [v(), v(), v()];
+                if rand(10) == 0 {
+                    t[2] = t[rand(2) as usize]; // zero area
+                }
+                let code = |r: u32| match r {
+                    0 => outcode::LEFT,
+                    1 => outcode::NEAR,
+                    2 => outcode::GUARD | outcode::TOP,
+                    _ => 0,
+                };
+                let mut codes = [code(rand(40)), code(rand(40)), code(rand(40))];
+                if rand(12) == 0 {
+                    codes = [outcode::LEFT, outcode::LEFT | outcode::NEAR, outcode::LEFT];
+                }
+                batch.set(l, t, codes);
+                expected.push((t, one_by_one(t, codes, w, h)));
+            }
+            let v = batch.classify(lanes, w, h, outcode::VIEW, outcode::CLIP);
+            for (l, (t, want)) in expected.iter().enumerate() {
+                let bit = |m: u32| m >> l & 1 == 1;
+                let got = if bit(v.outside) {
+                    Kind::Outside
+                } else if bit(v.clip) {
+                    Kind::Clip
+                } else if bit(v.large) {
+                    // Large lanes are set up in i64 by the caller, which may still find zero area.
+                    match Setup::new(*t, w, h) {
+                        Some(_) => Kind::Large,
+                        None => Kind::Empty,
+                    }
+                } else if bit(v.micro) {
+                    let (m, mask) = batch.micro(l);
+                    Kind::Micro(m, mask)
+                } else {
+                    Kind::Empty
+                };
+                assert!(!bit(v.empty(lanes)) || got == Kind::Empty);
+                counts[match want {
+                    Kind::Outside => 0,
+                    Kind::Clip => 1,
+                    Kind::Large => 2,
+                    Kind::Micro(..) => 3,
+                    Kind::Empty => 4,
+                }] += 1;
+                assert_eq!(&got, want, "lane {l} of {lanes}");
+            }
+            // Lanes past the batch's length are never reported.
+            let all = v.outside | v.clip | v.large | v.micro | v.empty(lanes);
+            assert_eq!(all, (1u32 << lanes) - 1);
+        }
+        // Every kind was exercised.
+        assert!(counts.iter().all(|&c| c > 300), "{counts:?}");
     }
 
     #[test]

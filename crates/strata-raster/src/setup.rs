@@ -22,11 +22,23 @@
 //! **Micro-triangles** — bounding box of at most [`crate::coverage::SMALL`]² pixel centres, most
 //! triangles of a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
 //! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
-//! are shaded at once, their fragments appended to the strip lists as 16-byte records. Setup has
+//! are shaded at once, their fragments appended to the strip lists as 20-byte records (pixel index and fragment). Setup has
 //! their vertices in registers already; binning them instead would make the scan load and set up
 //! every one again. The scan of a strip replays the records into the store, interleaved with the
 //! binned triangles by the cursor in each bin entry, so every pixel still receives its fragments
 //! in primitive order.
+//!
+//! # Batches of eight
+//!
+//! A dense mesh's triangles are mostly tiny, and which of them are culled, empty or covered is
+//! close to random from one to the next, so a triangle-at-a-time setup spends its time in
+//! mispredicted branches and scalar arithmetic. Setup therefore takes triangles [`LANES`] at a
+//! time: it gathers their window positions and outcodes into a [`Batch`] (structure of arrays),
+//! which classifies all of them — outside, to clip, large, micro with its coverage mask, empty —
+//! in lane-parallel arithmetic without branches. Only the lanes with work left (micro-triangles
+//! that cover something, large triangles, triangles to clip) are then visited, in primitive
+//! order. The whole chunk is compiled once per instruction set and chosen at run time
+//! ([`pulp::Arch::dispatch`]), so on AVX2 a batch quantity is one register.
 //!
 //! Nothing here allocates per triangle: all lists keep their capacity from frame to frame.
 
@@ -36,7 +48,7 @@ use std::ops::Range;
 
 use strata_core::Fragment;
 
-use crate::coverage::{Triangle, orient, pixel_bounds};
+use crate::coverage::{Batch, LANES, Setup, orient, pixel_bounds};
 use crate::scan::{Shade, shade_small};
 use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, outcode};
 
@@ -163,13 +175,52 @@ pub fn setup_chunk(
     attrs: &[Attrs],
     cx: &SetupContext<'_>,
 ) {
-    if cx.lit {
-        setup_chunk_impl::<true>(chunk, draw, screen, codes, attrs, cx);
-    } else {
-        setup_chunk_impl::<false>(chunk, draw, screen, codes, attrs, cx);
+    // Compiled once per instruction set (AVX2 where the CPU has it, else SSE2; NEON) and chosen
+    // at run time, so the batch's lane loops run in the widest registers there are. Integer
+    // lanes and the fragments' float arithmetic (no fused multiply-adds) give the same bits on
+    // every set.
+    pulp::Arch::new().dispatch(SetupJob {
+        chunk,
+        draw,
+        screen,
+        codes,
+        attrs,
+        cx,
+    });
+}
+
+/// [`setup_chunk`]'s arguments, for [`pulp::Arch::dispatch`].
+struct SetupJob<'j, 'd> {
+    chunk: &'j mut Chunk,
+    draw: &'j DrawObject<'d>,
+    screen: &'j [ScreenPos],
+    codes: &'j [u8],
+    attrs: &'j [Attrs],
+    cx: &'j SetupContext<'j>,
+}
+
+impl pulp::WithSimd for SetupJob<'_, '_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let SetupJob {
+            chunk,
+            draw,
+            screen,
+            codes,
+            attrs,
+            cx,
+        } = self;
+        if cx.lit {
+            setup_chunk_impl::<true>(chunk, draw, screen, codes, attrs, cx);
+        } else {
+            setup_chunk_impl::<false>(chunk, draw, screen, codes, attrs, cx);
+        }
     }
 }
 
+#[inline(always)]
 fn setup_chunk_impl<const LIT: bool>(
     chunk: &mut Chunk,
     draw: &DrawObject<'_>,
@@ -193,70 +244,78 @@ fn setup_chunk_impl<const LIT: bool>(
                 stats.bin_entries += 1;
             }
         };
-    for (t, tri) in draw.triangles[chunk.triangles.clone()].iter().enumerate() {
-        let [i0, i1, i2] = tri.map(|i| i as usize);
-        let (o0, o1, o2) = (codes[i0], codes[i1], codes[i2]);
-        if o0 & o1 & o2 & outcode::VIEW != 0 {
-            stats.culled_outside += 1;
-            continue;
+    let tris = &draw.triangles[chunk.triangles.clone()];
+    let mut batch = Batch::default();
+    for (b, group) in tris.chunks(LANES).enumerate() {
+        for (l, tri) in group.iter().enumerate() {
+            let [i0, i1, i2] = tri.map(|i| i as usize);
+            batch.set(
+                l,
+                [screen[i0], screen[i1], screen[i2]],
+                [codes[i0], codes[i1], codes[i2]],
+            );
         }
-        if (o0 | o1 | o2) & outcode::CLIP != 0 {
-            stats.clipped += 1;
-            let cv = |i: usize| {
-                let (p, n) = cx.transform.eye(draw.positions[i], draw.normals[i], cx.lit);
-                ClipVertex {
-                    c: cx.transform.projection * p.extend(1.0),
-                    p,
-                    n,
+        let verdict = batch.classify(group.len(), w, h, outcode::VIEW, outcode::CLIP);
+        stats.culled_outside += u64::from(verdict.outside.count_ones());
+        stats.culled_empty += u64::from(verdict.empty(group.len()).count_ones());
+        stats.clipped += u64::from(verdict.clip.count_ones());
+        stats.micro_triangles += u64::from(verdict.micro.count_ones());
+        // The lanes with work left, in primitive order.
+        let mut todo = verdict.micro | verdict.large | verdict.clip;
+        while todo != 0 {
+            let l = todo.trailing_zeros() as usize;
+            todo &= todo - 1;
+            let [i0, i1, i2] = group[l].map(|i| i as usize);
+            if verdict.micro >> l & 1 != 0 {
+                let (tri, mask) = batch.micro(l);
+                shade_small::<LIT>(
+                    &tri,
+                    [&attrs[i0], &attrs[i1], &attrs[i2]],
+                    mask,
+                    w,
+                    cx.shade,
+                    |row, pixel, fragment| {
+                        frags[(row >> shift) as usize].push(PixelFragment { pixel, fragment });
+                    },
+                );
+            } else if verdict.large >> l & 1 != 0 {
+                match Setup::new([screen[i0], screen[i1], screen[i2]], w, h) {
+                    Some(tri) => {
+                        let r = (b * LANES + l) as u32;
+                        bin(r, tri.bounds[2], tri.bounds[3], frags, &mut stats);
+                    }
+                    None => stats.culled_empty += 1,
                 }
-            };
-            let poly = Polygon::triangle([cv(i0), cv(i1), cv(i2)]).clip_near_and_guard(vp.guard);
-            for piece in poly.fan() {
-                let mut clipped = ClippedTriangle::default();
-                for (k, q) in piece.iter().enumerate() {
-                    let (x, y, z, iw) = vp.project(q.c);
-                    clipped.pos[k] = ScreenPos { x, y };
-                    clipped.attrs[k] = Attrs::new(z, iw, q.p, q.n);
-                }
-                let [a, b, c] = clipped.pos;
-                if orient(a, b, c) == 0 {
-                    continue;
-                }
-                if let Some([_, _, y0, y1]) = pixel_bounds(a, b, c, w, h) {
-                    let r = CLIPPED | chunk.clipped.len() as u32;
-                    chunk.clipped.push(clipped);
-                    bin(r, y0, y1, frags, &mut stats);
+            } else {
+                let cv = |i: usize| {
+                    let (p, n) = cx.transform.eye(draw.positions[i], draw.normals[i], cx.lit);
+                    ClipVertex {
+                        c: cx.transform.projection * p.extend(1.0),
+                        p,
+                        n,
+                    }
+                };
+                let poly =
+                    Polygon::triangle([cv(i0), cv(i1), cv(i2)]).clip_near_and_guard(vp.guard);
+                for piece in poly.fan() {
+                    let mut clipped = ClippedTriangle::default();
+                    for (k, q) in piece.iter().enumerate() {
+                        let (x, y, z, iw) = vp.project(q.c);
+                        clipped.pos[k] = ScreenPos { x, y };
+                        clipped.attrs[k] = Attrs::new(z, iw, q.p, q.n);
+                    }
+                    let [a, b, c] = clipped.pos;
+                    if orient(a, b, c) == 0 {
+                        continue;
+                    }
+                    if let Some([_, _, y0, y1]) = pixel_bounds(a, b, c, w, h) {
+                        let r = CLIPPED | chunk.clipped.len() as u32;
+                        chunk.clipped.push(clipped);
+                        bin(r, y0, y1, frags, &mut stats);
+                    }
                 }
             }
-            continue;
         }
-        let tri = match Triangle::new([screen[i0], screen[i1], screen[i2]], w, h) {
-            None => {
-                stats.culled_empty += 1;
-                continue;
-            }
-            Some(Triangle::Large(tri)) => {
-                bin(t as u32, tri.bounds[2], tri.bounds[3], frags, &mut stats);
-                continue;
-            }
-            Some(Triangle::Micro(tri)) => tri,
-        };
-        let mask = tri.coverage();
-        if mask == 0 {
-            stats.culled_empty += 1;
-            continue;
-        }
-        stats.micro_triangles += 1;
-        shade_small::<LIT>(
-            &tri,
-            [&attrs[i0], &attrs[i1], &attrs[i2]],
-            mask,
-            w,
-            cx.shade,
-            |row, pixel, fragment| {
-                frags[(row >> shift) as usize].push(PixelFragment { pixel, fragment });
-            },
-        );
     }
     stats.micro_fragments = chunk.frags.iter().map(|f| f.len() as u64).sum();
     chunk.stats = stats;
