@@ -3,7 +3,7 @@
 use std::time::Instant;
 
 use rayon::prelude::*;
-use strata_core::{PackedNormal, PassTimings, Rgba8, Shading, fragment::unorm8};
+use strata_core::{ObjectId, PackedNormal, PassTimings, Rgba8, Shading, fragment::unorm8};
 
 use crate::frame::{FragmentOutput, FrameInput};
 use crate::scan::{Shade, scan_triangle};
@@ -303,7 +303,7 @@ impl Prepared<'_, '_> {
         for chunk in self.chunks {
             let (bin, frags) = (&chunk.bins[s], &chunk.frags[s][..]);
             if bin.is_empty() {
-                n += replay(frags, sink);
+                n += replay(frags, self.shades[chunk.object].0.id, sink);
                 continue;
             }
             let (shade, lit) = &self.shades[chunk.object];
@@ -333,9 +333,9 @@ impl Prepared<'_, '_> {
 
 /// Pushes micro-triangle fragments into the sink.
 #[inline(always)]
-fn replay<S: FragmentSink>(frags: &[PixelFragment], sink: &mut S) -> u64 {
+fn replay<S: FragmentSink>(frags: &[PixelFragment], object: ObjectId, sink: &mut S) -> u64 {
     for f in frags {
-        sink.push(f.pixel, f.fragment);
+        sink.push(f.pixel, f.fragment(object));
     }
     frags.len() as u64
 }
@@ -362,7 +362,7 @@ impl BinScan<'_> {
         let mut next = 0;
         for &entry in self.bin {
             let (r, cursor) = (entry as u32, (entry >> 32) as usize);
-            n += replay(&self.frags[next..cursor], sink);
+            n += replay(&self.frags[next..cursor], self.shade.id, sink);
             next = cursor;
             let (pos, attrs) = if r & CLIPPED == 0 {
                 let [i0, i1, i2] = self.tris[r as usize].map(|i| i as usize);
@@ -378,6 +378,6 @@ impl BinScan<'_> {
                 pos, attrs, self.rows, w, h, self.shade, sink,
             ));
         }
-        n + replay(&self.frags[next..], sink)
+        n + replay(&self.frags[next..], self.shade.id, sink)
     }
 }

@@ -6,6 +6,7 @@
 //!
 //! ```text
 //! frags[s]  : Vec<PixelFragment>       fragments of micro-triangles in strip s, primitive order
+//!                                      (pixel, depth, colour: 12 bytes; the object is the chunk's)
 //! bins[s]   : Vec<u64>                 triangles for the scan of strip s, primitive order:
 //!             low 32 bits r            r < CLIPPED → triangle `triangles.start + r` of the object,
 //!                                        vertices from the frame's vertex arrays;
@@ -22,7 +23,7 @@
 //! **Micro-triangles** — bounding box of at most [`crate::coverage::SMALL`]² pixel centres, most
 //! triangles of a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
 //! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
-//! are shaded at once, their fragments appended to the strip lists as 20-byte records (pixel index and fragment). Setup has
+//! are shaded at once, their fragments appended to the strip lists as 12-byte records (pixel index, depth, colour). Setup has
 //! their vertices in registers already; binning them instead would make the scan load and set up
 //! every one again. The scan of a strip replays the records into the store, interleaved with the
 //! binned triangles by the cursor in each bin entry, so every pixel still receives its fragments
@@ -46,7 +47,7 @@ use crate::clip::{ClipVertex, Polygon};
 use crate::frame::DrawObject;
 use std::ops::Range;
 
-use strata_core::Fragment;
+use strata_core::{Fragment, ObjectId, Rgba8};
 
 use crate::coverage::{Batch, LANES, Setup, orient, pixel_bounds};
 use crate::scan::{Shade, shade_small};
@@ -61,14 +62,41 @@ pub fn bin_entry(reference: u32, cursor: usize) -> u64 {
     u64::from(reference) | ((cursor as u64) << 32)
 }
 
-/// A fragment with its row-major pixel index: what micro-triangle setup hands to the scan.
+/// A micro-triangle's fragment as setup hands it to the scan: its row-major pixel index, depth
+/// and colour, 12 bytes. The object is the chunk's, so it is not stored: these records are
+/// written once and read once per frame, and at a fragment per triangle they are a large share
+/// of the frame's memory traffic.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C)]
 pub struct PixelFragment {
     /// Row-major pixel index.
     pub pixel: u32,
-    /// The fragment.
-    pub fragment: Fragment,
+    /// Window depth.
+    pub depth: f32,
+    /// Shaded colour.
+    pub color: Rgba8,
+}
+
+impl PixelFragment {
+    /// The record of `fragment` at `pixel`.
+    #[inline(always)]
+    pub fn new(pixel: u32, fragment: Fragment) -> Self {
+        PixelFragment {
+            pixel,
+            depth: fragment.depth,
+            color: fragment.color,
+        }
+    }
+
+    /// The fragment again, made by `object`.
+    #[inline(always)]
+    pub fn fragment(&self, object: ObjectId) -> Fragment {
+        Fragment {
+            depth: self.depth,
+            color: self.color,
+            object,
+        }
+    }
 }
 
 /// What setup did with the frame's triangles.
@@ -275,7 +303,7 @@ fn setup_chunk_impl<const LIT: bool>(
                     w,
                     cx.shade,
                     |row, pixel, fragment| {
-                        frags[(row >> shift) as usize].push(PixelFragment { pixel, fragment });
+                        frags[(row >> shift) as usize].push(PixelFragment::new(pixel, fragment));
                     },
                 );
             } else if verdict.large >> l & 1 != 0 {
