@@ -330,10 +330,10 @@ impl Verdict {
 /// covered together, lane by lane, without branches.
 ///
 /// Layout: structure of arrays, one `[_; LANES]` per quantity, so every step of
-/// [`Micro::new`] and [`Micro::coverage`] is one vector operation over the batch (LLVM
+/// `Micro::new` and [`Micro::coverage`] is one vector operation over the batch (LLVM
 /// vectorises the lane loops; compiled for AVX2, a lane array is one register). Lanes whose
 /// triangles turn out not to be micro-triangles compute garbage with wrapping arithmetic, and
-/// their results are never read. A micro-triangle's values are exactly those of [`Micro::new`],
+/// their results are never read. A micro-triangle's values are exactly those of `Micro::new`,
 /// so which setup ran is invisible downstream (tested against it below).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Batch {
@@ -475,7 +475,7 @@ impl Batch {
     }
 
     /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]) and its coverage mask, as
-    /// [`Micro::new`] and [`Micro::coverage`] would give them.
+    /// `Micro::new` and [`Micro::coverage`] would give them.
     #[inline(always)]
     pub fn micro(&self, lane: usize) -> (Micro, u32) {
         let l = lane;
