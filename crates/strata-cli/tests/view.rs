@@ -798,3 +798,66 @@ fn remote_options_need_nodes_and_nodes_need_a_remote_page() {
         "--tolerance applies to --transfer difference and reprojection only",
     );
 }
+
+#[test]
+fn a_remote_page_asking_more_than_eight_questions_at_once_is_told_to_wait() {
+    let dir = TempDir::new().expect("temp dir");
+    let (scene, _) = still_scene("mixed", &dir);
+    let node = Service::start(&["node", "--listen", "127.0.0.1:0", "--scene", &scene]);
+    let v = Viewer::start_scene(&scene, &["--nodes", &node.addr, "--timeout", "10"]);
+    let mut ws = v.socket();
+    let _hello = text(next(&mut ws).expect("hello"));
+    // One frame a second: questions are taken up with the next frame, so a burst stays queued.
+    let camera = json!({"eye": [0.35, 0.45, 1.7], "target": [0, 0, 0], "up": [0, 1, 0],
+                        "fovy_deg": 45, "near": 0.01, "far": 100});
+    ws.send(Message::text(
+        json!({"type": "remote", "id": 1, "width": 64, "height": 48, "camera": camera,
+               "max_fps": 1})
+        .to_string(),
+    ))
+    .expect("send");
+    let _ = frame_and_png_where(&mut ws, |h| h["id"] == 1);
+    const ASKED: usize = 30;
+    for _ in 0..ASKED {
+        ws.send(Message::text(
+            json!({"type": "inspect", "x": 32, "y": 24}).to_string(),
+        ))
+        .expect("send");
+    }
+    // Every question gets an answer or the error that says to wait; none is dropped silently.
+    // Queued questions are answered with the next frame, so a few frames are plenty: a
+    // question still unanswered after ten has been lost.
+    let (mut answers, mut refusals, mut frames) = (0, 0, 0);
+    while answers + refusals < ASKED {
+        match next(&mut ws).expect("a message") {
+            Message::Binary(_) => {
+                frames += 1;
+                assert!(
+                    frames <= 10,
+                    "{} of {ASKED} questions unanswered after {frames} frames",
+                    ASKED - answers - refusals
+                );
+            }
+            m => {
+                let m = text(m);
+                match m["type"].as_str() {
+                    Some("pixel") => answers += 1,
+                    Some("error") => {
+                        assert!(
+                            m["message"]
+                                .as_str()
+                                .is_some_and(|t| t.contains("too many questions at once")),
+                            "{m}"
+                        );
+                        refusals += 1;
+                    }
+                    _ => panic!("unexpected {m}"),
+                }
+            }
+        }
+    }
+    // At most eight wait for a frame (a frame could, rarely, fall inside the burst and take
+    // some: then more are answered, but a burst of 30 still overflows the queue).
+    assert!(refusals >= 1, "{answers} answered, {refusals} refused");
+    assert!(answers >= 8, "{answers} answered, {refusals} refused");
+}
