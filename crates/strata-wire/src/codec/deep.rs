@@ -56,6 +56,20 @@
 //! parallel, so that replay cannot fail. The result goes through `DeepFrame::from_parts`, which
 //! re-checks sortedness and depth range, so a well-formed message with nonsense residuals is an
 //! error, not a frame.
+//!
+//! # Implementation (the layout above is the contract; this is how it is met fast)
+//!
+//! One function, `walk`, visits a band row by row and hands each non-empty pixel to the encoder
+//! or the decoder: a pixel whose every layer has `L`, `U` and `UL` (inside a surface, most
+//! pixels) as one `surface` call that slices the neighbours' runs once, any other fragment with
+//! its named source. Per fragment, the residuals live as one `u32` each (zigzagged depth,
+//! packed colour) in a row buffer that stays in cache; the encoder spreads a finished row over
+//! the byte planes in one pass, the decoder gathers a row from them before replaying it, so the
+//! predictor loop touches three columns instead of eight planes. The colour predictor runs on
+//! the four channels at once in the byte lanes of an SSE2 register (`Lanes`, through pulp,
+//! which every x86_64 CPU has; one channel at a time elsewhere), with the residual's byte add
+//! or subtract in the same register. The bytes are those of the first, per-fragment
+//! implementation; a test pins them.
 
 use std::ops::Range;
 
@@ -121,16 +135,23 @@ fn source(k: usize, start: usize, l: Nb, u: Nb, ul: Nb, first: Option<usize>) ->
     }
 }
 
-/// What [`walk`] hands each fragment to: the encoder computes its residuals, the decoder its
-/// values.
+/// What [`walk`] hands the fragments of a band to: the encoder computes their residuals, the
+/// decoder their values. Indices count from the band's first fragment.
 trait Visit {
-    /// Fragment `i` of the band, predicted from `s`.
+    /// The row whose fragments are `frags` is about to be visited.
+    fn row_start(&mut self, frags: Range<usize>);
+    /// The fragments `frags` of the row just visited are done.
+    fn row_end(&mut self, frags: Range<usize>);
+    /// The `len` fragments from `me`: every layer `k` has all three neighbours, `l + k`,
+    /// `u + k` and `ul + k` (inside a surface, the common case: one call a pixel).
+    fn surface(&mut self, me: usize, l: usize, u: usize, ul: usize, len: usize);
+    /// Fragment `i`, predicted from `s` (a pixel at an edge of its neighbours' layers).
     fn visit(&mut self, i: usize, s: Source);
 }
 
-/// Visits the fragments of `band` in wire order with the source each is predicted from; `i`,
-/// like every index in the source, counts from the band's first fragment. The encoder and the
-/// decoder both walk with it, so they cannot disagree on a neighbourhood.
+/// Visits the fragments of `band` in wire order with the source each is predicted from; every
+/// index counts from the band's first fragment. The encoder and the decoder both walk with it,
+/// so they cannot disagree on a neighbourhood.
 #[inline(always)]
 fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
     if width == 0 {
@@ -148,6 +169,11 @@ fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
         } else {
             &[][..]
         };
+        let frags = (cur[0] - base) as usize..(cur[width] - base) as usize;
+        if frags.is_empty() {
+            continue;
+        }
+        v.row_start(frags.clone());
         let run = |o: &[u32], x: usize| Nb {
             start: (o[x] - base) as usize,
             len: (o[x + 1] - o[x]) as usize,
@@ -169,14 +195,7 @@ fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
                 (true, _) => (NONE, NONE),
             };
             if me.len <= l.len.min(u.len).min(ul.len) {
-                // Inside a surface: every layer has all three neighbours (the common case,
-                // without a branch per fragment).
-                for k in 0..me.len {
-                    v.visit(
-                        me.start + k,
-                        Source::Plane(l.start + k, u.start + k, ul.start + k),
-                    );
-                }
+                v.surface(me.start, l.start, u.start, ul.start, me.len);
             } else {
                 for k in 0..me.len {
                     v.visit(me.start + k, source(k, me.start, l, u, ul, first));
@@ -185,37 +204,154 @@ fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
             first = Some(me.start);
             x += 1;
         }
+        v.row_end(frags);
     }
+}
+
+/// The depth prediction from the neighbours' bits: the plane `L + U − UL` (mod 2^32).
+#[inline(always)]
+fn plane(l: u32, u: u32, ul: u32) -> u32 {
+    l.wrapping_add(u).wrapping_sub(ul)
 }
 
 #[inline(always)]
 fn predict_depth(bits: impl Fn(usize) -> u32, s: Source) -> u32 {
     match s {
-        Source::Plane(l, u, ul) => bits(l).wrapping_add(bits(u)).wrapping_sub(bits(ul)),
+        Source::Plane(l, u, ul) => plane(bits(l), bits(u), bits(ul)),
         Source::One(i) => bits(i),
         Source::Zero => 0,
     }
 }
 
-/// LOCO-I's median edge detector: `min(a, b)` if `c ≥ max(a, b)`, `max(a, b)` if `c ≤ min(a, b)`,
-/// else `a + b − c`. That is `a + b − c` clamped to `[min(a, b), max(a, b)]` (when `c ≥ max`,
-/// `a + b − c ≤ min`, and symmetrically), which needs no branch: colour residuals are noisy, and
-/// a branch on them is mispredicted about as often as not.
-#[inline(always)]
+/// LOCO-I's median edge detector on one channel: `min(a, b)` if `c ≥ max(a, b)`, `max(a, b)` if
+/// `c ≤ min(a, b)`, else `a + b − c`. That is `a + b − c` clamped to `[min(a, b), max(a, b)]`.
+/// The reference for [`med4`].
+#[cfg(test)]
 fn med(a: u8, b: u8, c: u8) -> u8 {
     let (a, b, c) = (i16::from(a), i16::from(b), i16::from(c));
     (a + b - c).clamp(a.min(b), a.max(b)) as u8
 }
 
+/// [`med`] on the four channels of three colours, packed little end first (red in the low
+/// byte), one channel at a time: where SSE2 is missing, and the reference for [`Lanes::med4`].
 #[inline(always)]
-fn predict_color(colors: impl Fn(usize) -> [u8; 4], s: Source) -> [u8; 4] {
-    match s {
-        Source::Plane(l, u, ul) => {
-            let (a, b, c) = (colors(l), colors(u), colors(ul));
-            std::array::from_fn(|ch| med(a[ch], b[ch], c[ch]))
+fn med4_bytes(a: u32, b: u32, c: u32) -> u32 {
+    let (a, b, c) = (a.to_le_bytes(), b.to_le_bytes(), c.to_le_bytes());
+    u32::from_le_bytes(std::array::from_fn(|ch| {
+        let (a, b, c) = (a[ch], b[ch], c[ch]);
+        let (lo, hi) = (a.min(b), a.max(b));
+        if c >= hi {
+            lo
+        } else if c <= lo {
+            hi
+        } else {
+            a.wrapping_add(b).wrapping_sub(c)
         }
+    }))
+}
+
+/// Where the colour predictor computes: the four channels of a colour in the byte lanes of
+/// one SSE2 register on x86_64 (pulp's `V1`; SSE2 is part of every x86_64 CPU), else one
+/// channel at a time. Taken once a band.
+#[derive(Clone, Copy)]
+struct Lanes {
+    #[cfg(target_arch = "x86_64")]
+    sse2: Option<pulp::x86::V1>,
+}
+
+impl Lanes {
+    fn new() -> Self {
+        Lanes {
+            #[cfg(target_arch = "x86_64")]
+            sse2: pulp::x86::V1::try_new(),
+        }
+    }
+
+    /// [`med`] on the four channels of three packed colours at once. Where `c` lies between
+    /// `a` and `b`, `a + b − c` lies there too, so wrapping byte arithmetic gives it exactly;
+    /// the other two cases are byte compares (`c ≥ max` is `max(c, max) = c`) and selects.
+    #[inline(always)]
+    fn med4(self, a: u32, b: u32, c: u32) -> u32 {
+        self.med4_then(a, b, c, 0, Then::Add)
+    }
+
+    /// `value − med4(a, b, c)` in every byte: the encoder's colour residual.
+    #[inline(always)]
+    fn med4_sub(self, a: u32, b: u32, c: u32, value: u32) -> u32 {
+        self.med4_then(a, b, c, value, Then::SubFrom)
+    }
+
+    /// `med4(a, b, c) + residual` in every byte: the decoder's colour.
+    #[inline(always)]
+    fn med4_add(self, a: u32, b: u32, c: u32, residual: u32) -> u32 {
+        self.med4_then(a, b, c, residual, Then::Add)
+    }
+
+    #[inline(always)]
+    fn med4_then(self, a: u32, b: u32, c: u32, x: u32, then: Then) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(s) = self.sse2 {
+            use pulp::bytemuck::cast;
+            use pulp::{m8x16, u8x16};
+            let v = |x: u32| cast::<[u32; 4], u8x16>([x, 0, 0, 0]);
+            let (a, b, c, x) = (v(a), v(b), v(c), v(x));
+            let (lo, hi) = (s.min_u8x16(a, b), s.max_u8x16(a, b));
+            let between = s.wrapping_sub_u8x16(s.wrapping_add_u8x16(a, b), c);
+            let mask = |m: m8x16| cast::<m8x16, u8x16>(m);
+            let above = mask(s.cmp_eq_u8x16(s.max_u8x16(c, hi), c));
+            let below = mask(s.cmp_eq_u8x16(s.min_u8x16(c, lo), c));
+            let pick = s.or_u8x16(s.and_u8x16(below, hi), s.andnot_u8x16(below, between));
+            let pick = s.or_u8x16(s.and_u8x16(above, lo), s.andnot_u8x16(above, pick));
+            let out = match then {
+                Then::Add => s.wrapping_add_u8x16(pick, x),
+                Then::SubFrom => s.wrapping_sub_u8x16(x, pick),
+            };
+            return cast::<u8x16, [u32; 4]>(out)[0];
+        }
+        let m = med4_bytes(a, b, c);
+        match then {
+            Then::Add => add_bytes(m, x),
+            Then::SubFrom => sub_bytes(x, m),
+        }
+    }
+}
+
+/// What [`Lanes::med4_then`] does with the prediction.
+#[derive(Clone, Copy)]
+enum Then {
+    /// Adds the residual (decoding).
+    Add,
+    /// Subtracts it from the value (encoding).
+    SubFrom,
+}
+
+/// The high bit of every byte.
+const HIGH: u32 = 0x8080_8080;
+
+/// `a + b` in each byte, wrapping, with no carry between bytes.
+#[inline(always)]
+fn add_bytes(a: u32, b: u32) -> u32 {
+    ((a & !HIGH) + (b & !HIGH)) ^ ((a ^ b) & HIGH)
+}
+
+/// `a − b` in each byte, wrapping, with no borrow between bytes.
+#[inline(always)]
+fn sub_bytes(a: u32, b: u32) -> u32 {
+    ((a | HIGH) - (b & !HIGH)) ^ ((a ^ !b) & HIGH)
+}
+
+/// A colour packed little end first: red in the low byte, as the colour planes order it.
+#[inline(always)]
+fn packed(c: [u8; 4]) -> u32 {
+    u32::from_le_bytes(c)
+}
+
+#[inline(always)]
+fn predict_color(lanes: Lanes, colors: impl Fn(usize) -> u32, s: Source) -> u32 {
+    match s {
+        Source::Plane(l, u, ul) => lanes.med4(colors(l), colors(u), colors(ul)),
         Source::One(i) => colors(i),
-        Source::Zero => [0; 4],
+        Source::Zero => 0,
     }
 }
 
@@ -329,6 +465,7 @@ fn take_front<'a, T>(slice: &mut &'a mut [T], len: usize) -> &'a mut [T] {
 }
 
 /// The residuals of the fragments of the pixels in `band` into `out`.
+#[inline(never)]
 fn encode_band(frame: &DeepFrame, band: Range<usize>, out: &mut BandOut<'_>) {
     let offsets = frame.offsets();
     let (lo, hi) = (offsets[band.start] as usize, offsets[band.end] as usize);
@@ -336,40 +473,131 @@ fn encode_band(frame: &DeepFrame, band: Range<usize>, out: &mut BandOut<'_>) {
         depths: &frame.depths()[lo..hi],
         colors: &frame.colors()[lo..hi],
         objects: &frame.objects()[lo..hi],
+        lanes: Lanes::new(),
+        row: 0,
+        depth: Vec::new(),
+        color: Vec::new(),
         out,
     };
     walk(offsets, frame.width() as usize, band, &mut encoder);
 }
 
-/// A band's fragments, and where their residuals go.
+/// A band's fragments, and where their residuals go: a row's depth and colour residuals are
+/// computed into `depth` and `color` (one `u32` a fragment, indexed from the row's first
+/// fragment `row`; small enough to stay in cache), then spread over the byte planes in one
+/// pass per row.
 struct BandEncoder<'a, 'b> {
     depths: &'a [f32],
     colors: &'a [Rgba8],
     objects: &'a [ObjectId],
+    lanes: Lanes,
+    row: usize,
+    depth: Vec<u32>,
+    color: Vec<u32>,
     out: &'a mut BandOut<'b>,
 }
 
 impl Visit for BandEncoder<'_, '_> {
     #[inline(always)]
+    fn row_start(&mut self, frags: Range<usize>) {
+        self.row = frags.start;
+        if self.depth.len() < frags.len() {
+            self.depth.resize(frags.len(), 0);
+            self.color.resize(frags.len(), 0);
+        }
+    }
+
+    #[inline(always)]
+    fn row_end(&mut self, frags: Range<usize>) {
+        let n = frags.len();
+        let [d0, d1, d2, d3] = &mut self.out.depth;
+        let [c0, c1, c2, c3] = &mut self.out.color;
+        spread_bytes(
+            &self.depth[..n],
+            [
+                &mut d0[frags.clone()],
+                &mut d1[frags.clone()],
+                &mut d2[frags.clone()],
+                &mut d3[frags.clone()],
+            ],
+        );
+        spread_bytes(
+            &self.color[..n],
+            [
+                &mut c0[frags.clone()],
+                &mut c1[frags.clone()],
+                &mut c2[frags.clone()],
+                &mut c3[frags],
+            ],
+        );
+    }
+
+    #[inline(always)]
+    fn surface(&mut self, me: usize, l: usize, u: usize, ul: usize, len: usize) {
+        let d = &self.depths;
+        let (dm, dl, du, dul) = (
+            &d[me..me + len],
+            &d[l..l + len],
+            &d[u..u + len],
+            &d[ul..ul + len],
+        );
+        let c = &self.colors;
+        let (cm, cl, cu, cul) = (
+            &c[me..me + len],
+            &c[l..l + len],
+            &c[u..u + len],
+            &c[ul..ul + len],
+        );
+        let (om, ol) = (&self.objects[me..me + len], &self.objects[l..l + len]);
+        let at = me - self.row;
+        let dr = &mut self.depth[at..at + len];
+        let cr = &mut self.color[at..at + len];
+        let or = &mut self.out.object[me..me + len];
+        for k in 0..len {
+            let guess = plane(dl[k].to_bits(), du[k].to_bits(), dul[k].to_bits());
+            dr[k] = zigzag(dm[k].to_bits().wrapping_sub(guess) as i32);
+            let [l, u, ul, m] = [cl[k], cu[k], cul[k], cm[k]].map(|c| packed(c.0));
+            cr[k] = self.lanes.med4_sub(l, u, ul, m);
+            or[k] = om[k].0 ^ ol[k].0;
+        }
+    }
+
+    #[inline(always)]
     fn visit(&mut self, i: usize, s: Source) {
-        // The columns read as the decoder holds them: bits, byte arrays, u32 ids.
+        // The columns read as the decoder holds them: bits, packed colours, u32 ids.
         let bits = |q: usize| self.depths[q].to_bits();
-        let color = |q: usize| self.colors[q].0;
+        let color = |q: usize| packed(self.colors[q].0);
         let object = |q: usize| self.objects[q].0;
-        let r = zigzag(bits(i).wrapping_sub(predict_depth(bits, s)) as i32);
-        for (plane, byte) in self.out.depth.iter_mut().zip(r.to_le_bytes()) {
-            plane[i] = byte;
-        }
-        let guess = predict_color(color, s);
-        for (plane, (value, guess)) in self
-            .out
-            .color
-            .iter_mut()
-            .zip(color(i).into_iter().zip(guess))
-        {
-            plane[i] = value.wrapping_sub(guess);
-        }
+        let at = i - self.row;
+        self.depth[at] = zigzag(bits(i).wrapping_sub(predict_depth(bits, s)) as i32);
+        self.color[at] = sub_bytes(color(i), predict_color(self.lanes, color, s));
         self.out.object[i] = object(i) ^ predict_object(object, s);
+    }
+}
+
+/// Byte `j` of every value of `values` (little end first) into `planes[j]`, which are as long.
+#[inline(always)]
+fn spread_bytes(values: &[u32], planes: [&mut [u8]; 4]) {
+    let [p0, p1, p2, p3] = planes;
+    let n = values.len();
+    let (p0, p1, p2, p3) = (&mut p0[..n], &mut p1[..n], &mut p2[..n], &mut p3[..n]);
+    for (j, &v) in values.iter().enumerate() {
+        let [b0, b1, b2, b3] = v.to_le_bytes();
+        p0[j] = b0;
+        p1[j] = b1;
+        p2[j] = b2;
+        p3[j] = b3;
+    }
+}
+
+/// The inverse of [`spread_bytes`]: `values[i]` from byte `i` of each plane, then `map`ped.
+#[inline(always)]
+fn gather_bytes(planes: [&[u8]; 4], values: &mut [u32], map: impl Fn(u32) -> u32) {
+    let [p0, p1, p2, p3] = planes;
+    let n = values.len();
+    let (p0, p1, p2, p3) = (&p0[..n], &p1[..n], &p2[..n], &p3[..n]);
+    for (j, v) in values.iter_mut().enumerate() {
+        *v = map(u32::from_le_bytes([p0[j], p1[j], p2[j], p3[j]]));
     }
 }
 
@@ -701,6 +929,7 @@ struct BandResiduals<'a> {
 }
 
 /// Replays the predictors of `band` into its columns.
+#[inline(never)]
 fn decode_band(
     offsets: &[u32],
     width: usize,
@@ -714,6 +943,10 @@ fn decode_band(
         color: r.color,
         nonzero: r.object,
         first: r.first,
+        lanes: Lanes::new(),
+        row: 0,
+        depth_residuals: Vec::new(),
+        color_residuals: Vec::new(),
         bits,
         colors,
         objects,
@@ -721,7 +954,9 @@ fn decode_band(
     walk(offsets, width, band, &mut decoder);
 }
 
-/// A band's residuals, and its columns being rebuilt.
+/// A band's residuals, and its columns being rebuilt. A row's depth and colour residuals are
+/// gathered from the byte planes first, in one pass, into `depth_residuals` and
+/// `color_residuals` (indexed from the row's first fragment `row`).
 struct BandDecoder<'a> {
     depth: [&'a [u8]; 4],
     color: [&'a [u8]; 4],
@@ -729,34 +964,107 @@ struct BandDecoder<'a> {
     /// first fragment; `first` is the band's).
     nonzero: &'a [(u32, u32)],
     first: usize,
+    lanes: Lanes,
+    row: usize,
+    /// Signed (unzigzagged) depth residuals of the row, as `u32`.
+    depth_residuals: Vec<u32>,
+    /// Packed colour residuals of the row.
+    color_residuals: Vec<u32>,
     bits: &'a mut [u32],
     colors: &'a mut [[u8; 4]],
     objects: &'a mut [u32],
 }
 
-impl Visit for BandDecoder<'_> {
+impl BandDecoder<'_> {
+    /// The object residual of fragment `i` (the next non-zero one, or 0).
     #[inline(always)]
-    fn visit(&mut self, i: usize, s: Source) {
-        let [d0, d1, d2, d3] = self.depth;
-        let [c0, c1, c2, c3] = self.color;
-        let residual = u32::from_le_bytes([d0[i], d1[i], d2[i], d3[i]]);
-        let bits = &mut *self.bits;
-        bits[i] = predict_depth(|q| bits[q], s).wrapping_add(unzigzag(residual) as u32);
-        let colors = &mut *self.colors;
-        let guess = predict_color(|q| colors[q], s);
-        colors[i] = [
-            guess[0].wrapping_add(c0[i]),
-            guess[1].wrapping_add(c1[i]),
-            guess[2].wrapping_add(c2[i]),
-            guess[3].wrapping_add(c3[i]),
-        ];
-        let residual = match self.nonzero.first() {
+    fn object_residual(&mut self, i: usize) -> u32 {
+        match self.nonzero.first() {
             Some(&(at, v)) if at as usize - self.first == i => {
                 self.nonzero = &self.nonzero[1..];
                 v
             }
             _ => 0,
-        };
+        }
+    }
+}
+
+impl Visit for BandDecoder<'_> {
+    #[inline(always)]
+    fn row_start(&mut self, frags: Range<usize>) {
+        self.row = frags.start;
+        let n = frags.len();
+        if self.depth_residuals.len() < n {
+            self.depth_residuals.resize(n, 0);
+            self.color_residuals.resize(n, 0);
+        }
+        let [d0, d1, d2, d3] = self.depth;
+        let [c0, c1, c2, c3] = self.color;
+        gather_bytes(
+            [
+                &d0[frags.clone()],
+                &d1[frags.clone()],
+                &d2[frags.clone()],
+                &d3[frags.clone()],
+            ],
+            &mut self.depth_residuals[..n],
+            |r| unzigzag(r) as u32,
+        );
+        gather_bytes(
+            [
+                &c0[frags.clone()],
+                &c1[frags.clone()],
+                &c2[frags.clone()],
+                &c3[frags],
+            ],
+            &mut self.color_residuals[..n],
+            |r| r,
+        );
+    }
+
+    #[inline(always)]
+    fn row_end(&mut self, _frags: Range<usize>) {}
+
+    #[inline(always)]
+    fn surface(&mut self, me: usize, l: usize, u: usize, ul: usize, len: usize) {
+        // Every neighbour precedes `me`: the left run ends where `me` starts.
+        let at = me - self.row;
+        let dr = &self.depth_residuals[at..at + len];
+        let cr = &self.color_residuals[at..at + len];
+        let (done, bits) = self.bits.split_at_mut(me);
+        let (dl, du, dul, dm) = (
+            &done[l..l + len],
+            &done[u..u + len],
+            &done[ul..ul + len],
+            &mut bits[..len],
+        );
+        let (done, colors) = self.colors.split_at_mut(me);
+        let (cl, cu, cul, cm) = (
+            &done[l..l + len],
+            &done[u..u + len],
+            &done[ul..ul + len],
+            &mut colors[..len],
+        );
+        for k in 0..len {
+            dm[k] = plane(dl[k], du[k], dul[k]).wrapping_add(dr[k]);
+            let [l, u, ul] = [cl[k], cu[k], cul[k]].map(packed);
+            cm[k] = self.lanes.med4_add(l, u, ul, cr[k]).to_le_bytes();
+        }
+        for k in 0..len {
+            let r = self.object_residual(me + k);
+            self.objects[me + k] = self.objects[l + k] ^ r;
+        }
+    }
+
+    #[inline(always)]
+    fn visit(&mut self, i: usize, s: Source) {
+        let at = i - self.row;
+        let bits = &mut *self.bits;
+        bits[i] = predict_depth(|q| bits[q], s).wrapping_add(self.depth_residuals[at]);
+        let colors = &mut *self.colors;
+        let guess = predict_color(self.lanes, |q| packed(colors[q]), s);
+        colors[i] = add_bytes(guess, self.color_residuals[at]).to_le_bytes();
+        let residual = self.object_residual(i);
         let objects = &mut *self.objects;
         objects[i] = predict_object(|q| objects[q], s) ^ residual;
     }
@@ -765,6 +1073,56 @@ impl Visit for BandDecoder<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn med4_is_med_in_every_channel() {
+        let lanes = Lanes::new();
+        #[cfg(target_arch = "x86_64")]
+        assert!(lanes.sse2.is_some(), "SSE2 is part of x86_64");
+        // Every (a, b, c) of one channel, in each of the four lanes, with the other lanes
+        // holding other values.
+        for a in 0..=255u8 {
+            for b in 0..=255u8 {
+                for c in (0..=255u8).step_by(3).chain([254, 255]) {
+                    let pack = |x: u8, ch: usize| {
+                        let mut v = [a ^ 0x5a, b.wrapping_mul(3), c ^ 0xa5, 77];
+                        v[ch] = x;
+                        u32::from_le_bytes(v)
+                    };
+                    for ch in 0..4 {
+                        let (a4, b4, c4) = (pack(a, ch), pack(b, ch), pack(c, ch));
+                        let want = med(a, b, c);
+                        assert_eq!(med4_bytes(a4, b4, c4).to_le_bytes()[ch], want);
+                        let got = lanes.med4(a4, b4, c4).to_le_bytes()[ch];
+                        assert_eq!(got, want, "{a} {b} {c} in lane {ch}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn byte_lanes_add_and_subtract_without_carries() {
+        let mut x = 0x1234_5678u32;
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            let (a, b) = (x, x.rotate_left(11) ^ 0x8080_7f01);
+            let (ab, bb) = (a.to_le_bytes(), b.to_le_bytes());
+            let sum: [u8; 4] = std::array::from_fn(|i| ab[i].wrapping_add(bb[i]));
+            let diff: [u8; 4] = std::array::from_fn(|i| ab[i].wrapping_sub(bb[i]));
+            assert_eq!(add_bytes(a, b).to_le_bytes(), sum, "{a:08x} + {b:08x}");
+            assert_eq!(sub_bytes(a, b).to_le_bytes(), diff, "{a:08x} - {b:08x}");
+        }
+        for (a, b) in [
+            (0, 0xffff_ffff),
+            (0xffff_ffff, 0xffff_ffff),
+            (0x8080_8080, 0x8080_8080),
+        ] {
+            assert_eq!(sub_bytes(add_bytes(a, b), b), a);
+        }
+    }
 
     #[test]
     fn med_is_the_loco_i_predictor() {
@@ -790,6 +1148,43 @@ mod tests {
                         depth: 0.1 + 0.2 * k as f32 + 0.001 * x as f32 + 0.0007 * y as f32,
                         color: Rgba8([(x * 7) as u8, (y * 5) as u8, (k * 60) as u8, 128]),
                         object: ObjectId(1 + (x / 9 + k) % 3),
+                    })
+                    .collect()
+            })
+            .collect();
+        DeepFrame::from_pixel_lists(width, height, &lists).expect("a valid frame")
+    }
+
+    /// Planar layers over most of the frame (the decoders' fast path: every layer has all
+    /// three neighbours) with hashed colours and a few objects, and ragged edges.
+    fn surfaces_frame(width: u32, height: u32) -> DeepFrame {
+        let hash = |v: u32| v.wrapping_mul(0x9e37_79b9).rotate_left(13) ^ v;
+        let lists: Vec<Vec<strata_core::Fragment>> = (0..width * height)
+            .map(|p| {
+                let (x, y) = (p % width, p / width);
+                let count = match (x + 2 * y) % 29 {
+                    0 => 0,
+                    1 | 2 => 5,
+                    _ if x > width / 2 => 3,
+                    _ => 2,
+                };
+                (0..count)
+                    .map(|k| {
+                        let h = hash(p * 8 + k);
+                        strata_core::Fragment {
+                            depth: 0.05 + 0.15 * k as f32 + 0.0011 * x as f32 + 0.0005 * y as f32,
+                            color: Rgba8([
+                                (x * 2 + k * 40) as u8,
+                                (y * 3) as u8 ^ (h & 3) as u8,
+                                (h >> 8) as u8,
+                                if k == 0 {
+                                    255
+                                } else {
+                                    100 + (h >> 24) as u8 % 50
+                                },
+                            ]),
+                            object: ObjectId(1 + k + u32::from(x > width / 3)),
+                        }
                     })
                     .collect()
             })
@@ -998,6 +1393,47 @@ mod tests {
         let mut trailing = good[3].1.clone();
         trailing.push(0);
         assert!(with(3, trailing).contains("bytes left"), "trailing byte");
+    }
+
+    /// FNV-1a over every section's tag and bytes.
+    fn fingerprint(sections: &[(SectionTag, Vec<u8>)]) -> u64 {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        for (tag, bytes) in sections {
+            for &b in std::iter::once(&(*tag as u8)).chain(bytes) {
+                h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+        h
+    }
+
+    #[test]
+    fn the_layout_of_a_patchy_frame_is_pinned() {
+        // The deep layout is a wire format: any change to its bytes is a new version. These
+        // fingerprints were taken from the first implementation (per-fragment sources, byte
+        // planes written in place); a faster predictor must give the same bytes.
+        let frames = [
+            (
+                patchy_frame(37, 2 * BAND_ROWS as u32 + 9),
+                0xf7cd68cb4d3b595c,
+            ),
+            (patchy_frame(1, 5), 0xdcbd504ce76ddceb),
+            (patchy_frame(130, 3), 0xfd262f37642182ef),
+            (
+                surfaces_frame(83, BAND_ROWS as u32 + 21),
+                0x06f0ee37cbb48266,
+            ),
+        ];
+        for (frame, pinned) in &frames {
+            let sections = encode(frame);
+            assert_eq!(
+                fingerprint(&sections),
+                *pinned,
+                "{}x{}",
+                frame.width(),
+                frame.height()
+            );
+            assert_eq!(&decode_sections(frame, sections).expect("decodes"), frame);
+        }
     }
 
     #[test]
