@@ -364,60 +364,56 @@ fn predict_object(objects: impl Fn(usize) -> u32, s: Source) -> u32 {
     }
 }
 
-/// Zero-run coder of the object residuals.
+/// Zero-run coder of the object residuals, fed with the non-zero ones in fragment order.
 struct ZeroRuns {
     out: Vec<u8>,
-    run: u32,
+    /// The fragment after the last non-zero residual.
+    next: u64,
 }
 
 impl ZeroRuns {
-    #[inline]
-    fn push(&mut self, r: u32) {
-        if r == 0 {
-            self.run += 1;
-        } else {
-            put_varint(&mut self.out, self.run);
-            put_varint(&mut self.out, r);
-            self.run = 0;
-        }
+    /// The non-zero residual `value` of fragment `at`, after every earlier one.
+    fn nonzero(&mut self, at: u64, value: u32) {
+        put_varint(&mut self.out, (at - self.next) as u32);
+        put_varint(&mut self.out, value);
+        self.next = at + 1;
     }
 
-    fn finish(mut self) -> Vec<u8> {
-        put_varint(&mut self.out, self.run);
+    /// The stream of `n` fragments' residuals: the final run ends it.
+    fn finish(mut self, n: u64) -> Vec<u8> {
+        put_varint(&mut self.out, (n - self.next) as u32);
         self.out
     }
 }
 
-/// One band's residuals: a contiguous range of every plane, and its object residuals.
+/// One band's residuals: a contiguous range of every plane, and its non-zero object residuals
+/// (band fragment index, residual), in order — ids hardly ever change, so these are few.
 struct BandOut<'a> {
     depth: [&'a mut [u8]; 4],
     color: [&'a mut [u8]; 4],
-    object: &'a mut [u32],
+    object: Vec<(u32, u32)>,
 }
 
-/// The four uncompressed sections, in wire order. The bands are predicted in parallel; the
-/// bytes are the same for any thread count (tested). The counts' varints and the object
-/// residuals' zero runs are one pass each.
+/// The four uncompressed sections, in wire order. The bands are predicted in parallel, beside
+/// the counts' varints; the bytes are the same for any thread count (tested). The object
+/// stream is written from the bands' few non-zero residuals.
 pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
     let offsets = frame.offsets();
     let width = frame.width() as usize;
     let pixels = offsets.len() - 1;
     let n = frame.fragment_count();
 
-    let mut counts = Vec::with_capacity(pixels + pixels / 8);
-    for c in frame.counts() {
-        put_varint(&mut counts, c);
-    }
-
+    let counts = || {
+        let mut counts = Vec::with_capacity(pixels + pixels / 8);
+        for c in frame.counts() {
+            put_varint(&mut counts, c);
+        }
+        counts
+    };
     let mut depth = vec![0u8; 4 * n];
     let mut color = vec![0u8; 4 * n];
-    let mut object = vec![0u32; n];
-    {
-        let (mut d, mut c, mut o) = (
-            planes(&mut depth, n),
-            planes(&mut color, n),
-            &mut object[..],
-        );
+    let residuals = || {
+        let (mut d, mut c) = (planes(&mut depth, n), planes(&mut color, n));
         let tasks: Vec<(Range<usize>, BandOut<'_>)> = bands(pixels, width)
             .into_iter()
             .map(|band| {
@@ -425,27 +421,36 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
                 let out = BandOut {
                     depth: d.each_mut().map(|plane| take_front(plane, len)),
                     color: c.each_mut().map(|plane| take_front(plane, len)),
-                    object: take_front(&mut o, len),
+                    object: Vec::new(),
                 };
                 (band, out)
             })
             .collect();
-        tasks
+        let objects: Vec<(u64, Vec<(u32, u32)>)> = tasks
             .into_par_iter()
-            .for_each(|(band, mut out)| encode_band(frame, band, &mut out));
-    }
-    let mut zero_runs = ZeroRuns {
-        out: Vec::new(),
-        run: 0,
+            .map(|(band, mut out)| {
+                let first = u64::from(offsets[band.start]);
+                encode_band(frame, band, &mut out);
+                (first, out.object)
+            })
+            .collect();
+        let mut zero_runs = ZeroRuns {
+            out: Vec::new(),
+            next: 0,
+        };
+        for (first, nonzero) in objects {
+            for (i, r) in nonzero {
+                zero_runs.nonzero(first + u64::from(i), r);
+            }
+        }
+        zero_runs.finish(n as u64)
     };
-    for &r in &object {
-        zero_runs.push(r);
-    }
+    let (counts, object) = rayon::join(counts, residuals);
     vec![
         (SectionTag::Counts, counts),
         (SectionTag::Depth, depth),
         (SectionTag::Color, color),
-        (SectionTag::Object, zero_runs.finish()),
+        (SectionTag::Object, object),
     ]
 }
 
@@ -552,13 +557,15 @@ impl Visit for BandEncoder<'_, '_> {
         let at = me - self.row;
         let dr = &mut self.depth[at..at + len];
         let cr = &mut self.color[at..at + len];
-        let or = &mut self.out.object[me..me + len];
         for k in 0..len {
             let guess = plane(dl[k].to_bits(), du[k].to_bits(), dul[k].to_bits());
             dr[k] = zigzag(dm[k].to_bits().wrapping_sub(guess) as i32);
             let [l, u, ul, m] = [cl[k], cu[k], cul[k], cm[k]].map(|c| packed(c.0));
             cr[k] = self.lanes.med4_sub(l, u, ul, m);
-            or[k] = om[k].0 ^ ol[k].0;
+            let r = om[k].0 ^ ol[k].0;
+            if r != 0 {
+                self.out.object.push(((me + k) as u32, r));
+            }
         }
     }
 
@@ -571,7 +578,10 @@ impl Visit for BandEncoder<'_, '_> {
         let at = i - self.row;
         self.depth[at] = zigzag(bits(i).wrapping_sub(predict_depth(bits, s)) as i32);
         self.color[at] = sub_bytes(color(i), predict_color(self.lanes, color, s));
-        self.out.object[i] = object(i) ^ predict_object(object, s);
+        let r = object(i) ^ predict_object(object, s);
+        if r != 0 {
+            self.out.object.push((i as u32, r));
+        }
     }
 }
 
@@ -1438,13 +1448,13 @@ mod tests {
 
     #[test]
     fn zero_runs_end_with_the_final_run() {
+        // Residuals 0, 0, 5, 0, 300, 0, 0, 0.
         let mut z = ZeroRuns {
             out: Vec::new(),
-            run: 0,
+            next: 0,
         };
-        for r in [0, 0, 5, 0, 300, 0, 0, 0] {
-            z.push(r);
-        }
-        assert_eq!(z.finish(), vec![2, 5, 1, 0xac, 0x02, 3]);
+        z.nonzero(2, 5);
+        z.nonzero(4, 300);
+        assert_eq!(z.finish(8), vec![2, 5, 1, 0xac, 0x02, 3]);
     }
 }
