@@ -883,6 +883,72 @@ mod tests {
     }
 
     #[test]
+    fn the_sorted_check_names_the_first_unsorted_run_like_a_run_by_run_scan() {
+        // Frames over several check chunks, with runs of 0 to 4 fragments whose keys tie in
+        // depth (then object, then colour) as often as not, each disordered in a few runs.
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |m: u64| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x % m
+        };
+        let (w, h) = (300u32, 130u32);
+        for round in 0..12 {
+            let mut offsets = vec![0u32];
+            let (mut depth, mut color, mut object) = (Vec::new(), Vec::new(), Vec::new());
+            for _ in 0..w * h {
+                let count = next(5) as u32;
+                let mut keys: Vec<(u32, u32, [u8; 4])> = (0..count)
+                    .map(|_| {
+                        let d = 0.25f32 + 0.25 * next(3) as f32;
+                        let c = [next(2) as u8, 0, 0, next(2) as u8];
+                        (d.to_bits(), next(2) as u32, c)
+                    })
+                    .collect();
+                keys.sort_by_key(|&(d, o, c)| {
+                    ((u64::from(d) << 32) | u64::from(o), u32::from_le_bytes(c))
+                });
+                for (d, o, c) in keys {
+                    depth.push(f32::from_bits(d));
+                    object.push(ObjectId(o));
+                    color.push(Rgba8(c));
+                }
+                offsets.push(depth.len() as u32);
+            }
+            for _ in 0..round % 4 {
+                let i = next(depth.len() as u64 - 1) as usize;
+                depth.swap(i, i + 1);
+                object.swap(i, i + 1);
+                if round % 3 == 0 {
+                    color.swap(i, i + 1);
+                }
+            }
+            let key = |i: usize| {
+                (
+                    (u64::from(depth[i].to_bits()) << 32) | u64::from(object[i].0),
+                    u32::from_le_bytes(color[i].0),
+                )
+            };
+            let first = (0..(w * h) as usize).find(|&p| {
+                let (a, b) = (offsets[p] as usize, offsets[p + 1] as usize);
+                (a + 1..b).any(|i| key(i - 1) > key(i))
+            });
+            let got =
+                DeepFrame::from_parts(w, h, offsets, depth.clone(), color.clone(), object.clone())
+                    .map(|_| ());
+            match first {
+                Some(pixel) => assert_eq!(
+                    got,
+                    Err(DeepFrameError::Unsorted { pixel }),
+                    "round {round}"
+                ),
+                None => assert_eq!(got, Ok(()), "round {round}"),
+            }
+        }
+    }
+
+    #[test]
     fn from_parts_round_trips_and_rejects_broken_parts() {
         let f = DeepFrame::from_pixel_lists(2, 2, &sample()).unwrap();
         let (w, h, o, d, c, ob) = f.clone().into_parts();
