@@ -142,8 +142,11 @@ trait Visit {
     fn row_start(&mut self, frags: Range<usize>);
     /// The fragments `frags` of the row just visited are done.
     fn row_end(&mut self, frags: Range<usize>);
-    /// The `len` fragments from `me`: every layer `k` has all three neighbours, `l + k`,
-    /// `u + k` and `ul + k` (inside a surface, the common case: one call a pixel).
+    /// The `len` fragments from `me`, fragment `me + k` predicted from `l + k`, `u + k` and
+    /// `ul + k`: one pixel inside a surface, or a span of pixels of equal counts (then
+    /// `l = me − c` and the left neighbours are the span's own fragments, so `l + len` may pass
+    /// `me`: a decoder reads what it has just written). `u + len` and `ul + len` stay before
+    /// `l`: the row above ends before this row starts.
     fn surface(&mut self, me: usize, l: usize, u: usize, ul: usize, len: usize);
     /// Fragment `i`, predicted from `s` (a pixel at an edge of its neighbours' layers).
     fn visit(&mut self, i: usize, s: Source);
@@ -194,10 +197,26 @@ fn walk(offsets: &[u32], width: usize, band: Range<usize>, v: &mut impl Visit) {
                 (false, false) => (run(up, x), NONE),
                 (true, _) => (NONE, NONE),
             };
-            if me.len <= l.len.min(u.len).min(ul.len) {
-                v.surface(me.start, l.start, u.start, ul.start, me.len);
+            let c = me.len;
+            if c == l.len && c == u.len && c == ul.len {
+                // A span of pixels that, like their left and upper neighbours, all hold `c`
+                // fragments: their fragments and those of the row above are contiguous, so
+                // fragment `j` of the span is predicted from `j − c`, the `j`-th above and
+                // `j − c` above — one `surface` call for the span.
+                let count = |o: &[u32], x: usize| o[x + 1] - o[x];
+                let mut end = x + 1;
+                while end < width && count(cur, end) as usize == c && count(up, end) as usize == c {
+                    end += 1;
+                }
+                v.surface(me.start, l.start, u.start, ul.start, c * (end - x));
+                first = Some(me.start + c * (end - x - 1));
+                x = end;
+                continue;
+            }
+            if c <= l.len.min(u.len).min(ul.len) {
+                v.surface(me.start, l.start, u.start, ul.start, c);
             } else {
-                for k in 0..me.len {
+                for k in 0..c {
                     v.visit(me.start + k, source(k, me.start, l, u, ul, first));
                 }
             }
@@ -1037,28 +1056,22 @@ impl Visit for BandDecoder<'_> {
 
     #[inline(always)]
     fn surface(&mut self, me: usize, l: usize, u: usize, ul: usize, len: usize) {
-        // Every neighbour precedes `me`: the left run ends where `me` starts.
-        let at = me - self.row;
+        // `w` runs from the left neighbour of the first fragment to the last: fragment `k` is
+        // `w[me − l + k]`, its left neighbour `w[k]` (written by this loop already, in a span).
+        // The row above lies before `l`.
+        let (at, off) = (me - self.row, me - l);
         let dr = &self.depth_residuals[at..at + len];
         let cr = &self.color_residuals[at..at + len];
-        let (done, bits) = self.bits.split_at_mut(me);
-        let (dl, du, dul, dm) = (
-            &done[l..l + len],
-            &done[u..u + len],
-            &done[ul..ul + len],
-            &mut bits[..len],
-        );
-        let (done, colors) = self.colors.split_at_mut(me);
-        let (cl, cu, cul, cm) = (
-            &done[l..l + len],
-            &done[u..u + len],
-            &done[ul..ul + len],
-            &mut colors[..len],
-        );
+        let (done, w) = self.bits.split_at_mut(l);
+        let (du, dul, w) = (&done[u..u + len], &done[ul..ul + len], &mut w[..off + len]);
         for k in 0..len {
-            dm[k] = plane(dl[k], du[k], dul[k]).wrapping_add(dr[k]);
-            let [l, u, ul] = [cl[k], cu[k], cul[k]].map(packed);
-            cm[k] = self.lanes.med4_add(l, u, ul, cr[k]).to_le_bytes();
+            w[off + k] = plane(w[k], du[k], dul[k]).wrapping_add(dr[k]);
+        }
+        let (done, w) = self.colors.split_at_mut(l);
+        let (cu, cul, w) = (&done[u..u + len], &done[ul..ul + len], &mut w[..off + len]);
+        for k in 0..len {
+            let [left, up, up_left] = [w[k], cu[k], cul[k]].map(packed);
+            w[off + k] = self.lanes.med4_add(left, up, up_left, cr[k]).to_le_bytes();
         }
         for k in 0..len {
             let r = self.object_residual(me + k);
