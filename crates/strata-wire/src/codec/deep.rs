@@ -60,9 +60,10 @@
 //! # Implementation (the layout above is the contract; this is how it is met fast)
 //!
 //! One function, `walk`, visits a band row by row and hands each non-empty pixel to the encoder
-//! or the decoder: a pixel whose every layer has `L`, `U` and `UL` (inside a surface, most
-//! pixels) as one `surface` call that slices the neighbours' runs once, any other fragment with
-//! its named source. Per fragment, the residuals live as one `u32` each (zigzagged depth,
+//! or the decoder: a span of pixels holding as many fragments as their left and upper
+//! neighbours (their fragments, and those above, are contiguous) as one `surface` call over the
+//! span's fragments; any other pixel whose every layer has `L`, `U` and `UL` as one call that
+//! slices the neighbours' runs once; any other fragment with its named source. Per fragment, the residuals live as one `u32` each (zigzagged depth,
 //! packed colour) in a row buffer that stays in cache; the encoder spreads a finished row over
 //! the byte planes in one pass, the decoder gathers a row from them before replaying it, so the
 //! predictor loop touches three columns instead of eight planes. The colour predictor runs on
