@@ -161,6 +161,23 @@ pub struct DeepFrame {
     object: Vec<ObjectId>,
 }
 
+/// One band of a frame being built by [`DeepFrame::fill_bands`]: the band's pixels, the
+/// frame's offsets, and the band's fragments to write — those of pixel `p` (in `pixels`) are
+/// `offsets[p] - offsets[pixels.start] .. offsets[p + 1] - offsets[pixels.start]` of each column.
+#[derive(Debug)]
+pub struct FillBand<'a> {
+    /// The band's pixels (row-major indices into the frame).
+    pub pixels: std::ops::Range<usize>,
+    /// The frame's offsets, all `w·h + 1`; they rise over `pixels`.
+    pub offsets: &'a [u32],
+    /// The band's depths.
+    pub depth: &'a mut [f32],
+    /// The band's colours.
+    pub color: &'a mut [Rgba8],
+    /// The band's object ids.
+    pub object: &'a mut [ObjectId],
+}
+
 /// Pixels per parallel work item when building or resolving.
 const PIXELS_PER_TASK: usize = 8 * 1024;
 
@@ -392,46 +409,23 @@ impl DeepFrame {
         // searched again for the first offender, so the error names the same item as a
         // serial scan would.
         if let Some(p) = first_failing(offsets.len().saturating_sub(1), CHECK_CHUNK, |r| {
-            offsets[r.start..r.end + 1]
-                .windows(2)
-                .fold(true, |ok, w| ok & (w[0] <= w[1]))
+            offsets_rise(&offsets, r)
         }) {
             return Err(DeepFrameError::BadOffsets { pixel: p });
         }
         if offsets[pixels] as usize != depth.len() {
             return Err(DeepFrameError::BadOffsets { pixel: pixels });
         }
-        // A valid depth is a non-negative float at most 1 and not −0: exactly the bit patterns
-        // up to 1.0's (negative numbers, −0 and NaNs all have larger ones).
-        let one = 1.0f32.to_bits();
-        if let Some(index) = first_failing(depth.len(), CHECK_CHUNK, |r| {
-            depth[r].iter().fold(0, |m, d| m.max(d.to_bits())) <= one
-        }) {
+        if let Some(index) = first_failing(depth.len(), CHECK_CHUNK, |r| depths_valid(&depth[r])) {
             return Err(DeepFrameError::BadDepth {
                 index,
                 depth: depth[index],
             });
         }
-        // Sorted runs: each fragment's order key is at least its predecessor's in the run.
-        let key = |i: usize| {
-            (
-                (u64::from(depth[i].to_bits()) << 32) | u64::from(object[i].0),
-                color[i].to_bits(),
-            )
-        };
-        let unsorted = first_failing(pixels, CHECK_CHUNK, |r| {
-            let mut ok = true;
-            for w in offsets[r.start..r.end + 1].windows(2) {
-                let (a, b) = (w[0] as usize, w[1] as usize);
-                if b > a + 1 {
-                    for i in a + 1..b {
-                        ok &= key(i - 1) <= key(i);
-                    }
-                }
-            }
-            ok
-        });
-        if let Some(pixel) = unsorted {
+        let columns = (&depth[..], &color[..], &object[..]);
+        if let Some(pixel) = first_failing(pixels, CHECK_CHUNK, |r| {
+            runs_sorted(&offsets, 0, columns, r)
+        }) {
             return Err(DeepFrameError::Unsorted { pixel });
         }
         let frame = DeepFrame {
@@ -443,6 +437,141 @@ impl DeepFrame {
             object,
         };
         Ok(frame)
+    }
+
+    /// Builds a frame band by band in parallel, for decoders that write every fragment
+    /// themselves: `fill(i, band)` writes the fragments of the pixels `bands[i]` into `band`'s
+    /// column slices, and each band is checked right after its fill, while it is still in the
+    /// cache, against the invariants [`DeepFrame::from_parts`] checks in separate passes over
+    /// the whole frame afterwards. Errors name the same item as `from_parts` would.
+    ///
+    /// `offsets` are the frame's run offsets (`w·h + 1`, checked here: a band whose offsets
+    /// decrease is not filled); `columns` are allocations to reuse (any lengths: they are
+    /// resized to `offsets[w·h]` fragments, which zeroes only what they grow by). A band's fill
+    /// sees the frame's offsets and its own fragments, indexed from its first pixel's offset.
+    ///
+    /// # Panics
+    /// If `bands` are not consecutive ranges covering the pixels `0..w·h` in order.
+    pub fn fill_bands<F>(
+        width: u32,
+        height: u32,
+        offsets: Vec<u32>,
+        bands: &[std::ops::Range<usize>],
+        columns: (Vec<f32>, Vec<Rgba8>, Vec<ObjectId>),
+        fill: F,
+    ) -> Result<Self, DeepFrameError>
+    where
+        F: Fn(usize, FillBand<'_>) + Sync,
+    {
+        let pixels = pixel_count(width, height);
+        let mut next = 0;
+        for b in bands {
+            assert!(
+                b.start == next && b.end >= b.start,
+                "bands must tile the pixels in order"
+            );
+            next = b.end;
+        }
+        assert_eq!(next, pixels, "bands must cover every pixel");
+        if offsets.len() != pixels + 1 {
+            return Err(DeepFrameError::PixelCount {
+                width,
+                height,
+                expected: pixels as u64 + 1,
+                found: offsets.len() as u64,
+            });
+        }
+        if offsets[0] != 0 {
+            return Err(DeepFrameError::BadOffsets { pixel: 0 });
+        }
+        // The bands' slices need rising offsets at the band ends; when they do not, some pixel
+        // inside fails, and the whole-frame check names the first.
+        if bands.iter().any(|b| offsets[b.start] > offsets[b.end]) {
+            let first = first_failing(pixels, CHECK_CHUNK, |r| offsets_rise(&offsets, r));
+            return Err(DeepFrameError::BadOffsets {
+                pixel: first.unwrap_or(0),
+            });
+        }
+        let n = offsets[pixels] as usize;
+        let (mut depth, mut color, mut object) = columns;
+        depth.resize(n, 0.0);
+        color.resize(n, Rgba8::default());
+        object.resize(n, ObjectId::default());
+        /// What a band's check found first.
+        enum Failure {
+            Offsets(usize),
+            Depth(usize),
+            Unsorted(usize),
+        }
+        let lens = bands
+            .iter()
+            .map(|b| (offsets[b.end] - offsets[b.start]) as usize);
+        let slices = split_columns((&mut depth, &mut color, &mut object), lens);
+        let offsets_ref = &offsets[..];
+        let failures: Vec<Failure> = slices
+            .into_par_iter()
+            .zip(bands.par_iter())
+            .enumerate()
+            .with_max_len(1)
+            .filter_map(|(i, ((d, c, o), band))| {
+                if let Some(p) =
+                    first_failing_in(band.clone(), CHECK_CHUNK, |r| offsets_rise(offsets_ref, r))
+                {
+                    return Some(Failure::Offsets(p));
+                }
+                fill(
+                    i,
+                    FillBand {
+                        pixels: band.clone(),
+                        offsets: offsets_ref,
+                        depth: &mut *d,
+                        color: &mut *c,
+                        object: &mut *o,
+                    },
+                );
+                let base = offsets_ref[band.start] as usize;
+                if let Some(k) = first_failing_in(0..d.len(), CHECK_CHUNK, |r| depths_valid(&d[r]))
+                {
+                    return Some(Failure::Depth(base + k));
+                }
+                let columns = (&d[..], &c[..], &o[..]);
+                first_failing_in(band.clone(), CHECK_CHUNK, |r| {
+                    runs_sorted(offsets_ref, base, columns, r)
+                })
+                .map(Failure::Unsorted)
+            })
+            .collect();
+        // The order of from_parts' passes: offsets, then depths, then runs; in each, the first.
+        let first = |pick: fn(&Failure) -> Option<usize>| failures.iter().filter_map(pick).min();
+        if let Some(pixel) = first(|f| match f {
+            Failure::Offsets(p) => Some(*p),
+            _ => None,
+        }) {
+            return Err(DeepFrameError::BadOffsets { pixel });
+        }
+        if let Some(index) = first(|f| match f {
+            Failure::Depth(i) => Some(*i),
+            _ => None,
+        }) {
+            return Err(DeepFrameError::BadDepth {
+                index,
+                depth: depth[index],
+            });
+        }
+        if let Some(pixel) = first(|f| match f {
+            Failure::Unsorted(p) => Some(*p),
+            _ => None,
+        }) {
+            return Err(DeepFrameError::Unsorted { pixel });
+        }
+        Ok(DeepFrame {
+            width,
+            height,
+            offsets,
+            depth,
+            color,
+            object,
+        })
     }
 
     /// Makes room for `fragments` more fragments and `pixels` more pixels, so that appending
@@ -628,6 +757,70 @@ fn first_failing(
         .into_par_iter()
         .find_first(|&c| !ok(c * chunk..((c + 1) * chunk).min(len)))?;
     (failing * chunk..((failing + 1) * chunk).min(len)).find(|&i| !ok(i..i + 1))
+}
+
+/// [`first_failing`] over `range`, serially (inside a task that is parallel already).
+fn first_failing_in(
+    range: std::ops::Range<usize>,
+    chunk: usize,
+    ok: impl Fn(std::ops::Range<usize>) -> bool,
+) -> Option<usize> {
+    let mut at = range.start;
+    while at < range.end {
+        let end = (at + chunk).min(range.end);
+        if !ok(at..end) {
+            return (at..end).find(|&i| !ok(i..i + 1));
+        }
+        at = end;
+    }
+    None
+}
+
+/// Whether the offsets of the pixels `r` never decrease: `offsets[p] <= offsets[p + 1]` for
+/// every `p` in `r`. No branch per pixel.
+#[inline]
+fn offsets_rise(offsets: &[u32], r: std::ops::Range<usize>) -> bool {
+    offsets[r.start..r.end + 1]
+        .windows(2)
+        .fold(true, |ok, w| ok & (w[0] <= w[1]))
+}
+
+/// Whether every depth is valid: a non-negative float at most 1 and not −0, exactly the bit
+/// patterns up to 1.0's (negative numbers, −0 and NaNs all have larger ones). No branch per
+/// depth.
+#[inline]
+fn depths_valid(depth: &[f32]) -> bool {
+    depth.iter().fold(0, |m, d| m.max(d.to_bits())) <= 1.0f32.to_bits()
+}
+
+/// Whether the runs of the pixels `r` are sorted: each fragment's order key (depth bits, then
+/// object, then colour) is at least its predecessor's. `columns` hold the fragments from
+/// `base` on (`offsets` are the frame's); the offsets of `r` must rise and lie in them.
+#[inline]
+fn runs_sorted(
+    offsets: &[u32],
+    base: usize,
+    (depth, color, object): (&[f32], &[Rgba8], &[ObjectId]),
+    r: std::ops::Range<usize>,
+) -> bool {
+    let mut ok = true;
+    for w in offsets[r.start..r.end + 1].windows(2) {
+        let (a, b) = (w[0] as usize - base, w[1] as usize - base);
+        if b > a + 1 {
+            // One bounds check a run, none a fragment.
+            let (d, o, c) = (&depth[a..b], &object[a..b], &color[a..b]);
+            let key = |k: usize| {
+                (
+                    (u64::from(d[k].to_bits()) << 32) | u64::from(o[k].0),
+                    c[k].to_bits(),
+                )
+            };
+            for k in 1..d.len() {
+                ok &= key(k - 1) <= key(k);
+            }
+        }
+    }
+    ok
 }
 
 fn valid_depth(d: f32) -> bool {
@@ -882,40 +1075,172 @@ mod tests {
         );
     }
 
-    #[test]
-    fn the_sorted_check_names_the_first_unsorted_run_like_a_run_by_run_scan() {
-        // Frames over several check chunks, with runs of 0 to 4 fragments whose keys tie in
-        // depth (then object, then colour) as often as not, each disordered in a few runs.
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut next = |m: u64| {
+    /// A small xorshift generator: `next(m)` is uniform enough in `0..m` for tests.
+    fn xorshift(seed: u64) -> impl FnMut(u64) -> u64 {
+        let mut x = seed;
+        move |m: u64| {
             x ^= x << 13;
             x ^= x >> 7;
             x ^= x << 17;
             x % m
-        };
+        }
+    }
+
+    /// The parts of a valid `w`×`h` frame with runs of 0 to 4 fragments whose keys tie in
+    /// depth (then object, then colour) as often as not.
+    #[allow(
+        clippy::type_complexity,
+        reason = "the parts, as from_parts takes them"
+    )]
+    fn tied_parts(
+        next: &mut impl FnMut(u64) -> u64,
+        w: u32,
+        h: u32,
+    ) -> (Vec<u32>, Vec<f32>, Vec<Rgba8>, Vec<ObjectId>) {
+        let mut offsets = vec![0u32];
+        let (mut depth, mut color, mut object) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..w * h {
+            let count = next(5) as u32;
+            let mut keys: Vec<(u32, u32, [u8; 4])> = (0..count)
+                .map(|_| {
+                    let d = 0.25f32 + 0.25 * next(3) as f32;
+                    let c = [next(2) as u8, 0, 0, next(2) as u8];
+                    (d.to_bits(), next(2) as u32, c)
+                })
+                .collect();
+            keys.sort_by_key(|&(d, o, c)| {
+                ((u64::from(d) << 32) | u64::from(o), u32::from_le_bytes(c))
+            });
+            for (d, o, c) in keys {
+                depth.push(f32::from_bits(d));
+                object.push(ObjectId(o));
+                color.push(Rgba8(c));
+            }
+            offsets.push(depth.len() as u32);
+        }
+        (offsets, depth, color, object)
+    }
+
+    #[test]
+    fn filling_bands_checks_each_band_as_from_parts_checks_the_frame() {
+        // Valid frames, and frames broken in one place of each kind (a decreasing offset inside
+        // a band or at a band's end, a depth out of range, a disordered run), built band by
+        // band for several tilings (including empty bands) into reused columns of other
+        // lengths: the frame, or the error, is the one from_parts gives.
+        let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
+        let (w, h) = (150u32, 140u32);
+        let pixels = (w * h) as usize;
+        for round in 0..24 {
+            let (mut offsets, mut depth, mut color, mut object) = tied_parts(&mut next, w, h);
+            let n = depth.len();
+            match round % 6 {
+                0 => {}
+                1 => {
+                    // Offsets decrease after pixel p (somewhere inside).
+                    let p = 1 + next(pixels as u64 - 2) as usize;
+                    offsets[p] = offsets[p + 1] + 1;
+                }
+                2 => {
+                    // ... at the end of a band of 16 rows.
+                    let p = (16 * w) as usize;
+                    offsets[p] = offsets[p + 1] + 1;
+                }
+                3 => {
+                    let i = next(n as u64) as usize;
+                    depth[i] = [f32::NAN, -0.0, 1.5, -0.25][round / 6 % 4];
+                }
+                4 => {
+                    for _ in 0..3 {
+                        let i = next(n as u64 - 1) as usize;
+                        depth.swap(i, i + 1);
+                        object.swap(i, i + 1);
+                        color.swap(i, i + 1);
+                    }
+                }
+                _ => {
+                    // Two faults: the depth's is named first, as from_parts names it.
+                    let i = next(n as u64 - 1) as usize;
+                    depth.swap(i, i + 1);
+                    object.swap(i, i + 1);
+                    let j = next(n as u64) as usize;
+                    depth[j] = f32::INFINITY;
+                }
+            }
+            let want = DeepFrame::from_parts(
+                w,
+                h,
+                offsets.clone(),
+                depth.clone(),
+                color.clone(),
+                object.clone(),
+            );
+            let row = w as usize;
+            let tilings: [Vec<std::ops::Range<usize>>; 3] = [
+                std::iter::once(0..pixels).collect(),
+                (0..pixels)
+                    .step_by(16 * row)
+                    .map(|p| p..(p + 16 * row).min(pixels))
+                    .collect(),
+                vec![
+                    0..0,
+                    0..3 * row + 7,
+                    3 * row + 7..3 * row + 7,
+                    3 * row + 7..pixels,
+                ],
+            ];
+            for bands in &tilings {
+                let reused = (
+                    vec![0.5f32; n / 2 + round],
+                    vec![Rgba8([9; 4]); n + 100],
+                    vec![ObjectId(7); 3],
+                );
+                let got = DeepFrame::fill_bands(w, h, offsets.clone(), bands, reused, |i, b| {
+                    let band = &bands[i];
+                    assert_eq!(b.pixels, *band);
+                    let lo = offsets[band.start] as usize;
+                    let len = b.depth.len();
+                    b.depth.copy_from_slice(&depth[lo..lo + len]);
+                    b.color.copy_from_slice(&color[lo..lo + len]);
+                    b.object.copy_from_slice(&object[lo..lo + len]);
+                });
+                // Errors by their text: a NaN depth is not equal to itself.
+                let same = match (&got, &want) {
+                    (Ok(a), Ok(b)) => a == b,
+                    (Err(a), Err(b)) => a.to_string() == b.to_string(),
+                    _ => false,
+                };
+                assert!(
+                    same,
+                    "round {round}, {} bands: {:?} vs {:?}",
+                    bands.len(),
+                    got.err(),
+                    want.err()
+                );
+            }
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "bands must cover every pixel")]
+    fn filling_bands_that_miss_pixels_is_a_bug() {
+        let _ = DeepFrame::fill_bands(
+            2,
+            2,
+            vec![0; 5],
+            &[0..2, 2..3],
+            Default::default(),
+            |_, _| (),
+        );
+    }
+
+    #[test]
+    fn the_sorted_check_names_the_first_unsorted_run_like_a_run_by_run_scan() {
+        // Frames over several check chunks, with runs of 0 to 4 fragments whose keys tie in
+        // depth (then object, then colour) as often as not, each disordered in a few runs.
+        let mut next = xorshift(0x2545_f491_4f6c_dd1d);
         let (w, h) = (300u32, 130u32);
         for round in 0..12 {
-            let mut offsets = vec![0u32];
-            let (mut depth, mut color, mut object) = (Vec::new(), Vec::new(), Vec::new());
-            for _ in 0..w * h {
-                let count = next(5) as u32;
-                let mut keys: Vec<(u32, u32, [u8; 4])> = (0..count)
-                    .map(|_| {
-                        let d = 0.25f32 + 0.25 * next(3) as f32;
-                        let c = [next(2) as u8, 0, 0, next(2) as u8];
-                        (d.to_bits(), next(2) as u32, c)
-                    })
-                    .collect();
-                keys.sort_by_key(|&(d, o, c)| {
-                    ((u64::from(d) << 32) | u64::from(o), u32::from_le_bytes(c))
-                });
-                for (d, o, c) in keys {
-                    depth.push(f32::from_bits(d));
-                    object.push(ObjectId(o));
-                    color.push(Rgba8(c));
-                }
-                offsets.push(depth.len() as u32);
-            }
+            let (offsets, mut depth, mut color, mut object) = tied_parts(&mut next, w, h);
             for _ in 0..round % 4 {
                 let i = next(depth.len() as u64 - 1) as usize;
                 depth.swap(i, i + 1);
