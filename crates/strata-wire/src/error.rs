@@ -92,7 +92,8 @@ pub enum WireError {
         reason: String,
     },
     /// The decoded fragments violate a DeepFrame invariant (unsorted runs, depths outside
-    /// `[0, 1]`, …): `DeepFrame::from_parts` re-validates everything a decoder produces.
+    /// `[0, 1]`, …): strata-core checks everything a decoder produces (`DeepFrame::from_parts`,
+    /// or `DeepFrame::fill_bands` band by band).
     #[error("the decoded fragments are not a valid DeepFrame: {0}")]
     Frame(#[from] DeepFrameError),
     /// The encoder was asked for something the format cannot carry.

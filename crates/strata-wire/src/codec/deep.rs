@@ -53,9 +53,9 @@
 //! The counts come first: they must add up to the header's fragment count before any fragment
 //! column is allocated. The object stream is read next, into its non-zero residuals, and must
 //! cover exactly the fragments. Every check is done before the bands replay their predictors in
-//! parallel, so that replay cannot fail. The result goes through `DeepFrame::from_parts`, which
-//! re-checks sortedness and depth range, so a well-formed message with nonsense residuals is an
-//! error, not a frame.
+//! parallel, so that replay cannot fail. The bands replay through `DeepFrame::fill_bands`, which
+//! checks each band's depth range and sorted runs as soon as the band is written (while it is
+//! in the cache), so a well-formed message with nonsense residuals is an error, not a frame.
 //!
 //! # Implementation (the layout above is the contract; this is how it is met fast)
 //!
@@ -71,8 +71,10 @@
 //!
 //! Per fragment, the residuals live as one `u32` each (zigzagged depth, packed colour) in a row
 //! buffer that stays in cache; the encoder spreads a finished row over the byte planes in one
-//! pass, the decoder gathers a row from them before replaying it, so the predictor loop touches
-//! three columns instead of eight planes. The colour predictor runs on the four channels at
+//! pass, the decoder gathers a row from them before replaying it (sixteen fragments at a time
+//! in SSE2 registers, `Lanes::gather`), so the predictor loop touches three columns instead of
+//! eight planes. In a span, an object id with no residual there is its left neighbour's, copied
+//! without looking for residuals fragment by fragment. The colour predictor runs on the four channels at
 //! once in the byte lanes of an SSE2 register (`Lanes`, through pulp; every x86_64 CPU has
 //! SSE2; one channel at a time elsewhere), with the residual's byte add or subtract in the same
 //! register. The bytes are those of the first, per-fragment implementation; a test pins them.
@@ -80,7 +82,7 @@
 use std::ops::Range;
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, ObjectId, Rgba8};
+use strata_core::{DeepFrame, FillBand, ObjectId, Rgba8};
 
 use crate::bytes::{Reader, put_varint, unzigzag, zigzag};
 use crate::codec::{Columns, SectionTag};
@@ -618,6 +620,7 @@ fn spread_bytes(values: &[u32], planes: [&mut [u8]; 4]) {
 }
 
 /// The inverse of [`spread_bytes`]: `values[i]` from byte `i` of each plane, then `map`ped.
+/// The reference for [`Lanes::gather`].
 #[inline(always)]
 fn gather_bytes(planes: [&[u8]; 4], values: &mut [u32], map: impl Fn(u32) -> u32) {
     let [p0, p1, p2, p3] = planes;
@@ -625,6 +628,66 @@ fn gather_bytes(planes: [&[u8]; 4], values: &mut [u32], map: impl Fn(u32) -> u32
     let (p0, p1, p2, p3) = (&p0[..n], &p1[..n], &p2[..n], &p3[..n]);
     for (j, v) in values.iter_mut().enumerate() {
         *v = map(u32::from_le_bytes([p0[j], p1[j], p2[j], p3[j]]));
+    }
+}
+
+/// What [`Lanes::gather`] does to each gathered `u32`.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Gathered {
+    /// Keep it (colour residuals).
+    AsIs,
+    /// Undo the zigzag coding (depth residuals).
+    Unzigzag,
+}
+
+impl Lanes {
+    /// [`gather_bytes`] sixteen values at a time: the four planes' bytes interleaved by two
+    /// rounds of unpacking in SSE2 registers (bytes, then byte pairs), the rest one at a time.
+    #[inline(always)]
+    fn gather(self, planes: [&[u8]; 4], values: &mut [u32], what: Gathered) {
+        let n = values.len();
+        let planes = planes.map(|p| &p[..n]);
+        #[allow(unused_mut, reason = "only x86_64 gathers in lanes first")]
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if let Some(s) = self.sse2 {
+            use pulp::bytemuck::cast;
+            use std::arch::x86_64::__m128i;
+            let e = s.sse2;
+            let load = |p: &[u8], at: usize| {
+                let mut b = [0u8; 16];
+                b.copy_from_slice(&p[at..at + 16]);
+                cast::<[u8; 16], __m128i>(b)
+            };
+            let one = e._mm_set1_epi32(1);
+            let zero = e._mm_setzero_si128();
+            for (k, out) in values.chunks_exact_mut(16).enumerate() {
+                let at = 16 * k;
+                let [a, b, c, d] = planes.map(|p| load(p, at));
+                let (ab_lo, ab_hi) = (e._mm_unpacklo_epi8(a, b), e._mm_unpackhi_epi8(a, b));
+                let (cd_lo, cd_hi) = (e._mm_unpacklo_epi8(c, d), e._mm_unpackhi_epi8(c, d));
+                let mut v = [
+                    e._mm_unpacklo_epi16(ab_lo, cd_lo),
+                    e._mm_unpackhi_epi16(ab_lo, cd_lo),
+                    e._mm_unpacklo_epi16(ab_hi, cd_hi),
+                    e._mm_unpackhi_epi16(ab_hi, cd_hi),
+                ];
+                if what == Gathered::Unzigzag {
+                    // (v >> 1) ^ −(v & 1)
+                    v = v.map(|x| {
+                        let sign = e._mm_sub_epi32(zero, e._mm_and_si128(x, one));
+                        e._mm_xor_si128(e._mm_srli_epi32::<1>(x), sign)
+                    });
+                }
+                out.copy_from_slice(&cast::<[__m128i; 4], [u32; 16]>(v));
+            }
+            done = n / 16 * 16;
+        }
+        let rest = planes.map(|p| &p[done..]);
+        match what {
+            Gathered::AsIs => gather_bytes(rest, &mut values[done..], |r| r),
+            Gathered::Unzigzag => gather_bytes(rest, &mut values[done..], |r| unzigzag(r) as u32),
+        }
     }
 }
 
@@ -673,52 +736,39 @@ pub(crate) fn decode(
     let nonzero = object_residuals(object, n, at(3))?;
 
     let (d, c) = (split4(depth, n), split4(color, n));
-    // Every item is overwritten by its band: a reused column is only resized.
-    let (mut bits, mut colors, mut objects) = (
-        std::mem::take(&mut spare.bits),
-        std::mem::take(&mut spare.colors),
-        std::mem::take(&mut spare.objects),
+    let bands = bands(pixels, w);
+    // Each band's residuals: its slice of every plane and its non-zero object residuals.
+    let mut nonzero = &nonzero[..];
+    let residuals: Vec<BandResiduals<'_>> = bands
+        .iter()
+        .map(|band| {
+            let (lo, hi) = (offsets[band.start] as usize, offsets[band.end] as usize);
+            let (mine, rest) =
+                nonzero.split_at(nonzero.partition_point(|&(i, _)| (i as usize) < hi));
+            nonzero = rest;
+            BandResiduals {
+                depth: d.map(|plane| &plane[lo..hi]),
+                color: c.map(|plane| &plane[lo..hi]),
+                object: mine,
+                first: lo,
+            }
+        })
+        .collect();
+    // The bands replay in parallel into the frame's columns (reused ones are only resized:
+    // every item is overwritten), each checked by strata-core as soon as it is written.
+    let columns = (
+        std::mem::take(&mut spare.depth),
+        std::mem::take(&mut spare.color),
+        std::mem::take(&mut spare.object),
     );
-    bits.resize(n, 0);
-    colors.resize(n, [0; 4]);
-    objects.resize(n, 0);
-    {
-        let (mut bits, mut colors, mut objects) =
-            (&mut bits[..], &mut colors[..], &mut objects[..]);
-        let mut nonzero = &nonzero[..];
-        let tasks: Vec<_> = bands(pixels, w)
-            .into_iter()
-            .map(|band| {
-                let (lo, hi) = (offsets[band.start] as usize, offsets[band.end] as usize);
-                let len = hi - lo;
-                let (mine, rest) =
-                    nonzero.split_at(nonzero.partition_point(|&(i, _)| (i as usize) < hi));
-                nonzero = rest;
-                let residuals = BandResiduals {
-                    depth: d.map(|plane| &plane[lo..hi]),
-                    color: c.map(|plane| &plane[lo..hi]),
-                    object: mine,
-                    first: lo,
-                };
-                let out = (
-                    take_front(&mut bits, len),
-                    take_front(&mut colors, len),
-                    take_front(&mut objects, len),
-                );
-                (band, residuals, out)
-            })
-            .collect();
-        tasks
-            .into_par_iter()
-            .for_each(|(band, residuals, out)| decode_band(&offsets, w, band, &residuals, out));
-    }
-    Columns {
+    Ok(DeepFrame::fill_bands(
+        width,
+        height,
         offsets,
-        bits,
-        colors,
-        objects,
-    }
-    .into_frame(width, height)
+        &bands,
+        columns,
+        |i, band| decode_band(band, w, &residuals[i]),
+    )?)
 }
 
 /// The four planes of `n` bytes of `v` (whose length the caller checked).
@@ -801,8 +851,9 @@ fn counts_in_chunks(
     let Some(totals) = totals.filter(|_| fits) else {
         return false;
     };
-    offsets.clear();
+    // Every offset is written below: a reused buffer is only resized, not zeroed again.
     offsets.resize(pixels + 1, 0);
+    offsets[0] = 0;
     let mut rest = &mut offsets[1..];
     let mut base = 0u64;
     let mut tasks = Vec::with_capacity(chunks);
@@ -958,14 +1009,7 @@ struct BandResiduals<'a> {
 /// Replays the predictors of `band` into its columns. Never inlined: one call a band, and
 /// profiles name it.
 #[inline(never)]
-fn decode_band(
-    offsets: &[u32],
-    width: usize,
-    band: Range<usize>,
-    r: &BandResiduals<'_>,
-    out: (&mut [u32], &mut [[u8; 4]], &mut [u32]),
-) {
-    let (bits, colors, objects) = out;
+fn decode_band(band: FillBand<'_>, width: usize, r: &BandResiduals<'_>) {
     let mut decoder = BandDecoder {
         depth: r.depth,
         color: r.color,
@@ -975,16 +1019,17 @@ fn decode_band(
         row: 0,
         depth_residuals: Vec::new(),
         color_residuals: Vec::new(),
-        bits,
-        colors,
-        objects,
+        bits: band.depth,
+        colors: band.color,
+        objects: band.object,
     };
-    walk(offsets, width, band, &mut decoder);
+    walk(band.offsets, width, band.pixels, &mut decoder);
 }
 
 /// A band's residuals, and its columns being rebuilt. A row's depth and colour residuals are
 /// gathered from the byte planes first, in one pass, into `depth_residuals` and
-/// `color_residuals` (indexed from the row's first fragment `row`).
+/// `color_residuals` (indexed from the row's first fragment `row`). Depths are handled as
+/// their bits and colours as packed `u32`s: the column types convert for free.
 struct BandDecoder<'a> {
     depth: [&'a [u8]; 4],
     color: [&'a [u8]; 4],
@@ -998,9 +1043,9 @@ struct BandDecoder<'a> {
     depth_residuals: Vec<u32>,
     /// Packed colour residuals of the row.
     color_residuals: Vec<u32>,
-    bits: &'a mut [u32],
-    colors: &'a mut [[u8; 4]],
-    objects: &'a mut [u32],
+    bits: &'a mut [f32],
+    colors: &'a mut [Rgba8],
+    objects: &'a mut [ObjectId],
 }
 
 impl BandDecoder<'_> {
@@ -1026,15 +1071,15 @@ impl Visit for BandDecoder<'_> {
             self.depth_residuals.resize(n, 0);
             self.color_residuals.resize(n, 0);
         }
-        gather_bytes(
+        self.lanes.gather(
             self.depth.map(|p| &p[frags.clone()]),
             &mut self.depth_residuals[..n],
-            |r| unzigzag(r) as u32,
+            Gathered::Unzigzag,
         );
-        gather_bytes(
+        self.lanes.gather(
             self.color.map(|p| &p[frags.clone()]),
             &mut self.color_residuals[..n],
-            |r| r,
+            Gathered::AsIs,
         );
     }
 
@@ -1052,17 +1097,30 @@ impl Visit for BandDecoder<'_> {
         let (done, w) = self.bits.split_at_mut(l);
         let (du, dul, w) = (&done[u..u + len], &done[ul..ul + len], &mut w[..off + len]);
         for k in 0..len {
-            w[off + k] = plane(w[k], du[k], dul[k]).wrapping_add(dr[k]);
+            let [left, up, up_left] = [w[k], du[k], dul[k]].map(f32::to_bits);
+            w[off + k] = f32::from_bits(plane(left, up, up_left).wrapping_add(dr[k]));
         }
         let (done, w) = self.colors.split_at_mut(l);
         let (cu, cul, w) = (&done[u..u + len], &done[ul..ul + len], &mut w[..off + len]);
         for k in 0..len {
-            let [left, up, up_left] = [w[k], cu[k], cul[k]].map(packed);
-            w[off + k] = self.lanes.med4_add(left, up, up_left, cr[k]).to_le_bytes();
+            let [left, up, up_left] = [w[k], cu[k], cul[k]].map(|c| packed(c.0));
+            w[off + k] = Rgba8(self.lanes.med4_add(left, up, up_left, cr[k]).to_le_bytes());
         }
-        for k in 0..len {
-            let r = self.object_residual(me + k);
-            self.objects[me + k] = self.objects[l + k] ^ r;
+        let w = &mut self.objects[l..me + len];
+        if self
+            .nonzero
+            .first()
+            .is_none_or(|&(at, _)| at as usize - self.first >= me + len)
+        {
+            // No object changes in the span (the common case): each id is its left one's.
+            for k in 0..len {
+                w[off + k] = w[k];
+            }
+        } else {
+            for k in 0..len {
+                let r = self.object_residual(me + k);
+                self.objects[me + k] = ObjectId(self.objects[l + k].0 ^ r);
+            }
         }
     }
 
@@ -1070,13 +1128,14 @@ impl Visit for BandDecoder<'_> {
     fn visit(&mut self, i: usize, s: Source) {
         let at = i - self.row;
         let bits = &mut *self.bits;
-        bits[i] = predict_depth(|q| bits[q], s).wrapping_add(self.depth_residuals[at]);
+        let guess = predict_depth(|q| bits[q].to_bits(), s);
+        bits[i] = f32::from_bits(guess.wrapping_add(self.depth_residuals[at]));
         let colors = &mut *self.colors;
-        let guess = predict_color(self.lanes, |q| packed(colors[q]), s);
-        colors[i] = add_bytes(guess, self.color_residuals[at]).to_le_bytes();
+        let guess = predict_color(self.lanes, |q| packed(colors[q].0), s);
+        colors[i] = Rgba8(add_bytes(guess, self.color_residuals[at]).to_le_bytes());
         let residual = self.object_residual(i);
         let objects = &mut *self.objects;
-        objects[i] = predict_object(|q| objects[q], s) ^ residual;
+        objects[i] = ObjectId(predict_object(|q| objects[q].0, s) ^ residual);
     }
 }
 
@@ -1106,6 +1165,44 @@ mod tests {
                         let got = lanes.med4(a4, b4, c4).to_le_bytes()[ch];
                         assert_eq!(got, want, "{a} {b} {c} in lane {ch}");
                     }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn gathering_in_lanes_equals_gathering_byte_by_byte() {
+        // Lengths around the 16-value blocks, planes of other lengths, both maps, with the
+        // lanes the CPU has and with the one-at-a-time fallback.
+        let mut x = 0x0123_4567u32;
+        let mut byte = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x as u8
+        };
+        let planes: Vec<Vec<u8>> = (0..4).map(|_| (0..80).map(|_| byte()).collect()).collect();
+        let planes = [
+            &planes[0][..],
+            &planes[1][..],
+            &planes[2][..],
+            &planes[3][..],
+        ];
+        let fallback = Lanes {
+            #[cfg(target_arch = "x86_64")]
+            sse2: None,
+        };
+        for lanes in [Lanes::new(), fallback] {
+            for n in [0, 1, 15, 16, 17, 31, 32, 33, 63, 64, 79] {
+                for (what, map) in [
+                    (Gathered::AsIs, (|r| r) as fn(u32) -> u32),
+                    (Gathered::Unzigzag, |r| unzigzag(r) as u32),
+                ] {
+                    let mut want = vec![0u32; n];
+                    gather_bytes(planes, &mut want, map);
+                    let mut got = vec![7u32; n];
+                    lanes.gather(planes, &mut got, what);
+                    assert_eq!(got, want, "{n} values, {what:?}");
                 }
             }
         }

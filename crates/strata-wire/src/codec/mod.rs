@@ -370,46 +370,39 @@ pub(crate) struct Scratch {
     pub(crate) columns: Columns,
 }
 
-/// A frame's columns in the form the decoders write them.
+/// A frame's columns, as [`DeepFrame::into_parts`] gives them back and the decoders fill them.
 #[derive(Debug, Default)]
 pub(crate) struct Columns {
     pub(crate) offsets: Vec<u32>,
-    pub(crate) bits: Vec<u32>,
-    pub(crate) colors: Vec<[u8; 4]>,
-    pub(crate) objects: Vec<u32>,
+    pub(crate) depth: Vec<f32>,
+    pub(crate) color: Vec<strata_core::Rgba8>,
+    pub(crate) object: Vec<strata_core::ObjectId>,
 }
 
 impl Columns {
-    /// The frame these columns hold, its invariants checked: the inverse of
-    /// [`Scratch::recycle`], converting in place (the allocations become the frame's columns).
+    /// The frame these columns hold, its invariants checked (the allocations become the
+    /// frame's columns).
     pub(crate) fn into_frame(self, width: u32, height: u32) -> Result<DeepFrame, WireError> {
-        let depth = self.bits.into_iter().map(f32::from_bits).collect();
-        let color = self.colors.into_iter().map(strata_core::Rgba8).collect();
-        let object = self
-            .objects
-            .into_iter()
-            .map(strata_core::ObjectId)
-            .collect();
         Ok(DeepFrame::from_parts(
             width,
             height,
             self.offsets,
-            depth,
-            color,
-            object,
+            self.depth,
+            self.color,
+            self.object,
         )?)
     }
 }
 
 impl Scratch {
-    /// Keeps `frame`'s allocations for the next decode (the conversions reuse them in place).
+    /// Keeps `frame`'s allocations for the next decode.
     pub(crate) fn recycle(&mut self, frame: DeepFrame) {
         let (_, _, offsets, depth, color, object) = frame.into_parts();
         self.columns = Columns {
             offsets,
-            bits: depth.into_iter().map(f32::to_bits).collect(),
-            colors: color.into_iter().map(|c| c.0).collect(),
-            objects: object.into_iter().map(|o| o.0).collect(),
+            depth,
+            color,
+            object,
         };
     }
 }

@@ -14,7 +14,7 @@
 //! count and the node's third word carries the object id instead of the link — the same 4 + 12
 //! bytes the thesis sends (before its driver pads nodes to 16).
 
-use strata_core::DeepFrame;
+use strata_core::{DeepFrame, ObjectId, Rgba8};
 
 use crate::codec::Columns;
 use crate::error::WireError;
@@ -93,28 +93,32 @@ pub(crate) fn decode(
             format!("the counts add up to {total}, the header announces {n} fragments"),
         ));
     }
-    let (mut bits, mut colors, mut objects) = (
-        std::mem::take(&mut spare.bits),
-        std::mem::take(&mut spare.colors),
-        std::mem::take(&mut spare.objects),
+    let (mut depth, mut color, mut object) = (
+        std::mem::take(&mut spare.depth),
+        std::mem::take(&mut spare.color),
+        std::mem::take(&mut spare.object),
     );
-    bits.clear();
-    colors.clear();
-    objects.clear();
-    bits.reserve(n);
-    colors.reserve(n);
-    objects.reserve(n);
+    depth.clear();
+    color.clear();
+    object.clear();
+    depth.reserve(n);
+    color.reserve(n);
+    object.reserve(n);
     for node in nodes.chunks_exact(NODE_BYTES) {
-        bits.push(u32::from_le_bytes([node[0], node[1], node[2], node[3]]));
-        colors.push([node[4], node[5], node[6], node[7]]);
-        objects.push(u32::from_le_bytes([node[8], node[9], node[10], node[11]]));
+        depth.push(f32::from_bits(u32::from_le_bytes([
+            node[0], node[1], node[2], node[3],
+        ])));
+        color.push(Rgba8([node[4], node[5], node[6], node[7]]));
+        object.push(ObjectId(u32::from_le_bytes([
+            node[8], node[9], node[10], node[11],
+        ])));
     }
-    // In place: the allocations become the frame's columns.
+    // The allocations become the frame's columns.
     Columns {
         offsets,
-        bits,
-        colors,
-        objects,
+        depth,
+        color,
+        object,
     }
     .into_frame(width, height)
 }
