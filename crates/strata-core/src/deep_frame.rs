@@ -497,7 +497,9 @@ impl DeepFrame {
         depth.resize(n, 0.0);
         color.resize(n, Rgba8::default());
         object.resize(n, ObjectId::default());
-        /// What a band's check found first.
+        /// What a band's check found first. The derived order is from_parts' order of checks
+        /// (offsets, then depths, then runs), and within a kind the first item.
+        #[derive(PartialEq, Eq, PartialOrd, Ord)]
         enum Failure {
             Offsets(usize),
             Depth(usize),
@@ -508,7 +510,7 @@ impl DeepFrame {
             .map(|b| (offsets[b.end] - offsets[b.start]) as usize);
         let slices = split_columns((&mut depth, &mut color, &mut object), lens);
         let offsets_ref = &offsets[..];
-        let failures: Vec<Failure> = slices
+        let first_failure = slices
             .into_par_iter()
             .zip(bands.par_iter())
             .enumerate()
@@ -540,38 +542,23 @@ impl DeepFrame {
                 })
                 .map(Failure::Unsorted)
             })
-            .collect();
-        // The order of from_parts' passes: offsets, then depths, then runs; in each, the first.
-        let first = |pick: fn(&Failure) -> Option<usize>| failures.iter().filter_map(pick).min();
-        if let Some(pixel) = first(|f| match f {
-            Failure::Offsets(p) => Some(*p),
-            _ => None,
-        }) {
-            return Err(DeepFrameError::BadOffsets { pixel });
-        }
-        if let Some(index) = first(|f| match f {
-            Failure::Depth(i) => Some(*i),
-            _ => None,
-        }) {
-            return Err(DeepFrameError::BadDepth {
+            .min();
+        match first_failure {
+            Some(Failure::Offsets(pixel)) => Err(DeepFrameError::BadOffsets { pixel }),
+            Some(Failure::Depth(index)) => Err(DeepFrameError::BadDepth {
                 index,
                 depth: depth[index],
-            });
+            }),
+            Some(Failure::Unsorted(pixel)) => Err(DeepFrameError::Unsorted { pixel }),
+            None => Ok(DeepFrame {
+                width,
+                height,
+                offsets,
+                depth,
+                color,
+                object,
+            }),
         }
-        if let Some(pixel) = first(|f| match f {
-            Failure::Unsorted(p) => Some(*p),
-            _ => None,
-        }) {
-            return Err(DeepFrameError::Unsorted { pixel });
-        }
-        Ok(DeepFrame {
-            width,
-            height,
-            offsets,
-            depth,
-            color,
-            object,
-        })
     }
 
     /// Makes room for `fragments` more fragments and `pixels` more pixels, so that appending
