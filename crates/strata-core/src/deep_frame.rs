@@ -693,6 +693,23 @@ impl DeepFrame {
     /// Composites every run front to back onto `background` (strata's shared conventions resolve).
     pub fn resolve(&self, background: [f32; 3]) -> Rgb8Image {
         let mut image = Rgb8Image::filled(self.width, self.height, [0; 3]);
+        self.resolve_into(background, &mut image);
+        image
+    }
+
+    /// [`DeepFrame::resolve`] into an image of the frame's size that the caller keeps from frame
+    /// to frame (no fresh pages). In parallel over chunks of pixels; each chunk walks its
+    /// offsets once, so a pixel costs its run's slice and its composite, nothing more.
+    ///
+    /// # Panics
+    /// If `image` is not the frame's size.
+    pub fn resolve_into(&self, background: [f32; 3], image: &mut Rgb8Image) {
+        assert!(
+            image.width() == self.width && image.height() == self.height,
+            "a {}x{} frame resolves into an image of its size",
+            self.width,
+            self.height
+        );
         let bg = composite::background_pixel(background);
         image
             .as_bytes_mut()
@@ -700,17 +717,17 @@ impl DeepFrame {
             .enumerate()
             .for_each(|(chunk, out)| {
                 let p0 = chunk * PIXELS_PER_TASK;
-                for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                    let run = self.run(p0 + i);
-                    let rgb = if run.is_empty() {
+                let offsets = &self.offsets[p0..=p0 + out.len() / 3];
+                for (w, px) in offsets.windows(2).zip(out.chunks_exact_mut(3)) {
+                    let (a, b) = (w[0] as usize, w[1] as usize);
+                    let rgb = if a == b {
                         bg
                     } else {
-                        composite::resolve_pixel(run.color.iter().copied(), background)
+                        composite::resolve_pixel(self.color[a..b].iter().copied(), background)
                     };
                     px.copy_from_slice(&rgb);
                 }
             });
-        image
     }
 
     /// Takes the frame apart: `(width, height, offsets, depth, color, object)`.
@@ -1312,6 +1329,46 @@ mod tests {
     fn negative_zero_depth_is_normalised() {
         let f = DeepFrame::from_pixel_lists(1, 1, &[vec![frag(-0.0, [0; 4], 0)]]).unwrap();
         assert!(f.depths()[0].is_sign_positive());
+    }
+
+    #[test]
+    fn resolving_into_a_kept_image_composites_every_run_across_tasks() {
+        // Over several parallel tasks, runs of 0 to 4 fragments of varying alpha, resolved into
+        // a fresh image and into one holding another frame's pixels: both are the per-pixel
+        // composite of each run.
+        let (w, h) = (300u32, 100u32);
+        let lists: Vec<Vec<Fragment>> = (0..w * h)
+            .map(|p| {
+                (0..(p * 7 + p / 300) % 5)
+                    .map(|k| {
+                        let c = [
+                            (p % 251) as u8,
+                            (k * 60) as u8,
+                            (p / 97) as u8,
+                            30 + (p % 220) as u8,
+                        ];
+                        frag(0.1 + 0.2 * k as f32, c, k)
+                    })
+                    .collect()
+            })
+            .collect();
+        let f = DeepFrame::from_pixel_lists(w, h, &lists).unwrap();
+        let background = [0.2, 0.5, 0.9];
+        let bg = composite::background_pixel(background);
+        let want: Vec<u8> = (0..(w * h) as usize)
+            .flat_map(|p| {
+                let run = f.run(p);
+                if run.is_empty() {
+                    bg
+                } else {
+                    composite::resolve_pixel(run.color.iter().copied(), background)
+                }
+            })
+            .collect();
+        assert_eq!(f.resolve(background).as_bytes(), &want[..]);
+        let mut kept = Rgb8Image::filled(w, h, [9, 8, 7]);
+        f.resolve_into(background, &mut kept);
+        assert_eq!(kept.as_bytes(), &want[..]);
     }
 
     #[test]

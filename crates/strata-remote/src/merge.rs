@@ -49,6 +49,11 @@ pub fn merge_resolve_into(frames: &[&DeepFrame], background: [f32; 3], image: &m
             .all(|f| f.width() == width && f.height() == height),
         "every frame is {width}x{height}"
     );
+    if let [frame] = frames {
+        // One node (the common case): nothing to merge, the frame's own resolve.
+        frame.resolve_into(background, image);
+        return;
+    }
     let bg = background_pixel(background);
     image
         .as_bytes_mut()
@@ -159,6 +164,28 @@ mod tests {
             merged.resolve([1.0; 3]),
             merge_resolve(&[&a, &b], 2, 1, [1.0; 3])
         );
+    }
+
+    #[test]
+    fn one_frame_resolves_as_the_merge_of_it_and_an_empty_frame() {
+        // One node takes the frame's own resolve; with an empty second frame the same pixels go
+        // through the merge.
+        let lists: Vec<Vec<Fragment>> = (0..90u32 * 100)
+            .map(|p| {
+                (0..p % 4)
+                    .map(|k| Fragment {
+                        depth: 0.1 + 0.2 * k as f32,
+                        color: Rgba8([(p % 251) as u8, (k * 60) as u8, 9, 60 + (p % 190) as u8]),
+                        object: ObjectId(1 + k),
+                    })
+                    .collect()
+            })
+            .collect();
+        let a = DeepFrame::from_pixel_lists(90, 100, &lists).expect("frame");
+        let empty = DeepFrame::empty(90, 100);
+        let one = merge_resolve(&[&a], 90, 100, [0.3, 0.6, 0.1]);
+        assert_eq!(one, merge_resolve(&[&a, &empty], 90, 100, [0.3, 0.6, 0.1]));
+        assert_eq!(one, a.resolve([0.3, 0.6, 0.1]));
     }
 
     #[test]
