@@ -12,7 +12,7 @@
 
 use rayon::prelude::*;
 use strata_core::composite::{background_pixel, resolve_pixel};
-use strata_core::{DeepFrame, Fragment, Rgb8Image};
+use strata_core::{DeepFrame, Fragment, Rgb8Image, Run};
 
 /// Pixels per parallel task.
 const CHUNK: usize = 8 * 1024;
@@ -60,10 +60,13 @@ pub fn merge_resolve_into(frames: &[&DeepFrame], background: [f32; 3], image: &m
         .par_chunks_mut(CHUNK * 3)
         .enumerate()
         .for_each(|(chunk, out)| {
-            let mut heads = [0usize; MAX_NODES];
+            let mut merging = Merging {
+                runs: Vec::with_capacity(frames.len()),
+                heads: [0; MAX_NODES],
+            };
             for (i, px) in out.chunks_exact_mut(3).enumerate() {
                 let p = chunk * CHUNK + i;
-                px.copy_from_slice(&resolve_merged(frames, p, background, bg, &mut heads));
+                px.copy_from_slice(&resolve_merged(frames, p, background, bg, &mut merging));
             }
         });
 }
@@ -99,31 +102,49 @@ pub fn merge_frames(
     })
 }
 
-fn resolve_merged(
-    frames: &[&DeepFrame],
+/// A chunk's scratch for pixels that several frames cover: their runs, sliced once a pixel,
+/// and how far the merge has taken each.
+struct Merging<'f> {
+    runs: Vec<Run<'f>>,
+    heads: [usize; MAX_NODES],
+}
+
+fn resolve_merged<'f>(
+    frames: &[&'f DeepFrame],
     p: usize,
     background: [f32; 3],
     bg: [u8; 3],
-    heads: &mut [usize; MAX_NODES],
+    merging: &mut Merging<'f>,
 ) -> [u8; 3] {
+    // Which frames cover the pixel, from their offsets alone.
     let mut covering = 0;
-    let mut only = 0;
+    let mut only = (0, 0, 0);
     for (i, f) in frames.iter().enumerate() {
-        if !f.run(p).is_empty() {
+        let o = f.offsets();
+        let (a, b) = (o[p] as usize, o[p + 1] as usize);
+        if a != b {
             covering += 1;
-            only = i;
+            only = (i, a, b);
         }
     }
     match covering {
         0 => bg,
         // Most pixels: one node's run, composited straight from its colours.
-        1 => resolve_pixel(frames[only].run(p).color.iter().copied(), background),
+        1 => {
+            let (i, a, b) = only;
+            resolve_pixel(frames[i].colors()[a..b].iter().copied(), background)
+        }
         _ => {
-            heads[..frames.len()].fill(0);
+            // The covering frames' runs in frame order (an order key tie goes to the earlier
+            // frame), merged front to back.
+            let Merging { runs, heads } = merging;
+            runs.clear();
+            runs.extend(frames.iter().map(|f| f.run(p)).filter(|r| !r.is_empty()));
+            heads[..runs.len()].fill(0);
             let merged = std::iter::from_fn(|| {
                 let mut best: Option<(usize, (u64, u32))> = None;
-                for (i, f) in frames.iter().enumerate() {
-                    if let Some(frag) = f.run(p).get(heads[i]) {
+                for (i, run) in runs.iter().enumerate() {
+                    if let Some(frag) = run.get(heads[i]) {
                         let k = Fragment::order_key(&frag);
                         if best.is_none_or(|(_, b)| k < b) {
                             best = Some((i, k));
@@ -131,7 +152,7 @@ fn resolve_merged(
                     }
                 }
                 let (i, _) = best?;
-                let c = frames[i].run(p).color[heads[i]];
+                let c = runs[i].color[heads[i]];
                 heads[i] += 1;
                 Some(c)
             });
