@@ -385,24 +385,13 @@ impl DeepFrame {
         color: Vec<Rgba8>,
         object: Vec<ObjectId>,
     ) -> Result<Self, DeepFrameError> {
-        let pixels = pixel_count(width, height);
-        if offsets.len() != pixels + 1 {
-            return Err(DeepFrameError::PixelCount {
-                width,
-                height,
-                expected: pixels as u64 + 1,
-                found: offsets.len() as u64,
-            });
-        }
+        let pixels = offsets_shape(width, height, &offsets)?;
         if depth.len() != color.len() || depth.len() != object.len() {
             return Err(DeepFrameError::ColumnLengths {
                 depth: depth.len(),
                 color: color.len(),
                 object: object.len(),
             });
-        }
-        if offsets[0] != 0 {
-            return Err(DeepFrameError::BadOffsets { pixel: 0 });
         }
         // Every check below runs over chunks in parallel, without a branch per item inside a
         // chunk (decoders call this on every frame they receive); a chunk that fails is
@@ -447,8 +436,11 @@ impl DeepFrame {
     ///
     /// `offsets` are the frame's run offsets (`w·h + 1`, checked here: a band whose offsets
     /// decrease is not filled); `columns` are allocations to reuse (any lengths: they are
-    /// resized to `offsets[w·h]` fragments, which zeroes only what they grow by). A band's fill
-    /// sees the frame's offsets and its own fragments, indexed from its first pixel's offset.
+    /// resized to `offsets[w·h]` fragments, which zeroes only what they grow by). That total
+    /// is allocated as given, so a caller decoding untrusted input bounds it first (the wire
+    /// decoders check the counts against the header's fragment count and its limit). A band's
+    /// fill sees the frame's offsets and its own fragments, indexed from its first pixel's
+    /// offset.
     ///
     /// # Panics
     /// If `bands` are not consecutive ranges covering the pixels `0..w·h` in order.
@@ -473,17 +465,7 @@ impl DeepFrame {
             next = b.end;
         }
         assert_eq!(next, pixels, "bands must cover every pixel");
-        if offsets.len() != pixels + 1 {
-            return Err(DeepFrameError::PixelCount {
-                width,
-                height,
-                expected: pixels as u64 + 1,
-                found: offsets.len() as u64,
-            });
-        }
-        if offsets[0] != 0 {
-            return Err(DeepFrameError::BadOffsets { pixel: 0 });
-        }
+        offsets_shape(width, height, &offsets)?;
         // The bands' slices need rising offsets at the band ends; when they do not, some pixel
         // inside fails, and the whole-frame check names the first.
         if bands.iter().any(|b| offsets[b.start] > offsets[b.end]) {
@@ -761,6 +743,25 @@ fn first_failing(
         .into_par_iter()
         .find_first(|&c| !ok(c * chunk..((c + 1) * chunk).min(len)))?;
     (failing * chunk..((failing + 1) * chunk).min(len)).find(|&i| !ok(i..i + 1))
+}
+
+/// The pixel count of a `width` × `height` frame, once `offsets` has one entry a pixel and one
+/// more, starting at 0: the shape [`DeepFrame::from_parts`] and [`DeepFrame::fill_bands`] check
+/// before anything else.
+fn offsets_shape(width: u32, height: u32, offsets: &[u32]) -> Result<usize, DeepFrameError> {
+    let pixels = pixel_count(width, height);
+    if offsets.len() != pixels + 1 {
+        return Err(DeepFrameError::PixelCount {
+            width,
+            height,
+            expected: pixels as u64 + 1,
+            found: offsets.len() as u64,
+        });
+    }
+    if offsets[0] != 0 {
+        return Err(DeepFrameError::BadOffsets { pixel: 0 });
+    }
+    Ok(pixels)
 }
 
 /// [`first_failing`] over `range`, serially (inside a task that is parallel already).

@@ -50,7 +50,9 @@ pub fn merge_resolve_into(frames: &[&DeepFrame], background: [f32; 3], image: &m
         "every frame is {width}x{height}"
     );
     if let [frame] = frames {
-        // One node (the common case): nothing to merge, the frame's own resolve.
+        // One node (the common case): nothing to merge, the frame's own resolve, which walks
+        // the offsets once. The loop below, given one frame, took 1.5x as long (a dragon
+        // frame on the 2-core Xeon: 8.5 against 5.7 ms).
         frame.resolve_into(background, image);
         return;
     }
