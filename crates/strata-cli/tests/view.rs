@@ -336,7 +336,7 @@ fn a_compared_view_carries_the_reference_and_the_maps() {
     let mut ws = v.socket();
     let hello = text(next(&mut ws).expect("hello"));
     ws.send(Message::text(
-        json!({"type": "view", "id": 1, "width": 40, "height": 30, "camera": hello["camera"],
+        json!({"type": "view", "id": 1, "width": 40, "height": 150, "camera": hello["camera"],
                "method": "kbuffer", "options": {"k": "1"},
                "compare": {"method": "abuffer", "flip": true}})
         .to_string(),
@@ -347,20 +347,59 @@ fn a_compared_view_carries_the_reference_and_the_maps() {
     };
     let n = u32::from_le_bytes(b[..4].try_into().expect("length")) as usize;
     let header: Value = serde_json::from_slice(&b[4..4 + n]).expect("header JSON");
+    // Each image in two bands of 75 rows (two threads, 150 rows), PNGs stacked top to bottom.
     let images = header["images"].as_array().expect("images");
     let names: Vec<&str> = images
         .iter()
         .map(|i| i["name"].as_str().expect("name"))
         .collect();
-    assert_eq!(names, ["main", "reference", "bad", "flip"]);
+    assert_eq!(
+        names,
+        [
+            "main",
+            "main",
+            "reference",
+            "reference",
+            "bad",
+            "bad",
+            "flip",
+            "flip"
+        ]
+    );
     let mut at = 4 + n;
+    let mut stacked: Vec<(&str, Vec<u8>)> = Vec::new();
     for image in images {
         let bytes = image["bytes"].as_u64().expect("bytes") as usize;
-        let (w, h, _) = pixels(&b[at..at + bytes]);
-        assert_eq!((w, h), (40, 30), "{image}");
+        let (w, h, rgb) = pixels(&b[at..at + bytes]);
+        assert_eq!((w, h), (40, 75), "{image}");
+        assert_eq!(image["rows"], 75, "{image}");
+        let name = image["name"].as_str().expect("name");
+        match stacked.last_mut() {
+            Some((last, all)) if *last == name => all.extend_from_slice(&rgb),
+            _ => stacked.push((name, rgb)),
+        }
         at += bytes;
     }
     assert_eq!(at, b.len(), "the images fill the message");
+    assert_eq!(
+        header["png_bytes"].as_u64(),
+        Some(
+            images[0]["bytes"].as_u64().expect("bytes")
+                + images[1]["bytes"].as_u64().expect("bytes")
+        ),
+        "png_bytes counts every band of the main image"
+    );
+    // The bands join: the reference is the abuffer's image of the view, row for row.
+    let (_, reference) = &stacked[1];
+    let dir = TempDir::new().expect("temp dir");
+    let (_, source) = still_scene("spheres", &dir);
+    let camera_toml = header["camera_toml"].as_str().expect("camera_toml");
+    let (w, h, want) = pixels(&rendered(&source, camera_toml, &dir));
+    assert_eq!((w, h), (40, 150));
+    assert!(
+        reference == &want,
+        "the stacked reference is `strata render`'s image"
+    );
     let c = &header["compare"];
     assert_eq!(c["method"], "abuffer");
     assert_eq!(c["stats"]["method"], "abuffer");

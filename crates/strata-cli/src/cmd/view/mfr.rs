@@ -462,7 +462,7 @@ impl Page {
             "camera_toml": protocol::view_toml(&camera, settings.width, settings.height),
             "render_ms": fc_ms,
             "encode_ms": ms(start.elapsed()),
-            "png_bytes": encoded[0].1.len(),
+            "png_bytes": protocol::Part::image_bytes(&encoded, "main"),
         });
         self.shown = Some((settings.id, frame));
         Ok(Message::Binary(

@@ -45,7 +45,11 @@ pub(crate) fn answer(scene: &Scene, probe: Probe, shown: &Shown<'_>) -> Message 
                 Ok(bytes) => Message::Binary(
                     protocol::frame_message(
                         json!({"type": "deep", "frame": id}),
-                        &[("deep", bytes)],
+                        &[protocol::Part {
+                            name: "deep",
+                            rows: None,
+                            bytes,
+                        }],
                     )
                     .into(),
                 ),

@@ -35,8 +35,14 @@
 //! `{"type": "frame", "id", "stats", "camera_toml", "render_ms", "encode_ms", "images", …}`,
 //! where `stats` is exactly what `strata render --stats` writes) and the images, PNGs one after
 //! the other in the order and with the byte lengths `images` lists (`[{"name": "main", "bytes":
-//! n}, …]`; with a comparison also `reference`, `bad` and, with FLIP, `flip`). The header and
-//! the images travel together, so a page never pairs an image with another frame's numbers.
+//! n, "rows": r}, …]`; with a comparison also `reference`, `bad` and, with FLIP, `flip`). The
+//! header and the images travel together, so a page never pairs an image with another frame's
+//! numbers.
+//!
+//! An image of more than [`MIN_BAND_ROWS`] rows comes as several PNGs, one a band of `rows`
+//! full-width rows, consecutive entries of one name stacked top to bottom: the server encodes
+//! the bands on all its threads at once (one PNG is a single deflate stream, so one thread),
+//! and the page decodes them at once. A `deep` message's entry (the EXR) has no `rows`.
 //!
 //! Every field of a request is checked here, with the rules the command line and the scene
 //! file use: the camera by [`Camera::check`], the size against [`MAX_SIDE`], the frame against
@@ -609,35 +615,88 @@ pub(crate) fn error_json(id: Option<u64>, message: &str) -> String {
     json!({"type": "error", "id": id, "message": message}).to_string()
 }
 
-/// The named images of a frame as PNGs, in order.
-pub(crate) fn encode_pngs<'a>(
-    images: &[(&'a str, strata_core::Rgb8Image)],
-) -> Result<Vec<(&'a str, Vec<u8>)>> {
-    images
+/// Fewest rows in a band of an image sent in bands (see the module docs): a small image is one
+/// PNG, since a band's PNG costs its header and a fresh deflate dictionary.
+pub(crate) const MIN_BAND_ROWS: u32 = 64;
+
+/// One part of a binary message: a PNG of `rows` rows of the image `name` (a band, or the
+/// whole image), or a file (`rows: None`).
+#[derive(Debug, PartialEq)]
+pub(crate) struct Part<'a> {
+    pub(crate) name: &'a str,
+    pub(crate) rows: Option<u32>,
+    pub(crate) bytes: Vec<u8>,
+}
+
+impl Part<'_> {
+    /// The bytes of the image `name` in `parts`, all its bands together.
+    pub(crate) fn image_bytes(parts: &[Part<'_>], name: &str) -> usize {
+        parts
+            .iter()
+            .filter(|p| p.name == name)
+            .map(|p| p.bytes.len())
+            .sum()
+    }
+}
+
+/// The bands an image of `height` rows is sent in: as many as the threads encoding them, each
+/// of at least [`MIN_BAND_ROWS`] rows (one band for a smaller image), as even as can be.
+pub(crate) fn bands(height: u32, threads: usize) -> Vec<std::ops::Range<u32>> {
+    let n = (height / MIN_BAND_ROWS).clamp(1, threads.max(1) as u32);
+    (0..n)
+        .map(|i| height * i / n..height * (i + 1) / n)
+        .collect()
+}
+
+/// The named images of a frame as PNGs, in order, each in [`bands`] encoded in parallel on the
+/// current rayon pool.
+pub(crate) fn encode_pngs<'a, I>(images: &[(&'a str, I)]) -> Result<Vec<Part<'a>>>
+where
+    I: std::borrow::Borrow<strata_core::Rgb8Image> + Sync,
+{
+    use rayon::prelude::*;
+    let threads = rayon::current_num_threads();
+    let jobs: Vec<(&'a str, &strata_core::Rgb8Image, std::ops::Range<u32>)> = images
         .iter()
-        .map(|(name, image)| {
-            let mut png = Vec::new();
+        .flat_map(|(name, image)| {
+            let image = image.borrow();
+            bands(image.height(), threads)
+                .into_iter()
+                .map(move |rows| (*name, image, rows))
+        })
+        .collect();
+    jobs.into_par_iter()
+        .map(|(name, image, rows)| {
+            let mut bytes = Vec::new();
             image
-                .encode_png(&mut png)
+                .encode_png_rows(rows.clone(), &mut bytes)
                 .with_context(|| format!("cannot encode the {name} image as PNG"))?;
-            Ok((*name, png))
+            Ok(Part {
+                name,
+                rows: Some(rows.end - rows.start),
+                bytes,
+            })
         })
         .collect()
 }
 
-/// A frame message: header length, header with the list of `images` added, the images.
-pub(crate) fn frame_message(mut header: Value, images: &[(&str, Vec<u8>)]) -> Vec<u8> {
-    header["images"] = images
+/// A frame message: header length, header with the list of the parts (`images`) added, the
+/// parts' bytes.
+pub(crate) fn frame_message(mut header: Value, parts: &[Part<'_>]) -> Vec<u8> {
+    header["images"] = parts
         .iter()
-        .map(|(name, bytes)| json!({"name": name, "bytes": bytes.len()}))
+        .map(|p| match p.rows {
+            Some(rows) => json!({"name": p.name, "bytes": p.bytes.len(), "rows": rows}),
+            None => json!({"name": p.name, "bytes": p.bytes.len()}),
+        })
         .collect();
     let header = header.to_string();
-    let size = images.iter().map(|(_, b)| b.len()).sum::<usize>();
+    let size = parts.iter().map(|p| p.bytes.len()).sum::<usize>();
     let mut out = Vec::with_capacity(4 + header.len() + size);
     out.extend_from_slice(&(header.len() as u32).to_le_bytes());
     out.extend_from_slice(header.as_bytes());
-    for (_, bytes) in images {
-        out.extend_from_slice(bytes);
+    for p in parts {
+        out.extend_from_slice(&p.bytes);
     }
     out
 }
@@ -909,16 +968,90 @@ mod tests {
 
     #[test]
     fn frame_messages_put_the_header_first() {
+        let part = |name, rows, bytes: &[u8]| Part {
+            name,
+            rows,
+            bytes: bytes.to_vec(),
+        };
         let m = frame_message(
             json!({"type": "frame"}),
-            &[("main", b"PNG".to_vec()), ("flip", b"HEAT".to_vec())],
+            &[
+                part("main", Some(2), b"PN"),
+                part("main", Some(3), b"G"),
+                part("deep", None, b"EXR"),
+            ],
         );
         let n = u32::from_le_bytes(m[..4].try_into().expect("4 bytes")) as usize;
         let header: Value = serde_json::from_slice(&m[4..4 + n]).expect("JSON");
         assert_eq!(
             header["images"],
-            json!([{"name": "main", "bytes": 3}, {"name": "flip", "bytes": 4}])
+            json!([{"name": "main", "bytes": 2, "rows": 2},
+                   {"name": "main", "bytes": 1, "rows": 3},
+                   {"name": "deep", "bytes": 3}])
         );
-        assert_eq!(&m[4 + n..], b"PNGHEAT");
+        assert_eq!(&m[4 + n..], b"PNGEXR");
+    }
+
+    #[test]
+    fn bands_cover_the_rows_once_and_are_never_thin() {
+        for height in [1, 63, 64, 127, 128, 180, 720, 721, 4096] {
+            for threads in [0, 1, 2, 3, 16] {
+                let b = bands(height, threads);
+                assert_eq!(b.first().map(|r| r.start), Some(0));
+                assert_eq!(b.last().map(|r| r.end), Some(height));
+                assert!(b.windows(2).all(|w| w[0].end == w[1].start), "{b:?}");
+                assert!(
+                    b.len() <= threads.max(1),
+                    "{height} rows, {threads} threads: {b:?}"
+                );
+                if b.len() > 1 {
+                    assert!(b.iter().all(|r| r.len() >= MIN_BAND_ROWS as usize), "{b:?}");
+                }
+            }
+        }
+        assert_eq!(bands(180, 2), [0..90, 90..180]);
+        assert_eq!(bands(720, 16).len(), 11);
+    }
+
+    #[test]
+    fn an_image_sent_in_bands_is_the_image() {
+        let (w, h) = (5u32, 200u32);
+        let data = (0..w * h * 3).map(|i| (i * 31 % 253) as u8).collect();
+        let image = strata_core::Rgb8Image::from_raw(w, h, data).expect("size");
+        let small = strata_core::Rgb8Image::filled(w, 10, [9, 8, 7]);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .expect("pool");
+        let parts = pool
+            .install(|| encode_pngs(&[("main", image.clone()), ("bad", small.clone())]))
+            .expect("encoded");
+        let names: Vec<_> = parts.iter().map(|p| (p.name, p.rows)).collect();
+        assert_eq!(
+            names,
+            [
+                ("main", Some(66)),
+                ("main", Some(67)),
+                ("main", Some(67)),
+                ("bad", Some(10))
+            ]
+        );
+        for (name, want) in [("main", &image), ("bad", &small)] {
+            let mut stacked = Vec::new();
+            for p in parts.iter().filter(|p| p.name == name) {
+                let mut reader = png::Decoder::new(std::io::Cursor::new(&p.bytes))
+                    .read_info()
+                    .expect("a PNG");
+                let mut buf = vec![0; reader.output_buffer_size().expect("size")];
+                let info = reader.next_frame(&mut buf).expect("a frame");
+                assert_eq!((info.width, Some(info.height)), (w, p.rows));
+                stacked.extend_from_slice(&buf[..info.buffer_size()]);
+            }
+            assert_eq!(stacked, want.as_bytes(), "{name}");
+        }
+        assert_eq!(
+            Part::image_bytes(&parts, "main"),
+            parts[..3].iter().map(|p| p.bytes.len()).sum::<usize>()
+        );
     }
 }

@@ -295,11 +295,10 @@ impl PageDisplay<'_> {
         });
         let start = Instant::now();
         // Encoded where it lies: the display resolves into the same image every frame.
-        let mut png = Vec::new();
-        if let Err(e) = image.encode_png(&mut png) {
-            return error(Some(id), &format!("cannot encode the frame as PNG: {e}"));
-        }
-        let encoded = [("main", png)];
+        let encoded = match protocol::encode_pngs(&[("main", image)]) {
+            Ok(encoded) => encoded,
+            Err(e) => return error(Some(id), &format!("{e:#}")),
+        };
         let (w, h) = self.size;
         let header = json!({
             "type": "frame",
@@ -309,7 +308,7 @@ impl PageDisplay<'_> {
             "camera_toml": protocol::view_toml(&camera, w, h),
             "render_ms": stats.merge_ms + stats.resolve_ms,
             "encode_ms": ms(start.elapsed()),
-            "png_bytes": encoded[0].1.len(),
+            "png_bytes": protocol::Part::image_bytes(&encoded, "main"),
         });
         Message::Binary(protocol::frame_message(header, &encoded).into())
     }

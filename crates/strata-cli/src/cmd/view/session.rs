@@ -410,7 +410,7 @@ impl Renderer {
         let start = Instant::now();
         let encoded = protocol::encode_pngs(&images)?;
         header["encode_ms"] = json!(ms(start.elapsed()));
-        header["png_bytes"] = json!(encoded[0].1.len());
+        header["png_bytes"] = json!(protocol::Part::image_bytes(&encoded, "main"));
         self.last = Some((job.id, job.width, job.height, job.camera));
         Ok(protocol::frame_message(header, &encoded))
     }

@@ -567,14 +567,41 @@ function download(blob, name) {
   setTimeout(() => URL.revokeObjectURL(a.href), 1000);
 }
 
-async function showFrame(header, buffer, first) {
-  const images = {};
+// The frame's PNGs, all decoded at once; an image sent in bands (consecutive entries of one
+// name, each a PNG of `rows` full-width rows) is stacked top to bottom into one bitmap.
+async function decodeImages(header, buffer, first) {
   let at = first;
-  for (const { name, bytes } of header.images) {
+  const parts = header.images.map(({ name, bytes }) => {
     const png = new Blob([new Uint8Array(buffer, at, bytes)], { type: "image/png" });
-    images[name] = await createImageBitmap(png, { colorSpaceConversion: "none", premultiplyAlpha: "none" });
     at += bytes;
+    return { name, bitmap: createImageBitmap(png, { colorSpaceConversion: "none", premultiplyAlpha: "none" }) };
+  });
+  const bitmaps = await Promise.all(parts.map((p) => p.bitmap));
+  const images = {};
+  for (let i = 0; i < parts.length;) {
+    let end = i + 1;
+    while (end < parts.length && parts[end].name === parts[i].name) end++;
+    images[parts[i].name] = end - i === 1 ? bitmaps[i] : stackBands(bitmaps.slice(i, end));
+    i = end;
   }
+  return images;
+}
+
+function stackBands(bands) {
+  const height = bands.reduce((sum, b) => sum + b.height, 0);
+  const canvas = new OffscreenCanvas(bands[0].width, height);
+  const ctx = canvas.getContext("2d");
+  let y = 0;
+  for (const band of bands) {
+    ctx.drawImage(band, 0, y);
+    y += band.height;
+    band.close();
+  }
+  return canvas.transferToImageBitmap();
+}
+
+async function showFrame(header, buffer, first) {
+  const images = await decodeImages(header, buffer, first);
   if (S.frame && header.id < S.frame.id) return; // an older frame decoded late
   for (const old of Object.values(S.images)) old.close();
   S.images = images;
