@@ -70,7 +70,7 @@ pub fn over_front_to_back(
 /// Composites and quantises to the 8-bit output pixel (`round(v * 255)`, no transfer function).
 ///
 /// Every resolve of every store ends here, once a covered pixel, so on x86_64 it computes the
-/// three channels at once in one SSE2 register ([`resolve_pixel_in_lanes`]); the result is the
+/// three channels at once in one SSE2 register (`resolve_pixel_in_lanes`); the result is the
 /// same bits as [`over_front_to_back`] then [`unorm8`] per channel (the same operations on each
 /// channel, in the same order: tested against it).
 #[inline]
