@@ -39,10 +39,11 @@
 //! header and the images travel together, so a page never pairs an image with another frame's
 //! numbers.
 //!
-//! An image of more than [`MIN_BAND_ROWS`] rows comes as several PNGs, one a band of `rows`
-//! full-width rows, consecutive entries of one name stacked top to bottom: the server encodes
-//! the bands on all its threads at once (one PNG is a single deflate stream, so one thread),
-//! and the page decodes them at once. A `deep` message's entry (the EXR) has no `rows`.
+//! An image of at least twice [`MIN_BAND_ROWS`] rows, encoded by a pool of several threads,
+//! comes as several PNGs ([`bands`]), one a band of `rows` full-width rows, consecutive entries
+//! of one name stacked top to bottom: the server encodes the bands on all its threads at once
+//! (one PNG is a single deflate stream, so one thread), and the page decodes them at once. A
+//! `deep` message's entry (the EXR) has no `rows`.
 //!
 //! Every field of a request is checked here, with the rules the command line and the scene
 //! file use: the camera by [`Camera::check`], the size against [`MAX_SIDE`], the frame against
