@@ -94,6 +94,23 @@ pub fn unorm8(v: f32) -> u8 {
     (v * 255.0 + 0.5) as u8
 }
 
+/// [`unorm8`] of the first three lanes of `v` at once (the fourth is ignored), the same bits:
+/// `maxps` and `minps` return their second operand when the first is NaN or the compare fails,
+/// as `unorm8`'s selects do, and `cvttps` truncates like `as u8` on `[0.5, 255.5]`. For the
+/// resolve and the headlight, which quantise a colour a pixel or a fragment.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn unorm8_rgb_in_lanes(simd: pulp::x86::V1, v: std::arch::x86_64::__m128) -> [u8; 3] {
+    let (f, i) = (simd.sse, simd.sse2);
+    let v = f._mm_max_ps(v, f._mm_setzero_ps());
+    let v = f._mm_min_ps(v, f._mm_set1_ps(1.0));
+    let v = f._mm_add_ps(f._mm_mul_ps(v, f._mm_set1_ps(255.0)), f._mm_set1_ps(0.5));
+    let v = i._mm_cvttps_epi32(v);
+    let v = i._mm_packus_epi16(i._mm_packs_epi32(v, v), i._mm_setzero_si128());
+    let [r, g, b, _] = i._mm_cvtsi128_si32(v).to_le_bytes();
+    [r, g, b]
+}
+
 /// One colour fragment: what a fragment store keeps per rasterised sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C)]
@@ -153,6 +170,49 @@ pub fn sort_front_to_back(run: &mut [Fragment]) {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// A sweep of `f32` bit patterns (every 65,521st, so each exponent and many mantissas) and
+    /// the values where quantisation turns: NaNs, ±0, ±∞, subnormals, the half-integers.
+    fn awkward_floats() -> impl Iterator<Item = f32> {
+        let sweep = (0..=u32::MAX / 65_521).map(|k| f32::from_bits(k * 65_521));
+        let halves = (0..=255).flat_map(|k| {
+            let x = (k as f32 + 0.5) / 255.0;
+            [
+                x,
+                f32::from_bits(x.to_bits() - 1),
+                f32::from_bits(x.to_bits() + 1),
+            ]
+        });
+        let special = [
+            f32::NAN,
+            -f32::NAN,
+            0.0,
+            -0.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE / 2.0,
+            1.0,
+            f32::from_bits(1.0f32.to_bits() - 1),
+            1.0 + f32::EPSILON,
+        ];
+        sweep.chain(halves).chain(special)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn lanes_quantise_like_unorm8_everywhere() {
+        let simd = pulp::x86::V1::try_new().expect("SSE2 is part of x86_64");
+        let f = simd.sse;
+        for x in awkward_floats() {
+            let rgb = [x, -x, x * 0.5];
+            assert_eq!(
+                unorm8_rgb_in_lanes(simd, f._mm_set_ps(f32::NAN, rgb[2], rgb[1], rgb[0])),
+                rgb.map(unorm8),
+                "{x:e} ({:#010x})",
+                x.to_bits()
+            );
+        }
+    }
 
     #[test]
     fn unorm8_matches_pack_unorm4x8() {
