@@ -29,9 +29,12 @@
 //!   (insertion sort for short lists, as Jähne 2014 Alg. A.1 does with bubble sort), composite with
 //!   OVER onto the background with early exit at full opacity. Rows are resolved in parallel.
 //!   Walking a list is a chain of dependent loads into a pool that has left the cache by the
-//!   time it is resolved, so lists are gathered breadth-first over batches of [`GATHER_BATCH`]
-//!   pixels: each round loads the next node of every unfinished list in the batch, and those loads
-//!   are independent, so the memory system serves them in parallel.
+//!   time it is resolved, so lists are gathered over batches of [`GATHER_BATCH`] pixels: the
+//!   first node of every list in the batch in one round, whose loads are independent, so the
+//!   memory system serves them in parallel; then each list's remaining nodes. (Rounds over the
+//!   whole batch until its longest list ended cost 6 % more instructions for no measurable
+//!   gain: most lists end at their first node. Sixteen walkers that each take a new pixel when
+//!   their list ends, keeping 16 loads in flight, measured no faster either.)
 //!
 //! # Overflow
 //!
@@ -270,25 +273,26 @@ impl LinkedListABuffer {
         self.dropped.store(0, Relaxed);
     }
 
-    /// Gathers the lists of pixels `p0 .. p0 + out.len()` into `out`, breadth-first (see the module
-    /// docs): each round follows one link of every list that has not ended.
+    /// Gathers the lists of pixels `p0 .. p0 + out.len()` into `out` (see the module docs): the
+    /// first node of every list in one round, whose loads are independent, then the rest of each
+    /// list on its own — most lists end at their first node (the dragon averages 1.14 fragments
+    /// a covered pixel), so rounds over the whole batch would mostly test ended lists.
     #[inline]
     fn gather(&self, p0: usize, out: &mut [Vec<Fragment>]) {
         let mut cursor = [EMPTY; GATHER_BATCH];
-        let mut live = 0usize;
-        for (k, list) in out.iter_mut().enumerate() {
+        for ((c, list), &head) in cursor.iter_mut().zip(out.iter_mut()).zip(&self.heads[p0..]) {
             list.clear();
-            cursor[k] = self.heads[p0 + k];
-            live += usize::from(cursor[k] != EMPTY);
+            if head != EMPTY {
+                let (f, next) = self.nodes[head as usize].load();
+                list.push(f);
+                *c = next;
+            }
         }
-        while live > 0 {
-            for (c, list) in cursor.iter_mut().zip(out.iter_mut()) {
-                if *c != EMPTY {
-                    let (f, next) = self.nodes[*c as usize].load();
-                    list.push(f);
-                    *c = next;
-                    live -= usize::from(next == EMPTY);
-                }
+        for (mut c, list) in cursor.into_iter().zip(out.iter_mut()) {
+            while c != EMPTY {
+                let (f, next) = self.nodes[c as usize].load();
+                list.push(f);
+                c = next;
             }
         }
     }
