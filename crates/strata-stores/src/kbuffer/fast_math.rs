@@ -33,13 +33,19 @@ pub fn fast_exp(x: f32) -> f32 {
     const LN_2_HI: f32 = 0.693_359_4;
     const LN_2_LO: f32 = -2.121_944_4e-4;
     let x = x.clamp(-87.0, 88.0);
-    let n = (x * LOG2_E + ROUND) - ROUND;
+    let rounded = x * LOG2_E + ROUND;
+    let n = rounded - ROUND;
     let r = (x - n * LN_2_HI) - n * LN_2_LO;
     let p = 1.0
         + r * (1.0
             + r * (1.0 / 2.0
                 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-    p * f32::from_bits(((n as i32 + 127) as u32) << 23)
+    // `rounded` is `ROUND + n` exactly, and `ROUND`'s ulp is 1, so its low mantissa bits are
+    // `n` as an integer: the bits of `2ⁿ` without a float-to-int conversion (whose saturating
+    // Rust semantics cost a compare and a blend a lane), the same bits as `(n as i32 + 127) << 23`
+    // for every `n` the clamp allows.
+    let n_bits = rounded.to_bits().wrapping_sub(ROUND.to_bits());
+    p * f32::from_bits(n_bits.wrapping_add(127) << 23)
 }
 
 /// `ln(1 + u)` for `u ≥ 0`, accurate (relative) down to the smallest `u`, where `ln(1 + u)`
@@ -99,6 +105,29 @@ mod tests {
         assert_eq!(fast_exp(0.0), 1.0);
         assert!(fast_exp(-1000.0) > 0.0 && fast_exp(-1000.0) < 1e-37);
         assert!(fast_exp(1000.0).is_finite());
+    }
+
+    #[test]
+    fn two_to_the_n_comes_from_the_rounding_bits_as_from_a_conversion() {
+        // The exponent's bits as `fast_exp` built them before: through `n as i32`.
+        let by_conversion = |x: f32| {
+            let x = x.clamp(-87.0, 88.0);
+            let n = (x * LOG2_E + ROUND) - ROUND;
+            f32::from_bits(((n as i32 + 127) as u32) << 23)
+        };
+        let mut x = -90.0f32;
+        while x <= 90.0 {
+            let rounded = x.clamp(-87.0, 88.0) * LOG2_E + ROUND;
+            let from_bits = f32::from_bits(
+                rounded
+                    .to_bits()
+                    .wrapping_sub(ROUND.to_bits())
+                    .wrapping_add(127)
+                    << 23,
+            );
+            assert_eq!(from_bits.to_bits(), by_conversion(x).to_bits(), "x = {x}");
+            x += 0.000_7;
+        }
     }
 
     #[test]

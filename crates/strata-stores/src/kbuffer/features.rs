@@ -645,6 +645,30 @@ fn distance(c: [f32; 3], background: [f32; 3]) -> f32 {
     (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
 }
 
+/// `count · Σ c² − Σ_ch (Σ c)²` over r, g, b (`3 · 255² · count² · variance`), exactly, as
+/// `f32`. In `u64` while `count · Σ c²` fits, which it does below about ten million fragments a
+/// pixel (the densest scenes here hold a few hundred); in `u128` beyond (the `u32` channel sums
+/// themselves wrap past 16.8 million fragments of 255 in one pixel). An integer converts to the
+/// nearest `f32` whatever its width, so both give the same bits.
+#[inline(always)]
+fn spread(count: u32, sum_sq: u64, sum: [u32; 4]) -> f32 {
+    let squares = |c: u32| u64::from(c) * u64::from(c);
+    let narrow = u64::from(count).checked_mul(sum_sq).and_then(|all| {
+        let s = squares(sum[0]).checked_add(squares(sum[1]))?;
+        Some(all.saturating_sub(s.checked_add(squares(sum[2]))?))
+    });
+    match narrow {
+        Some(spread) => spread as f32,
+        None => {
+            let squares: u128 = sum[..3]
+                .iter()
+                .map(|&c| u128::from(c) * u128::from(c))
+                .sum();
+            (u128::from(count) * u128::from(sum_sq)).saturating_sub(squares) as f32
+        }
+    }
+}
+
 /// The sums of one block's pixels as a struct of arrays, gathered one pixel at a time (the only
 /// scalar stage of [`FeatureAccumulator::block_features`]).
 #[derive(Default)]
@@ -714,14 +738,7 @@ impl FeatureAccumulator {
                 s.log_t as f32
             };
             g.opaque[l] = s.opaque as f32;
-            // In u128: count · Σc² outgrows u64 past about ten million fragments a pixel. (The
-            // u32 channel sums themselves wrap past 16.8 million fragments of 255 in one
-            // pixel; the densest scenes here hold a few hundred.)
-            let squares: u128 = s.sum[..3]
-                .iter()
-                .map(|&c| u128::from(c) * u128::from(c))
-                .sum();
-            g.spread[l] = (u128::from(count) * u128::from(s.sum_sq)).saturating_sub(squares) as f32;
+            g.spread[l] = spread(count, s.sum_sq, s.sum);
         }
         let total = frame.total.max(1) as f32;
         let budget = frame.budget as f32;
@@ -810,6 +827,22 @@ mod tests {
         assert_eq!(set.len(), FEATURE_COUNT);
         assert_eq!(feature_index("count"), Some(12));
         assert_eq!(feature_index("nope"), None);
+    }
+
+    #[test]
+    fn spread_is_exact_in_u64_and_past_it() {
+        // Three fragments (10, 20, 30), (0, 0, 0), (5, 5, 5): Σc² = 1400 + 0 + 75 = 1475,
+        // sums (15, 25, 35): 3 · 1475 − (225 + 625 + 1225) = 2350.
+        assert_eq!(spread(3, 1475, [15, 25, 35, 0]), 2350.0);
+        // Identical fragments have no spread.
+        assert_eq!(spread(4, 4 * 3 * 200 * 200, [800, 800, 800, 0]), 0.0);
+        // Past u64: 2³² fragments of (255, 255, 0) and none else would overflow count · Σc²;
+        // the wide path gives what u128 arithmetic gives.
+        let (count, sum_sq, sum) = (u32::MAX, u64::MAX / 2, [u32::MAX, 7, 0, 0]);
+        let wide = (u128::from(count) * u128::from(sum_sq))
+            .saturating_sub(u128::from(sum[0]).pow(2) + u128::from(sum[1]).pow(2))
+            as f32;
+        assert_eq!(spread(count, sum_sq, sum), wide);
     }
 
     #[test]

@@ -113,18 +113,21 @@ impl pulp::WithSimd for Rows<'_> {
         } = *pass;
         let curve_target = model.target == Target::ErrorCurve;
         s.len = 0;
-        importance.fill(0.0);
-        for i in 0..importance.len() {
-            let p = first + i;
-            let count = counts[p];
+        let counts_here = &counts[first..first + importance.len()];
+        for (i, &count) in counts_here.iter().enumerate() {
             if count >= 2 {
-                s.pixels[s.len] = p;
+                s.pixels[s.len] = first + i;
                 s.counts[s.len] = count;
                 s.len += 1;
                 if s.len == LANES {
                     model.run(s, sums, counts, frame, first, (importance, worth));
                 }
-            } else if curve_target && count == 1 {
+                continue;
+            }
+            // No choice to make (the block writes the others' importance).
+            importance[i] = 0.0;
+            if curve_target && count == 1 {
+                let p = first + i;
                 let d = Worth::contrast_of(sums.means(p, count).0, frame.background);
                 worth[i] = Worth::at_most_one(d);
             }
@@ -288,8 +291,9 @@ impl LearnedModel {
         let last = self.layers.len() - 1;
         for (li, layer) in self.layers.iter().enumerate() {
             let hidden = li < last;
-            // Four outputs at a time: four independent chains of multiply-adds per lane, so the
-            // loop is bound by throughput, not by the latency of one accumulator.
+            // Eight or four outputs at a time: independent chains of multiply-adds per lane, so
+            // the loop is bound by throughput, not by the latency of one accumulator, and each
+            // input is loaded once for all of them.
             let mut o = 0;
             while o + 4 <= layer.outputs {
                 dense::<4>(layer, o, a, b);
@@ -317,13 +321,18 @@ impl LearnedModel {
 /// `out[o][lane] = b_o + Σ_i W_oi · x[i][lane]`, summed in input order.
 #[inline(always)]
 fn dense<const G: usize>(layer: &Layer, first: usize, x: &[Lanes], out: &mut [Lanes]) {
-    let mut acc = [[0.0; LANES]; G];
-    for (g, acc) in acc.iter_mut().enumerate() {
-        *acc = [layer.bias[first + g]; LANES];
-    }
-    for (i, x) in x.iter().take(layer.inputs).enumerate() {
-        for (g, acc) in acc.iter_mut().enumerate() {
-            let w = layer.weight[(first + g) * layer.inputs + i];
+    let inputs = layer.inputs;
+    let x = &x[..inputs];
+    // The G rows of weights, each sliced to `inputs` once, so the loop below indexes them
+    // without bounds checks.
+    let rows: [&[f32]; G] = std::array::from_fn(|g| {
+        let start = (first + g) * inputs;
+        &layer.weight[start..start + inputs]
+    });
+    let mut acc: [Lanes; G] = std::array::from_fn(|g| [layer.bias[first + g]; LANES]);
+    for (i, x) in x.iter().enumerate() {
+        for (acc, row) in acc.iter_mut().zip(&rows) {
+            let w = row[i];
             for (a, &x) in acc.iter_mut().zip(x) {
                 *a += w * x;
             }
