@@ -600,18 +600,21 @@ pub type Lanes = [f32; LANES];
 /// lanes, so a pixel's features are the same bits in whichever block or position it lands.
 pub type FeatureBlock = [Lanes; FEATURE_COUNT];
 
-/// Mean and maximum count over the 3 × 3 pixels around `(x, y)` that lie inside the image.
+/// Sum, maximum and number of the counts over the 3 × 3 pixels around `(x, y)` that lie inside
+/// the image (their mean is `sum / number`).
 #[inline(always)]
-fn neighbourhood(counts: &[u32], width: usize, height: usize, x: usize, y: usize) -> (f32, f32) {
+fn neighbourhood(counts: &[u32], width: usize, height: usize, x: usize, y: usize) -> [u32; 3] {
     if x > 0 && y > 0 && x + 1 < width && y + 1 < height {
-        // Inside: nine loads, no bounds to clip.
+        // Inside: nine loads from one slice, no bounds to clip.
+        let start = (y - 1) * width + x - 1;
+        let c = &counts[start..start + 2 * width + 3];
         let (mut sum, mut max) = (0u32, 0u32);
-        for row in [y - 1, y, y + 1] {
-            let r = &counts[row * width + x - 1..row * width + x + 2];
+        for row in [0, width, 2 * width] {
+            let r = [c[row], c[row + 1], c[row + 2]];
             sum += r[0] + r[1] + r[2];
             max = max.max(r[0]).max(r[1]).max(r[2]);
         }
-        return (sum as f32 / 9.0, max as f32);
+        return [sum, max, 9];
     }
     let (mut sum, mut max, mut n) = (0u32, 0u32, 0u32);
     for yy in y.saturating_sub(1)..(y + 2).min(height) {
@@ -622,7 +625,7 @@ fn neighbourhood(counts: &[u32], width: usize, height: usize, x: usize, y: usize
             n += 1;
         }
     }
-    (sum as f32 / n as f32, max as f32)
+    [sum, max, n]
 }
 
 /// Distance of pixel `(x, y)`'s centre from the image centre over half the diagonal.
@@ -669,26 +672,27 @@ fn spread(count: u32, sum_sq: u64, sum: [u32; 4]) -> f32 {
     }
 }
 
-/// The sums of one block's pixels as a struct of arrays, gathered one pixel at a time (the only
-/// scalar stage of [`FeatureAccumulator::block_features`]).
+/// The sums of one block's pixels as a struct of arrays, copied one pixel at a time as they
+/// are stored (the only scalar stage of [`FeatureAccumulator::block_features`]); the lane loops
+/// after it convert them, which the compiler vectorises.
 #[derive(Default)]
 struct Gathered {
-    count: Lanes,
+    count: [u32; LANES],
     /// `nearest` split into depth and 8-bit r, g, b, α.
     near_depth: Lanes,
-    near: [Lanes; 4],
+    near: [[u32; LANES]; 4],
     depth_max: Lanes,
-    alpha_max: Lanes,
-    sum: [Lanes; 4],
+    alpha_max: [u32; LANES],
+    sum: [[u32; LANES]; 4],
     /// `Σ −ln(1 − α)` over the fragments, fixed point (infinite where one is opaque).
     log_t: Lanes,
-    opaque: Lanes,
+    opaque: [u32; LANES],
     /// `3 · 255² · count² · variance`, exactly: `count · Σ c² − Σ_ch (Σ c)²`.
     spread: Lanes,
-    mean3: Lanes,
-    max3: Lanes,
-    x: Lanes,
-    y: Lanes,
+    /// [`neighbourhood`]'s sum, maximum and number of pixels.
+    around: [[u32; LANES]; 3],
+    x: [u32; LANES],
+    y: [u32; LANES],
 }
 
 impl FeatureAccumulator {
@@ -714,32 +718,49 @@ impl FeatureAccumulator {
         assert!(pixels.len() <= LANES, "at most {LANES} pixels a block");
         let (w, h) = (self.width as usize, self.height as usize);
         let mut g = Gathered::default();
+        // The pixel's column and row: one division for the block's first pixel, then steps
+        // along its row (a block is mostly a run of neighbours).
+        let (mut x, mut y, mut last) = (0, 0, usize::MAX);
         for (l, &p) in pixels.iter().enumerate() {
-            let (x, y) = (p % w, p / w);
-            (g.x[l], g.y[l]) = (x as f32, y as f32);
-            (g.mean3[l], g.max3[l]) = neighbourhood(counts, w, h, x, y);
+            match p.checked_sub(last) {
+                Some(step) if x + step < w => x += step,
+                _ => (x, y) = (p % w, p / w),
+            }
+            last = p;
+            (g.x[l], g.y[l]) = (x as u32, y as u32);
+            let [sum, max, n] = neighbourhood(counts, w, h, x, y);
+            (g.around[0][l], g.around[1][l], g.around[2][l]) = (sum, max, n);
             let count = counts[p];
             if count == 0 {
                 continue;
             }
             let s = &self.sums[p];
-            g.count[l] = count as f32;
+            g.count[l] = count;
             g.near_depth[l] = f32::from_bits((s.nearest >> 32) as u32);
             let near = Rgba8::from_bits(s.nearest as u32).0;
-            for (c, (&near, &sum)) in near.iter().zip(&s.sum).enumerate() {
-                g.near[c][l] = f32::from(near);
-                g.sum[c][l] = sum as f32;
+            for c in 0..4 {
+                g.near[c][l] = u32::from(near[c]);
+                g.sum[c][l] = s.sum[c];
             }
             g.depth_max[l] = s.depth_max;
-            g.alpha_max[l] = s.alpha_max as f32 / 255.0;
+            g.alpha_max[l] = s.alpha_max;
             g.log_t[l] = if s.opaque > 0 {
                 f32::INFINITY
             } else {
                 s.log_t as f32
             };
-            g.opaque[l] = s.opaque as f32;
+            g.opaque[l] = s.opaque;
             g.spread[l] = spread(count, s.sum_sq, s.sum);
         }
+        // The integers as f32, lane by lane (every one converts to its nearest f32, in lanes
+        // as one at a time).
+        let f = |v: [u32; LANES]| v.map(|v| v as f32);
+        let count_f = f(g.count);
+        let near_f = g.near.map(f);
+        let sum_f = g.sum.map(f);
+        let (alpha_max_f, opaque_f) = (f(g.alpha_max), f(g.opaque));
+        let around_f = g.around.map(f);
+        let (x_f, y_f) = (f(g.x), f(g.y));
         let total = frame.total.max(1) as f32;
         let budget = frame.budget as f32;
         let per_covered = budget / frame.covered.max(1) as f32;
@@ -747,18 +768,18 @@ impl FeatureAccumulator {
         // The 8-bit values are divided, not multiplied by 1/255: the bits of `means` and of
         // the resolve's unorm table.
         for l in 0..LANES {
-            let count = g.count[l];
+            let count = count_f[l];
             let covered = count > 0.0;
             let c = count.max(1.0);
             let mean = [
-                mean_of(g.sum[0][l], c),
-                mean_of(g.sum[1][l], c),
-                mean_of(g.sum[2][l], c),
+                mean_of(sum_f[0][l], c),
+                mean_of(sum_f[1][l], c),
+                mean_of(sum_f[2][l], c),
             ];
             let near = [
-                g.near[0][l] / 255.0,
-                g.near[1][l] / 255.0,
-                g.near[2][l] / 255.0,
+                near_f[0][l] / 255.0,
+                near_f[1][l] / 255.0,
+                near_f[2][l] / 255.0,
             ];
             out[0][l] = count / total;
             out[1][l] = budget / total;
@@ -774,20 +795,20 @@ impl FeatureAccumulator {
             out[11][l] = near[2];
             out[12][l] = count;
             out[13][l] = per_covered;
-            out[14][l] = g.sum[3][l] / 255.0;
-            out[15][l] = g.alpha_max[l];
+            out[14][l] = sum_f[3][l] / 255.0;
+            out[15][l] = alpha_max_f[l] / 255.0;
             let t = super::fast_math::fast_exp(-g.log_t[l] * (1.0 / LOG_T_SCALE as f32));
             out[16][l] = if covered && g.log_t[l] < f32::INFINITY {
                 t
             } else {
                 0.0
             };
-            out[17][l] = g.near[3][l] / 255.0;
-            out[18][l] = g.opaque[l];
+            out[17][l] = near_f[3][l] / 255.0;
+            out[18][l] = opaque_f[l];
             out[19][l] = g.spread[l] / (3.0 * 255.0 * 255.0 * c * c);
-            out[20][l] = g.mean3[l];
-            out[21][l] = g.max3[l];
-            out[22][l] = periphery(w, h, g.x[l], g.y[l]);
+            out[20][l] = around_f[0][l] / around_f[2][l];
+            out[21][l] = around_f[1][l];
+            out[22][l] = periphery(w, h, x_f[l], y_f[l]);
             out[23][l] = if covered { distance(mean, bg) } else { 0.0 };
             out[24][l] = if covered { distance(near, bg) } else { 0.0 };
         }
@@ -851,9 +872,19 @@ mod tests {
         // distance √(2.25 + 0.25) = √2.5 → √2.5/√5 = √0.5.
         assert!((periphery(4, 2, 0.0, 0.0) - 0.5f32.sqrt()).abs() < 1e-6);
         let counts = [1, 2, 3, 4, 5, 6, 7, 8];
-        // Pixel 0: neighbours 1, 2, 5, 6 → mean 3.5, max 6.
-        assert_eq!(neighbourhood(&counts, 4, 2, 0, 0), (3.5, 6.0));
-        // Pixel 5 (x 1, y 1): 1, 2, 3, 5, 6, 7 → mean 4, max 7.
-        assert_eq!(neighbourhood(&counts, 4, 2, 1, 1), (4.0, 7.0));
+        // Pixel 0: neighbours 1, 2, 5, 6 → sum 14 of 4 (mean 3.5), max 6.
+        assert_eq!(neighbourhood(&counts, 4, 2, 0, 0), [14, 6, 4]);
+        // Pixel 5 (x 1, y 1): 1, 2, 3, 5, 6, 7 → sum 24 of 6 (mean 4), max 7.
+        assert_eq!(neighbourhood(&counts, 4, 2, 1, 1), [24, 7, 6]);
+        // 4 × 3, inside: pixels (1, 1) and (2, 1) read all nine around them.
+        let counts = [9, 1, 2, 3, 4, 5, 6, 7, 8, 0, 1, 2];
+        assert_eq!(
+            neighbourhood(&counts, 4, 3, 1, 1),
+            [9 + 1 + 2 + 4 + 5 + 6 + 8 + 0 + 1, 9, 9]
+        );
+        assert_eq!(
+            neighbourhood(&counts, 4, 3, 2, 1),
+            [1 + 2 + 3 + 5 + 6 + 7 + 0 + 1 + 2, 7, 9]
+        );
     }
 }

@@ -273,20 +273,24 @@ impl LearnedModel {
     #[inline(always)]
     fn network(&self, f: &FeatureBlock, a: &mut Vec<Lanes>, b: &mut Vec<Lanes>) -> [Lanes; 2] {
         for (x, input) in a.iter_mut().zip(&self.inputs) {
-            let v = &f[input.feature];
+            // Whole lanes in and out (a copy, not a borrow): the shape the compiler turns into
+            // one vector operation per step.
+            let v: Lanes = f[input.feature];
             let (mean, scale) = (input.mean, input.scale);
+            let mut y = [0.0; LANES];
             match input.transform {
                 Transform::Identity => {
                     for l in 0..LANES {
-                        x[l] = (v[l] - mean) * scale;
+                        y[l] = (v[l] - mean) * scale;
                     }
                 }
                 Transform::Log1p => {
                     for l in 0..LANES {
-                        x[l] = (fast_ln(1.0 + v[l].max(0.0)) - mean) * scale;
+                        y[l] = (fast_ln(1.0 + v[l].max(0.0)) - mean) * scale;
                     }
                 }
             }
+            *x = y;
         }
         let last = self.layers.len() - 1;
         for (li, layer) in self.layers.iter().enumerate() {
