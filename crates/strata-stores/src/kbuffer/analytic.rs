@@ -108,9 +108,12 @@ impl Worth {
         self.log_first + f64::from(extra) * self.log_fall
     }
 
-    /// Fragments beyond the first worth more than `level` (`ln`), at most `room`.
+    /// Fragments beyond the first worth more than `level` (`ln`), at most `room`, for a
+    /// [`Worth::worthwhile`] model (only [`Candidate`]s, which are, ask: this runs once per
+    /// candidate per bisection round, and checking again cost more than the rest of it).
     fn extra_above(&self, level: f64, room: u32) -> u32 {
-        if room == 0 || !self.worthwhile() || self.log_first <= level {
+        debug_assert!(self.worthwhile(), "only a worthwhile model is asked");
+        if self.log_first <= level {
             return 0;
         }
         // j − 1 = 1 + i for i = 0, 1, …: ln g = log_first + i·log_fall > level; the
@@ -171,15 +174,10 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
                 .iter()
                 .zip(w)
                 .enumerate()
-                .filter(|(_, (c, w))| **c > 1 && w.worthwhile())
-                .map(|(i, (&c, &w))| {
-                    let candidate = Candidate {
-                        worth: w,
-                        room: c - 1,
-                        pixel: (first + i) as u32,
-                    };
+                .filter_map(|(i, (&c, &w))| {
+                    let candidate = Candidate::new(w, c, (first + i) as u32)?;
                     range = range.with(&candidate);
-                    candidate
+                    Some(candidate)
                 })
                 .collect();
             (candidates, range)
@@ -340,6 +338,17 @@ struct Candidate {
 }
 
 impl Candidate {
+    /// Pixel `pixel` of `count` fragments and model `worth`, if it has a choice the model can
+    /// make: more than one fragment, and fragments beyond the first worth something.
+    #[inline]
+    fn new(worth: Worth, count: u32, pixel: u32) -> Option<Candidate> {
+        (count > 1 && worth.worthwhile()).then_some(Candidate {
+            worth,
+            room: count - 1,
+            pixel,
+        })
+    }
+
     #[inline]
     fn extra_above(&self, level: f64) -> u32 {
         self.worth.extra_above(level, self.room)
