@@ -272,14 +272,15 @@ fn count_into(
 fn one_pixel_at_a_time_matches_the_maps_and_the_frame_values_the_pixels() {
     use strata_stores::count::FragmentCounts;
     use strata_stores::kbuffer::features::{FeatureAccumulator, FrameFeatures};
-    let s = scene("spheres", 80, 45);
+    // 83 wide: the maps' blocks of 8 pixels run across the ends of rows.
+    let s = scene("spheres", 83, 45);
     let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
     let total = count_into(&s, &mut counts, &mut sums, 2);
     let mut maps = FeatureMaps::new();
     let frame = maps.compute(&sums, counts.counts(), total / 2, s.background);
-    for (x, y) in [(0, 0), (40, 22), (79, 44), (10, 30)] {
+    for (x, y) in (0..45).flat_map(|y| (0..83).map(move |x| (x, y))) {
         let one = sums.pixel_features(counts.counts(), &frame, x, y);
-        assert_eq!(one, maps.pixel(y * 80 + x), "pixel ({x}, {y})");
+        assert_eq!(one, maps.pixel(y * 83 + x), "pixel ({x}, {y})");
     }
     // The frame values kept by the counting pass's strips are those of the pixels.
     let covered: Vec<usize> = (0..counts.counts().len())
