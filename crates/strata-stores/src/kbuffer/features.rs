@@ -876,15 +876,10 @@ mod tests {
         assert_eq!(neighbourhood(&counts, 4, 2, 0, 0), [14, 6, 4]);
         // Pixel 5 (x 1, y 1): 1, 2, 3, 5, 6, 7 → sum 24 of 6 (mean 4), max 7.
         assert_eq!(neighbourhood(&counts, 4, 2, 1, 1), [24, 7, 6]);
-        // 4 × 3, inside: pixels (1, 1) and (2, 1) read all nine around them.
+        // 4 × 3, inside: pixels (1, 1) and (2, 1) read all nine around them (9 + 1 + 2 +
+        // 4 + 5 + 6 + 8 + 0 + 1 = 36, max 9; 1 + 2 + 3 + 5 + 6 + 7 + 0 + 1 + 2 = 27, max 7).
         let counts = [9, 1, 2, 3, 4, 5, 6, 7, 8, 0, 1, 2];
-        assert_eq!(
-            neighbourhood(&counts, 4, 3, 1, 1),
-            [9 + 1 + 2 + 4 + 5 + 6 + 8 + 0 + 1, 9, 9]
-        );
-        assert_eq!(
-            neighbourhood(&counts, 4, 3, 2, 1),
-            [1 + 2 + 3 + 5 + 6 + 7 + 0 + 1 + 2, 7, 9]
-        );
+        assert_eq!(neighbourhood(&counts, 4, 3, 1, 1), [36, 9, 9]);
+        assert_eq!(neighbourhood(&counts, 4, 3, 2, 1), [27, 7, 9]);
     }
 }
