@@ -342,7 +342,7 @@ impl Candidate {
     /// make: more than one fragment, and fragments beyond the first worth something.
     #[inline]
     fn new(worth: Worth, count: u32, pixel: u32) -> Option<Candidate> {
-        (count > 1 && worth.worthwhile()).then_some(Candidate {
+        (count > 1 && worth.worthwhile()).then(|| Candidate {
             worth,
             room: count - 1,
             pixel,
