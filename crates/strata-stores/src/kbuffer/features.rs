@@ -372,10 +372,19 @@ impl FragmentSink for FeatureSink<'_> {
         }
         self.counts[i] += 1;
         stats.fragments += 1;
-        stats.depth_min = stats.depth_min.min(f32::from_bits((key >> 32) as u32));
-        stats.depth_max = stats.depth_max.max(fragment.depth);
+        // Plain compares, not `f32::min`/`max` (which also test for NaN): the key's depth is
+        // never NaN, and a NaN depth fails `>` and is ignored, as `max` ignores it.
+        let near = f32::from_bits((key >> 32) as u32);
+        if near < stats.depth_min {
+            stats.depth_min = near;
+        }
+        if fragment.depth > stats.depth_max {
+            stats.depth_max = fragment.depth;
+        }
         s.nearest = s.nearest.min(key);
-        s.depth_max = s.depth_max.max(fragment.depth);
+        if fragment.depth > s.depth_max {
+            s.depth_max = fragment.depth;
+        }
         s.sum[0] += r;
         s.sum[1] += g;
         s.sum[2] += b;
