@@ -108,25 +108,47 @@ mod tests {
     }
 
     #[test]
-    fn two_to_the_n_comes_from_the_rounding_bits_as_from_a_conversion() {
-        // The exponent's bits as `fast_exp` built them before: through `n as i32`.
-        let by_conversion = |x: f32| {
+    fn fast_exp_is_bit_for_bit_the_version_with_a_float_to_int_conversion() {
+        // `fast_exp` as it was before `2ⁿ` came from the rounding's bits: through `n as i32`.
+        fn by_conversion(x: f32) -> f32 {
+            const LN_2_HI: f32 = 0.693_359_4;
+            const LN_2_LO: f32 = -2.121_944_4e-4;
             let x = x.clamp(-87.0, 88.0);
             let n = (x * LOG2_E + ROUND) - ROUND;
-            f32::from_bits(((n as i32 + 127) as u32) << 23)
-        };
-        let mut x = -90.0f32;
-        while x <= 90.0 {
-            let rounded = x.clamp(-87.0, 88.0) * LOG2_E + ROUND;
-            let from_bits = f32::from_bits(
-                rounded
-                    .to_bits()
-                    .wrapping_sub(ROUND.to_bits())
-                    .wrapping_add(127)
-                    << 23,
-            );
-            assert_eq!(from_bits.to_bits(), by_conversion(x).to_bits(), "x = {x}");
+            let r = (x - n * LN_2_HI) - n * LN_2_LO;
+            let p = 1.0
+                + r * (1.0
+                    + r * (1.0 / 2.0
+                        + r * (1.0 / 6.0
+                            + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+            p * f32::from_bits(((n as i32 + 127) as u32) << 23)
+        }
+        // Past both ends of the clamp, and every integer n it allows with the values around
+        // the roundings' ties.
+        let mut x = -100.0f32;
+        while x <= 100.0 {
+            assert_eq!(fast_exp(x).to_bits(), by_conversion(x).to_bits(), "x = {x}");
             x += 0.000_7;
+        }
+        for n in -127..=128 {
+            let tie = (n as f32 + 0.5) * std::f32::consts::LN_2;
+            for x in [
+                tie,
+                f32::from_bits(tie.to_bits() + 1),
+                f32::from_bits(tie.to_bits().wrapping_sub(1)),
+            ] {
+                assert_eq!(fast_exp(x).to_bits(), by_conversion(x).to_bits(), "x = {x}");
+            }
+        }
+        for x in [
+            f32::NEG_INFINITY,
+            f32::INFINITY,
+            f32::MIN,
+            f32::MAX,
+            -0.0,
+            0.0,
+        ] {
+            assert_eq!(fast_exp(x).to_bits(), by_conversion(x).to_bits(), "x = {x}");
         }
     }
 

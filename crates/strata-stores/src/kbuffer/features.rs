@@ -859,20 +859,42 @@ mod tests {
         assert_eq!(feature_index("nope"), None);
     }
 
+    /// `spread` in `u128` throughout: the definition the `u64` path must equal.
+    fn spread_wide(count: u32, sum_sq: u64, sum: [u32; 4]) -> f32 {
+        let squares: u128 = sum[..3].iter().map(|&c| u128::from(c).pow(2)).sum();
+        (u128::from(count) * u128::from(sum_sq)).saturating_sub(squares) as f32
+    }
+
     #[test]
-    fn spread_is_exact_in_u64_and_past_it() {
+    fn spread_by_hand() {
         // Three fragments (10, 20, 30), (0, 0, 0), (5, 5, 5): Σc² = 1400 + 0 + 75 = 1475,
         // sums (15, 25, 35): 3 · 1475 − (225 + 625 + 1225) = 2350.
         assert_eq!(spread(3, 1475, [15, 25, 35, 0]), 2350.0);
         // Identical fragments have no spread.
         assert_eq!(spread(4, 4 * 3 * 200 * 200, [800, 800, 800, 0]), 0.0);
-        // Past u64: 2³² fragments of (255, 255, 0) and none else would overflow count · Σc²;
-        // the wide path gives what u128 arithmetic gives.
-        let (count, sum_sq, sum) = (u32::MAX, u64::MAX / 2, [u32::MAX, 7, 0, 0]);
-        let wide = (u128::from(count) * u128::from(sum_sq))
-            .saturating_sub(u128::from(sum[0]).pow(2) + u128::from(sum[1]).pow(2))
-            as f32;
-        assert_eq!(spread(count, sum_sq, sum), wide);
+    }
+
+    proptest::proptest! {
+        /// Whichever path it takes — `count · Σc²` within `u64` or past it, the squares of the
+        /// sums within it or past it — the spread is the `u128` one's, to the bit.
+        #[test]
+        fn spread_equals_the_u128_arithmetic(
+            count in proptest::prop_oneof![0u32..1000, proptest::num::u32::ANY],
+            sum_sq in proptest::prop_oneof![
+                0u64..1 << 40,
+                (u64::MAX >> 33)..(u64::MAX >> 31),
+                proptest::num::u64::ANY
+            ],
+            sum in proptest::array::uniform4(proptest::prop_oneof![
+                0u32..1 << 20,
+                proptest::num::u32::ANY
+            ]),
+        ) {
+            proptest::prop_assert_eq!(
+                spread(count, sum_sq, sum).to_bits(),
+                spread_wide(count, sum_sq, sum).to_bits()
+            );
+        }
     }
 
     #[test]
