@@ -27,6 +27,7 @@
 //! function and the top-left rule gives every sample on it to exactly one of them.
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
+use wide::f32x8;
 
 /// Fractional bits of the fixed-point window coordinates.
 pub const SUBPIXEL_BITS: u32 = 8;
@@ -171,7 +172,7 @@ impl Viewport {
 ///
 /// Adding and subtracting 1.5·2^52 in f64 rounds to an integer in the current (round-to-nearest-
 /// even) mode without a libm call; valid for |v| < 2^51, far beyond the guard band.
-#[inline]
+#[inline(always)]
 fn snap(window: f32) -> i32 {
     const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52
     let v = f64::from(window) * f64::from(ONE);
@@ -216,6 +217,11 @@ impl ObjectTransform {
 /// Runs the vertex stage over one slice of an object's vertices.
 ///
 /// `with_normals` is false for unlit objects, whose normals are never read.
+///
+/// Vertices go through [`VERTEX_LANES`] at a time in SIMD lanes (structure of arrays). Every
+/// lane performs, operation for operation, what [`transform_vertex`] (glam's matrix products,
+/// then [`Viewport::outcode`] and [`Viewport::project`]) performs for one vertex, with no fused
+/// multiply-adds, so both give the same bits (tested below).
 #[allow(
     clippy::too_many_arguments,
     reason = "one output slice per vertex array"
@@ -230,23 +236,175 @@ pub fn transform_vertices(
     codes: &mut [u8],
     attrs: &mut [Attrs],
 ) {
-    debug_assert_eq!(positions.len(), screen.len());
-    debug_assert_eq!(positions.len(), codes.len());
-    debug_assert_eq!(positions.len(), attrs.len());
-    for i in 0..positions.len() {
-        let (p, n) = t.eye(positions[i], normals[i], with_normals);
-        let c = t.projection * p.extend(1.0);
-        let o = vp.outcode(c);
-        codes[i] = o;
-        if o & outcode::CLIP == 0 {
-            let (x, y, z, iw) = vp.project(c);
-            screen[i] = ScreenPos { x, y };
-            attrs[i] = Attrs::new(z, iw, p, n);
-        } else {
-            screen[i] = ScreenPos::default();
-            attrs[i] = Attrs::default();
+    assert_eq!(positions.len(), normals.len(), "one normal per position");
+    assert_eq!(positions.len(), screen.len());
+    assert_eq!(positions.len(), codes.len());
+    assert_eq!(positions.len(), attrs.len());
+    const L: usize = VERTEX_LANES;
+    let (pos, pos_tail) = positions.as_chunks::<L>();
+    let (nor, nor_tail) = normals.as_chunks::<L>();
+    let (scr, scr_tail) = screen.as_chunks_mut::<L>();
+    let (cod, cod_tail) = codes.as_chunks_mut::<L>();
+    let (att, att_tail) = attrs.as_chunks_mut::<L>();
+    for b in 0..pos.len() {
+        (scr[b], cod[b], att[b]) = transform_block(t, vp, &pos[b], &nor[b], with_normals);
+    }
+    // The last partial block, padded with zeros.
+    let count = pos_tail.len();
+    if count > 0 {
+        let (mut p, mut n) = ([[0.0f32; 3]; L], [[0.0f32; 3]; L]);
+        p[..count].copy_from_slice(pos_tail);
+        n[..count].copy_from_slice(nor_tail);
+        let (s, c, a) = transform_block(t, vp, &p, &n, with_normals);
+        scr_tail.copy_from_slice(&s[..count]);
+        cod_tail.copy_from_slice(&c[..count]);
+        att_tail.copy_from_slice(&a[..count]);
+    }
+}
+
+/// One vertex through the vertex stage, as glam computes it: the definition the lanes of
+/// [`transform_vertices`] follow, and what the clipper's vertices go through.
+#[inline]
+pub fn transform_vertex(
+    t: &ObjectTransform,
+    vp: &Viewport,
+    position: [f32; 3],
+    normal: [f32; 3],
+    with_normals: bool,
+) -> (ScreenPos, u8, Attrs) {
+    let (p, n) = t.eye(position, normal, with_normals);
+    let c = t.projection * p.extend(1.0);
+    let o = vp.outcode(c);
+    if o & outcode::CLIP == 0 {
+        let (x, y, z, iw) = vp.project(c);
+        (ScreenPos { x, y }, o, Attrs::new(z, iw, p, n))
+    } else {
+        (ScreenPos::default(), o, Attrs::default())
+    }
+}
+
+/// Vertices transformed together in lane arrays by [`transform_vertices`].
+pub const VERTEX_LANES: usize = 8;
+
+/// [`VERTEX_LANES`] vertices at once; see [`transform_vertices`].
+///
+/// Explicit `f32x8` vectors (the `wide` crate: one AVX register, or two SSE ones), each sum in
+/// the order glam adds: `((a·x + b·y) + c·z) + d`.
+#[inline(always)]
+fn transform_block(
+    t: &ObjectTransform,
+    vp: &Viewport,
+    positions: &[[f32; 3]; VERTEX_LANES],
+    normals: &[[f32; 3]; VERTEX_LANES],
+    with_normals: bool,
+) -> (
+    [ScreenPos; VERTEX_LANES],
+    [u8; VERTEX_LANES],
+    [Attrs; VERTEX_LANES],
+) {
+    const L: usize = VERTEX_LANES;
+    // Plain loops and explicit lanes throughout: `array::map` and `from_fn` here were left
+    // outlined by LLVM, a call per use.
+    let mut pin = [[0.0f32; L]; 3];
+    let mut nin = [[0.0f32; L]; 3];
+    for l in 0..L {
+        for k in 0..3 {
+            pin[k][l] = positions[l][k];
+            nin[k][l] = normals[l][k];
         }
     }
+    let pin = [f32x8::new(pin[0]), f32x8::new(pin[1]), f32x8::new(pin[2])];
+    // `a·x + b·y + c·z` with the column entries `m[0..3][k]` splatted.
+    #[inline(always)]
+    fn combine(m: [&[f32]; 3], k: usize, v: &[f32x8; 3]) -> f32x8 {
+        f32x8::splat(m[0][k]) * v[0] + f32x8::splat(m[1][k]) * v[1] + f32x8::splat(m[2][k]) * v[2]
+    }
+    // Eye space: `Mat4::transform_point3` and `Mat3 * Vec3`.
+    let mv = t.model_view.to_cols_array_2d();
+    let mv3 = [&mv[0][..], &mv[1][..], &mv[2][..]];
+    let mut p = [f32x8::ZERO; 3];
+    let mut n = [f32x8::ZERO; 3];
+    let nm = t.normal.to_cols_array_2d();
+    let nm = [&nm[0][..], &nm[1][..], &nm[2][..]];
+    let nin = [f32x8::new(nin[0]), f32x8::new(nin[1]), f32x8::new(nin[2])];
+    for k in 0..3 {
+        p[k] = combine(mv3, k, &pin) + f32x8::splat(mv[3][k]);
+        if with_normals {
+            n[k] = combine(nm, k, &nin);
+        }
+    }
+    // Clip space: `Mat4 * Vec4` with w = 1.
+    let pr = t.projection.to_cols_array_2d();
+    let pr3 = [&pr[0][..], &pr[1][..], &pr[2][..]];
+    let mut c = [f32x8::ZERO; 4];
+    for k in 0..4 {
+        c[k] = combine(pr3, k, &p) + f32x8::splat(pr[3][k]) * f32x8::ONE;
+    }
+    let [cx, cy, cz, cw] = c;
+    // `Viewport::outcode`, one bitmask of lanes per plane.
+    let neg_w = -cw;
+    let inside = cx.abs().simd_le(f32x8::splat(vp.guard[0]) * cw)
+        & cy.abs().simd_le(f32x8::splat(vp.guard[1]) * cw);
+    let planes = [
+        (cx.simd_lt(neg_w).to_bitmask(), outcode::LEFT),
+        (cx.simd_gt(cw).to_bitmask(), outcode::RIGHT),
+        (cy.simd_lt(neg_w).to_bitmask(), outcode::BOTTOM),
+        (cy.simd_gt(cw).to_bitmask(), outcode::TOP),
+        (cz.simd_lt(neg_w).to_bitmask(), outcode::NEAR),
+        (cz.simd_gt(cw).to_bitmask(), outcode::FAR),
+        (!inside.to_bitmask(), outcode::GUARD),
+    ];
+    let mut code = [0u8; L];
+    for (l, o) in code.iter_mut().enumerate() {
+        for &(m, bit) in &planes {
+            *o |= u8::from(m >> l & 1 != 0) * bit;
+        }
+    }
+    // `Viewport::project`, meaningful where the outcode has no clip bit.
+    let half = f32x8::splat(0.5);
+    let iw = f32x8::ONE / cw;
+    let (xn, yn, zn) = (cx * iw, cy * iw, cz * iw);
+    let sx = snap_lanes((xn * half + half) * f32x8::splat(vp.w));
+    let sy = snap_lanes((half - yn * half) * f32x8::splat(vp.h));
+    let z = (zn * half + half).to_array();
+    let (p0, p1, p2) = (
+        (p[0] * iw).to_array(),
+        (p[1] * iw).to_array(),
+        (p[2] * iw).to_array(),
+    );
+    let (n0, n1, n2) = (
+        (n[0] * iw).to_array(),
+        (n[1] * iw).to_array(),
+        (n[2] * iw).to_array(),
+    );
+    let iw = iw.to_array();
+    let mut screen = [ScreenPos { x: 0, y: 0 }; L];
+    let mut attrs = [Attrs {
+        z: 0.0,
+        iw: 0.0,
+        p_w: [0.0; 3],
+        n_w: [0.0; 3],
+    }; L];
+    for l in 0..L {
+        if code[l] & outcode::CLIP == 0 {
+            screen[l] = ScreenPos { x: sx[l], y: sy[l] };
+            attrs[l] = Attrs {
+                z: z[l],
+                iw: iw[l],
+                p_w: [p0[l], p1[l], p2[l]],
+                n_w: [n0[l], n1[l], n2[l]],
+            };
+        }
+    }
+    (screen, code, attrs)
+}
+
+/// [`snap`] in lanes: `window · 256` is exact in `f32` (a power-of-two scale), so rounding it to
+/// the nearest integer, ties to even (the conversion's default mode), is what `snap` computes in
+/// `f64`; out of range and NaN saturate as `as i32` does (tested against `snap` below).
+#[inline(always)]
+fn snap_lanes(window: f32x8) -> [i32; VERTEX_LANES] {
+    (window * f32x8::splat(ONE as f32)).round_int().to_array()
 }
 
 #[cfg(test)]
@@ -280,6 +438,43 @@ mod tests {
     }
 
     #[test]
+    fn snapping_in_f32_equals_snapping_in_f64() {
+        let mut specials = vec![
+            0.0,
+            -0.0,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            1e-40,
+            8_388_608.0,
+            16_777_216.0,
+            -16_777_216.0,
+            2_147_483_520.0 / 256.0,
+            -2_147_483_648.0 / 256.0,
+        ];
+        // Ties, m + 1/2 in units of 1/256 pixel, across and beyond the guard band, and their
+        // neighbours one ulp away.
+        for m in (-20_000_000i32..20_000_000).step_by(97) {
+            let tie = (2 * m + 1) as f32 / 512.0;
+            specials.extend([tie, tie.next_up(), tie.next_down()]);
+        }
+        for bits in (0..=u32::MAX).step_by(65_537) {
+            specials.push(f32::from_bits(bits));
+        }
+        for block in specials.chunks(VERTEX_LANES) {
+            let mut lanes = [0.0; VERTEX_LANES];
+            lanes[..block.len()].copy_from_slice(block);
+            let snapped = snap_lanes(f32x8::new(lanes));
+            for (v, s) in block.iter().zip(snapped) {
+                assert_eq!(s, snap(*v), "{v:e}");
+            }
+        }
+    }
+
+    #[test]
     fn outcodes() {
         let vp = Viewport::new(100, 100);
         assert_eq!(vp.outcode(Vec4::new(0.0, 0.0, 0.0, 1.0)), 0);
@@ -297,5 +492,76 @@ mod tests {
             vp.outcode(Vec4::new(f32::NAN, 0.0, 0.0, 1.0)) & outcode::GUARD,
             0
         );
+    }
+
+    /// Bits of everything the vertex stage writes, for exact comparison (NaN included).
+    fn bits(s: ScreenPos, o: u8, a: Attrs) -> (i32, i32, u8, [u32; 8]) {
+        let f = [
+            a.z, a.iw, a.p_w[0], a.p_w[1], a.p_w[2], a.n_w[0], a.n_w[1], a.n_w[2],
+        ];
+        (s.x, s.y, o, f.map(f32::to_bits))
+    }
+
+    #[test]
+    fn lanes_give_the_bits_of_one_vertex_at_a_time() {
+        use glam::Vec3;
+        // A small xorshift, so the test needs no dependency and is the same on every run.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let vp = Viewport::new(1280, 720);
+        for case in 0..24 {
+            let eye = Vec3::new(next() - 0.5, next() - 0.5, 1.0 + 4.0 * next());
+            let view = Mat4::look_at_rh(eye, Vec3::ZERO, Vec3::Y);
+            let model = Mat4::from_scale_rotation_translation(
+                Vec3::new(0.5 + next(), 0.5 + next(), 0.5 + next()),
+                glam::Quat::from_rotation_y(6.0 * next()),
+                Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5),
+            );
+            let projection = Mat4::perspective_rh_gl(0.3 + next(), 16.0 / 9.0, 0.1, 20.0);
+            let t = ObjectTransform::new(view, model, projection);
+            // Odd lengths leave a partial block; the spread puts vertices behind the eye, across
+            // the near plane and far outside the guard band.
+            let n = 1 + case * 7;
+            let spread = [1.0, 4.0, 1e4, 1e7][case % 4];
+            let mut positions: Vec<[f32; 3]> = (0..n)
+                .map(|_| [0; 3].map(|_| spread * (next() - 0.5)))
+                .collect();
+            let normals: Vec<[f32; 3]> = (0..n).map(|_| [0; 3].map(|_| next() - 0.5)).collect();
+            if case == 5 {
+                positions[0] = [f32::NAN, 0.0, 0.0];
+                positions[3] = [f32::INFINITY, 1.0, 0.0];
+                positions[4] = eye.to_array();
+            }
+            for with_normals in [false, true] {
+                let mut screen = vec![ScreenPos { x: 7, y: 7 }; n];
+                let mut codes = vec![0xff; n];
+                let mut attrs = vec![Attrs::new(9.0, 9.0, Vec3::ONE, Vec3::ONE); n];
+                transform_vertices(
+                    &t,
+                    &vp,
+                    &positions,
+                    &normals,
+                    with_normals,
+                    &mut screen,
+                    &mut codes,
+                    &mut attrs,
+                );
+                for i in 0..n {
+                    let (s, o, a) =
+                        transform_vertex(&t, &vp, positions[i], normals[i], with_normals);
+                    assert_eq!(
+                        bits(screen[i], codes[i], attrs[i]),
+                        bits(s, o, a),
+                        "case {case}, vertex {i} {:?}, normals {with_normals}",
+                        positions[i]
+                    );
+                }
+            }
+        }
     }
 }
