@@ -25,7 +25,7 @@
 //!    ([`clip`]). Triangles are classified eight at a time in SIMD lanes
 //!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres) are
 //!    finished here: exact coverage as a bitmask computed in the same lanes, shading, and
-//!    12-byte fragment records appended to per-strip lists. Larger triangles and clipped pieces are appended to the bin of
+//!    12-byte fragment records appended to per-strip lists. Larger triangles and clipped pieces are copied with their vertices and appended to the bin of
 //!    every *strip* their rows touch, with a cursor into the strip's record list.
 //! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order,
 //!    and in each chunk replays the micro-triangle records and scans the binned triangles,

@@ -8,7 +8,7 @@ use strata_core::{ObjectId, PackedNormal, PassTimings, Rgba8, Shading, fragment:
 use crate::frame::{FragmentOutput, FrameInput};
 use crate::scan::{Shade, scan_triangle};
 pub use crate::setup::SetupStats;
-use crate::setup::{CLIPPED, Chunk, ClippedTriangle, PixelFragment, SetupContext, setup_chunk};
+use crate::setup::{BinnedTriangle, Chunk, PixelFragment, SetupContext, setup_chunk};
 use crate::sink::{CaptureTarget, FragmentSink, StripLayout};
 use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, transform_vertices};
 
@@ -54,9 +54,6 @@ pub struct Rasterizer {
 #[derive(Debug)]
 pub struct Prepared<'r, 'a> {
     input: &'r FrameInput<'a>,
-    screen: &'r [ScreenPos],
-    attrs: &'r [Attrs],
-    vertex_base: Vec<usize>,
     chunks: &'r [Chunk],
     shades: Vec<(Shade, bool)>,
     layout: StripLayout,
@@ -75,7 +72,7 @@ impl Rasterizer {
             "strip_height must be a power of two"
         );
         assert!(
-            config.chunk_triangles > 0 && config.chunk_triangles < CLIPPED as usize,
+            config.chunk_triangles > 0 && config.chunk_triangles < 1 << 31,
             "chunk_triangles must be in 1..2^31"
         );
         Rasterizer {
@@ -240,9 +237,6 @@ impl Rasterizer {
 
         Prepared {
             input,
-            screen: &self.screen,
-            attrs: &self.attrs,
-            vertex_base,
             chunks: &self.chunks[..n_chunks],
             shades,
             layout,
@@ -307,16 +301,10 @@ impl Prepared<'_, '_> {
                 continue;
             }
             let (shade, lit) = &self.shades[chunk.object];
-            let draw = &self.input.objects[chunk.object];
-            let base = self.vertex_base[chunk.object];
-            let range = base..base + draw.positions.len();
             let job = BinScan {
                 bin,
                 frags,
-                tris: &draw.triangles[chunk.triangles.clone()],
-                screen: &self.screen[range.clone()],
-                attrs: &self.attrs[range],
-                clipped: &chunk.clipped,
+                binned: &chunk.binned,
                 rows,
                 size: (w, h),
                 shade,
@@ -344,10 +332,7 @@ fn replay<S: FragmentSink>(frags: &[PixelFragment], object: ObjectId, sink: &mut
 struct BinScan<'a> {
     bin: &'a [u64],
     frags: &'a [PixelFragment],
-    tris: &'a [[u32; 3]],
-    screen: &'a [ScreenPos],
-    attrs: &'a [Attrs],
-    clipped: &'a [ClippedTriangle],
+    binned: &'a [BinnedTriangle],
     rows: (i32, i32),
     size: (i32, i32),
     shade: &'a Shade,
@@ -364,18 +349,10 @@ impl BinScan<'_> {
             let (r, cursor) = (entry as u32, (entry >> 32) as usize);
             n += replay(&self.frags[next..cursor], self.shade.id, sink);
             next = cursor;
-            let (pos, attrs) = if r & CLIPPED == 0 {
-                let [i0, i1, i2] = self.tris[r as usize].map(|i| i as usize);
-                (
-                    [self.screen[i0], self.screen[i1], self.screen[i2]],
-                    [&self.attrs[i0], &self.attrs[i1], &self.attrs[i2]],
-                )
-            } else {
-                let t = &self.clipped[(r & !CLIPPED) as usize];
-                (t.pos, [&t.attrs[0], &t.attrs[1], &t.attrs[2]])
-            };
+            let t = &self.binned[r as usize];
+            let attrs = [&t.attrs[0], &t.attrs[1], &t.attrs[2]];
             n += u64::from(scan_triangle::<S, LIT>(
-                pos, attrs, self.rows, w, h, self.shade, sink,
+                t.pos, attrs, self.rows, w, h, self.shade, sink,
             ));
         }
         n + replay(&self.frags[next..], self.shade.id, sink)
