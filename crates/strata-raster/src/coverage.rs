@@ -301,6 +301,71 @@ impl Micro {
     }
 }
 
+/// What shading a micro-triangle's covered samples needs, wherever the triangle is kept: a
+/// [`Micro`], or a lane of a [`Batch`] ([`BatchLane`], read in place instead of copied out).
+pub trait MicroSamples {
+    /// Which input vertex is vertex 0, 1, 2 after orientation.
+    fn order(&self) -> [usize; 3];
+    /// Twice the area, > 0.
+    fn area(&self) -> i32;
+    /// The first pixel of the bounding box, `(x0, y0)`.
+    fn origin(&self) -> (i32, i32);
+    /// Barycentric numerators `E_k` of the sample at pixel offset `(i, j)`.
+    fn weights(&self, i: i32, j: i32) -> [f32; 3];
+}
+
+impl MicroSamples for Micro {
+    #[inline(always)]
+    fn order(&self) -> [usize; 3] {
+        self.order
+    }
+    #[inline(always)]
+    fn area(&self) -> i32 {
+        self.area
+    }
+    #[inline(always)]
+    fn origin(&self) -> (i32, i32) {
+        (self.bounds[0], self.bounds[2])
+    }
+    #[inline(always)]
+    fn weights(&self, i: i32, j: i32) -> [f32; 3] {
+        Micro::weights(self, i, j)
+    }
+}
+
+/// Lane `l` of a classified [`Batch`] that holds a micro-triangle (a lane of
+/// [`Verdict::micro`]): the same answers as the [`Micro`] that [`Batch::micro`] copies out.
+#[derive(Clone, Copy, Debug)]
+pub struct BatchLane<'a> {
+    batch: &'a Batch,
+    l: usize,
+}
+
+impl MicroSamples for BatchLane<'_> {
+    #[inline(always)]
+    fn order(&self) -> [usize; 3] {
+        if self.batch.swapped[self.l] {
+            [0, 2, 1]
+        } else {
+            [0, 1, 2]
+        }
+    }
+    #[inline(always)]
+    fn area(&self) -> i32 {
+        self.batch.area[self.l]
+    }
+    #[inline(always)]
+    fn origin(&self) -> (i32, i32) {
+        (self.batch.bounds[0][self.l], self.batch.bounds[2][self.l])
+    }
+    #[inline(always)]
+    fn weights(&self, i: i32, j: i32) -> [f32; 3] {
+        let (b, l) = (self.batch, self.l);
+        let w = |k: usize| (b.e_unbiased[k][l] + b.dx[k][l] * i + b.dy[k][l] * j) as f32;
+        [w(0), w(1), w(2)]
+    }
+}
+
 /// Triangles classified together by [`Batch`], one per SIMD lane.
 pub const LANES: usize = 8;
 
@@ -349,6 +414,8 @@ pub struct Batch {
     dx: [[i32; LANES]; 3],
     dy: [[i32; LANES]; 3],
     bias: [[i32; LANES]; 3],
+    /// `e + bias`: the edge values themselves, from which a sample's weights are stepped.
+    e_unbiased: [[i32; LANES]; 3],
     mask: [u32; LANES],
 }
 
@@ -431,7 +498,8 @@ impl Batch {
                 edge(cx, cy, ax, ay),
                 edge(ax, ay, bx, by),
             ];
-            // Coverage of the 4 × 4 block, masked to the bounding box.
+            // Coverage of the 4 × 4 block, then masked to the bounding box (`box_mask`, with
+            // the box clamped so that lanes that are not micro-triangles shift in range).
             let mut mask = 0u32;
             for j in 0..SMALL {
                 for i in 0..SMALL {
@@ -440,10 +508,12 @@ impl Batch {
                         e.wrapping_add(dx.wrapping_mul(i))
                             .wrapping_add(dy.wrapping_mul(j))
                     };
-                    let inside = (v(0) | v(1) | v(2)) >= 0 && i <= last_x && j <= last_y;
+                    let inside = (v(0) | v(1) | v(2)) >= 0;
                     mask |= u32::from(inside) << (j * SMALL + i);
                 }
             }
+            let (bx, by) = (last_x.clamp(0, SMALL - 1), last_y.clamp(0, SMALL - 1));
+            mask &= ((2u32 << bx) - 1) * (0x1111 >> (SMALL * (SMALL - 1 - by)));
             micro[l] = candidate && small && area != 0 && mask != 0;
             self.swapped[l] = swap;
             self.area[l] = area.wrapping_abs();
@@ -456,15 +526,18 @@ impl Batch {
                 self.dx[k][l] = dx;
                 self.dy[k][l] = dy;
                 self.bias[k][l] = bias;
+                self.e_unbiased[k][l] = e.wrapping_add(bias);
             }
             self.mask[l] = mask;
         }
+        // Every lane's flag (a loop LLVM turns into one mask extraction), then only the batch's.
+        let valid = (1u32 << lanes) - 1;
         let bits = |flags: [bool; LANES]| {
             let mut m = 0u32;
-            for (l, &f) in flags.iter().enumerate().take(lanes) {
+            for (l, &f) in flags.iter().enumerate() {
                 m |= u32::from(f) << l;
             }
-            m
+            m & valid
         };
         Verdict {
             outside: bits(outside),
@@ -474,10 +547,24 @@ impl Batch {
         }
     }
 
+    /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]), read in place, and its
+    /// coverage mask.
+    #[inline(always)]
+    pub fn lane(&self, lane: usize) -> (BatchLane<'_>, u32) {
+        (
+            BatchLane {
+                batch: self,
+                l: lane,
+            },
+            self.mask[lane],
+        )
+    }
+
     /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]) and its coverage mask, as
     /// `Micro::new` and [`Micro::coverage`] would give them.
     #[inline(always)]
     pub fn micro(&self, lane: usize) -> (Micro, u32) {
+        debug_assert!(lane < LANES);
         let l = lane;
         (
             Micro {
@@ -626,6 +713,15 @@ mod tests {
                     }
                 } else if bit(v.micro) {
                     let (m, mask) = batch.micro(l);
+                    // The lane read in place answers as the copied-out triangle does.
+                    let (lane, lane_mask) = batch.lane(l);
+                    assert_eq!(lane_mask, mask);
+                    assert_eq!(lane.order(), m.order);
+                    assert_eq!(lane.area(), m.area);
+                    assert_eq!(lane.origin(), (m.bounds[0], m.bounds[2]));
+                    for (i, j) in (0..SMALL).flat_map(|j| (0..SMALL).map(move |i| (i, j))) {
+                        assert_eq!(lane.weights(i, j), m.weights(i, j), "sample ({i}, {j})");
+                    }
                     Kind::Micro(m, mask)
                 } else {
                     Kind::Empty

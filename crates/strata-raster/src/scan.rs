@@ -17,7 +17,7 @@ use glam::Vec3A;
 use strata_core::material::headlight_rgba;
 use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
-use crate::coverage::{Edges, Micro, SMALL, Triangle};
+use crate::coverage::{Edges, MicroSamples, SMALL, Triangle};
 use crate::sink::FragmentSink;
 use crate::vertex::{Attrs, ScreenPos};
 
@@ -112,11 +112,11 @@ fn headlight(n: Vec3A, p: Vec3A) -> f32 {
 }
 
 /// Shades the covered samples of a micro-triangle — `mask` is its coverage within its bounding
-/// box (see [`Micro::coverage`]) — calling `out(row, pixel, fragment)` for each, in sample order.
+/// box (see [`crate::coverage::Micro::coverage`]) — calling `out(row, pixel, fragment)` for each, in sample order.
 /// Samples beyond the far plane are skipped.
 #[inline(always)]
 pub fn shade_small<const LIT: bool>(
-    t: &Micro,
+    t: &impl MicroSamples,
     attrs: [&Attrs; 3],
     mut mask: u32,
     width: i32,
@@ -126,9 +126,10 @@ pub fn shade_small<const LIT: bool>(
     if mask == 0 {
         return;
     }
-    let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
-    let interp = Interp::new::<LIT>(attrs, t.area as f32);
-    let [x0, _, y0, _] = t.bounds;
+    let order = t.order();
+    let attrs = [attrs[order[0]], attrs[order[1]], attrs[order[2]]];
+    let interp = Interp::new::<LIT>(attrs, t.area() as f32);
+    let (x0, y0) = t.origin();
     let first = y0 as u32 * width as u32 + x0 as u32;
     while mask != 0 {
         let bit = mask.trailing_zeros() as i32;

@@ -296,7 +296,7 @@ fn setup_chunk_impl<const LIT: bool>(
             todo &= todo - 1;
             let [i0, i1, i2] = group[l].map(|i| i as usize);
             if verdict.micro >> l & 1 != 0 {
-                let (tri, mask) = batch.micro(l);
+                let (tri, mask) = batch.lane(l);
                 shade_small::<LIT>(
                     &tri,
                     [&attrs[i0], &attrs[i1], &attrs[i2]],
