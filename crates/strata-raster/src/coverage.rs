@@ -206,7 +206,7 @@ impl Triangle {
         let [a, b, c] = pos;
         let bounds = pixel_bounds(a, b, c, width, height)?;
         let [x0, x1, y0, y1] = bounds;
-        if x1 - x0 < SMALL && y1 - y0 < SMALL {
+        if x1 - x0 < SMALL && y1 - y0 < SMALL && close_together(a, b, c) {
             Micro::new(pos, bounds).map(Triangle::Micro)
         } else {
             Setup::new(pos, width, height).map(Triangle::Large)
@@ -214,8 +214,23 @@ impl Triangle {
     }
 }
 
-/// A micro-triangle set up in `i32`: its vertices lie within 5 pixels of each other and of every
-/// sample of its 4 × 4 block, so twice its area stays below 2^21 and every edge value below 2^23.
+/// Largest vertex spread, in x and in y (fixed point), of a micro-triangle: 5 pixels less one
+/// step. Every triangle whose bounding box holds at most [`SMALL`] × [`SMALL`] pixel centres
+/// spreads less than 5 pixels; one whose box was cut to that size by the image's edges may
+/// spread up to the guard band, and its edge functions would overflow `i32`, so it is set up as
+/// a large triangle instead.
+pub const MICRO_SPREAD: i32 = (SMALL + 1) * ONE - 1;
+
+/// True if the vertices spread at most [`MICRO_SPREAD`] in x and in y.
+#[inline(always)]
+fn close_together(a: ScreenPos, b: ScreenPos, c: ScreenPos) -> bool {
+    let spread = |p: i32, q: i32, r: i32| p.max(q).max(r) - p.min(q).min(r);
+    spread(a.x, b.x, c.x) <= MICRO_SPREAD && spread(a.y, b.y, c.y) <= MICRO_SPREAD
+}
+
+/// A micro-triangle set up in `i32`: its vertices lie within 5 pixels of each other
+/// ([`MICRO_SPREAD`]) and of every sample of its 4 × 4 block, so twice its area stays below 2^21
+/// and every edge value below 2^23.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Micro {
     /// Which input vertex is vertex 0, 1, 2 after orientation.
@@ -462,7 +477,11 @@ impl Batch {
             let y1 = (max_y.wrapping_sub(HALF) >> SUBPIXEL_BITS).min(height - 1);
             let some = x0 <= x1 && y0 <= y1;
             let (last_x, last_y) = (x1.wrapping_sub(x0), y1.wrapping_sub(y0));
-            let small = last_x < SMALL && last_y < SMALL;
+            // Micro-sized, with the vertices close together (`close_together`: a box cut small by
+            // the image's edges may hide vertices far outside it, too far for `i32`).
+            let close = max_x.wrapping_sub(min_x) <= MICRO_SPREAD
+                && max_y.wrapping_sub(min_y) <= MICRO_SPREAD;
+            let small = last_x < SMALL && last_y < SMALL && close;
             let candidate = !outside[l] && !clipped[l] && some;
             large[l] = candidate && !small;
             // Micro::new, lane by lane, in wrapping i32 (exact for micro-triangles).
@@ -783,5 +802,63 @@ mod tests {
             tested += 1;
         }
         assert!(tested > 5_000, "{tested}");
+    }
+
+    #[test]
+    fn a_box_cut_small_by_the_image_edge_is_covered_exactly() {
+        use crate::vertex::outcode;
+        // Thin triangles entering a 40 × 30 image at its left edge from up to 60,000 pixels
+        // away, so their boxes of pixel centres in the image are at most 4 × 4 while their edge
+        // functions are far beyond i32 (they once overflowed as micro-triangles).
+        let (w, h) = (40, 30);
+        let mut tested = 0;
+        for far in [6.0f32, 100.0, 1000.0, 10_000.0, 60_000.0] {
+            for (k, top) in [0.2f32, 7.6, 25.9].into_iter().enumerate() {
+                for height in [0.7f32, 1.3, 2.9, 3.6] {
+                    let t = [
+                        pos(-far, top),
+                        pos(2.7, top - 0.1 * k as f32),
+                        pos(2.9 + 0.3 * k as f32, top + height),
+                    ];
+                    let mut batch = Batch::default();
+                    batch.set(0, t, [0; 3]);
+                    let v = batch.classify(1, w, h, outcode::VIEW, outcode::CLIP);
+                    // One triangle at a time: coverage from whichever setup it gets.
+                    let mut one = Vec::new();
+                    match Triangle::new(t, w, h) {
+                        Some(Triangle::Micro(m)) => {
+                            let [x0, _, y0, _] = m.bounds;
+                            let mask = m.coverage();
+                            for bit in (0..16).filter(|b| mask >> b & 1 == 1) {
+                                one.push((x0 + bit % SMALL, y0 + bit / SMALL));
+                            }
+                            assert_eq!(v.micro != 0, mask != 0, "far {far}: batch and one differ");
+                        }
+                        Some(Triangle::Large(s)) => {
+                            let [x0, x1, y0, y1] = s.bounds;
+                            for y in y0..=y1 {
+                                let row = s.edges.at(0, y - y0);
+                                if let Some((lo, hi)) = s.edges.span(row, x1 - x0) {
+                                    one.extend((lo..=hi).map(|i| (x0 + i, y)));
+                                }
+                            }
+                            assert_eq!(v.micro, 0, "far {far}: micro in the batch only");
+                        }
+                        None => {}
+                    }
+                    let mut want = Vec::new();
+                    for y in 0..h {
+                        for x in 0..w {
+                            if covered(t, x, y) {
+                                want.push((x, y));
+                            }
+                        }
+                    }
+                    assert_eq!(one, want, "far {far}, top {top}, height {height}");
+                    tested += usize::from(!want.is_empty());
+                }
+            }
+        }
+        assert!(tested > 30, "{tested}");
     }
 }
