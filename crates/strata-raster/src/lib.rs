@@ -23,7 +23,7 @@
 //!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
 //!    culled; one that crosses the near plane or the guard band is clipped exactly in clip space
 //!    ([`clip`]). Triangles are classified eight at a time in SIMD lanes
-//!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres) are
+//!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres, vertices within 5 pixels) are
 //!    finished here: exact coverage as a bitmask computed in the same lanes, shading, and
 //!    12-byte fragment records appended to per-strip lists. Larger triangles and clipped pieces are copied with their vertices and appended to the bin of
 //!    every *strip* their rows touch, with a cursor into the strip's record list.

@@ -65,15 +65,17 @@ impl Rasterizer {
     /// A rasterizer with the given configuration.
     ///
     /// # Panics
-    /// If `strip_height` is not a power of two, or `chunk_triangles` is zero or ≥ 2^31.
+    /// If `strip_height` is not a power of two, or `chunk_triangles` is zero or ≥ 2^27 (a bin
+    /// entry holds a chunk's binned pieces, up to six a triangle, and its strip's micro-triangle
+    /// fragments, up to 16 a triangle, in 32 bits each).
     pub fn new(config: RasterConfig) -> Self {
         assert!(
             config.strip_height.is_power_of_two(),
             "strip_height must be a power of two"
         );
         assert!(
-            config.chunk_triangles > 0 && config.chunk_triangles < 1 << 31,
-            "chunk_triangles must be in 1..2^31"
+            config.chunk_triangles > 0 && config.chunk_triangles < 1 << 27,
+            "chunk_triangles must be in 1..2^27"
         );
         Rasterizer {
             config,

@@ -24,8 +24,9 @@
 //! A triangle is culled when its three vertices lie outside the same view-volume plane, when its
 //! fixed-point area is zero, or when it covers no pixel centre.
 //!
-//! **Micro-triangles** — bounding box of at most [`crate::coverage::SMALL`]² pixel centres, most
-//! triangles of a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
+//! **Micro-triangles** — bounding box of at most [`crate::coverage::SMALL`]² pixel centres and
+//! vertices within 5 pixels of each other ([`crate::coverage::MICRO_SPREAD`]), most triangles of
+//! a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
 //! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
 //! are shaded at once, their fragments appended to the strip lists as 12-byte records (pixel index, depth, colour). Setup has
 //! their vertices in registers already; binning them instead would make the scan load and set up

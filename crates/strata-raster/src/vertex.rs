@@ -263,7 +263,8 @@ pub fn transform_vertices(
 }
 
 /// One vertex through the vertex stage, as glam computes it: the definition the lanes of
-/// [`transform_vertices`] follow, and what the clipper's vertices go through.
+/// [`transform_vertices`] follow (the clipper projects its own vertices with the same
+/// [`ObjectTransform::eye`] and [`Viewport::project`]).
 #[inline]
 pub fn transform_vertex(
     t: &ObjectTransform,
