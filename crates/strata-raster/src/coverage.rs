@@ -549,7 +549,7 @@ impl Batch {
             }
             self.mask[l] = mask;
         }
-        // Every lane's flag (a loop LLVM turns into one mask extraction), then only the batch's.
+        // Every lane's flag, then only the batch's lanes: no iterator bound to test each lane.
         let valid = (1u32 << lanes) - 1;
         let bits = |flags: [bool; LANES]| {
             let mut m = 0u32;
@@ -580,10 +580,11 @@ impl Batch {
     }
 
     /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]) and its coverage mask, as
-    /// `Micro::new` and [`Micro::coverage`] would give them.
+    /// `Micro::new` and [`Micro::coverage`] would give them: copied out, for callers that keep
+    /// it past the batch (setup reads its lanes in place with [`Batch::lane`]; the tests hold
+    /// the two to each other).
     #[inline(always)]
     pub fn micro(&self, lane: usize) -> (Micro, u32) {
-        debug_assert!(lane < LANES);
         let l = lane;
         (
             Micro {

@@ -17,15 +17,17 @@
 //!
 //! 1. **vertex** ([`vertex`]): every vertex to eye space and clip space, an outcode against the
 //!    view volume and a guard band, and — for vertices in front of the near plane — 24.8
-//!    fixed-point window coordinates, window depth and the perspective-weighted attributes. Three
-//!    flat arrays (positions, outcodes, attributes) for all objects of the frame.
+//!    fixed-point window coordinates, window depth and the perspective-weighted attributes,
+//!    eight vertices at a time in SIMD lanes with the bits of one at a time. Three flat arrays
+//!    (positions, outcodes, attributes) for all objects of the frame.
 //! 2. **setup + bin** ([`setup`]): triangles in chunks of consecutive primitives of one object.
 //!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
 //!    culled; one that crosses the near plane or the guard band is clipped exactly in clip space
 //!    ([`clip`]). Triangles are classified eight at a time in SIMD lanes
-//!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres, vertices within 5 pixels) are
-//!    finished here: exact coverage as a bitmask computed in the same lanes, shading, and
-//!    12-byte fragment records appended to per-strip lists. Larger triangles and clipped pieces are copied with their vertices and appended to the bin of
+//!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres,
+//!    vertices within 5 pixels) are finished here: exact coverage as a bitmask computed in the
+//!    same lanes, shading, and 12-byte fragment records appended to per-strip lists. Larger
+//!    triangles and clipped pieces are copied with their vertices and appended to the bin of
 //!    every *strip* their rows touch, with a cursor into the strip's record list.
 //! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order,
 //!    and in each chunk replays the micro-triangle records and scans the binned triangles,

@@ -112,8 +112,8 @@ fn headlight(n: Vec3A, p: Vec3A) -> f32 {
 }
 
 /// Shades the covered samples of a micro-triangle — `mask` is its coverage within its bounding
-/// box (see [`crate::coverage::Micro::coverage`]) — calling `out(row, pixel, fragment)` for each, in sample order.
-/// Samples beyond the far plane are skipped.
+/// box (see [`crate::coverage::Micro::coverage`]) — calling `out(row, pixel, fragment)` for each,
+/// in sample order. Samples beyond the far plane are skipped.
 #[inline(always)]
 pub fn shade_small<const LIT: bool>(
     t: &impl MicroSamples,

@@ -153,7 +153,8 @@ pub struct Chunk {
     pub bins: Vec<Vec<u64>>,
     /// Per-strip micro-triangle fragments.
     pub frags: Vec<Vec<PixelFragment>>,
-    /// Clipped pieces.
+    /// Binned triangles and clipped pieces, with copies of their vertices; bin entries index
+    /// it.
     pub binned: Vec<BinnedTriangle>,
     /// What setup did.
     pub stats: SetupStats,
