@@ -75,11 +75,39 @@ pub fn over_front_to_back(
 /// channel, in the same order: tested against it).
 #[inline]
 pub fn resolve_pixel(colors: impl IntoIterator<Item = Rgba8>, background: [f32; 3]) -> [u8; 3] {
+    PixelResolver::new(background).resolve(colors)
+}
+
+/// [`resolve_pixel`] with the background and the CPU's vector unit looked up once, for a resolve
+/// that composites many pixels onto one background: the same bits, without the per-pixel check
+/// for SSE2.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelResolver {
+    background: [f32; 3],
     #[cfg(target_arch = "x86_64")]
-    if let Some(simd) = pulp::x86::V1::try_new() {
-        return resolve_pixel_in_lanes(simd, colors, background);
+    simd: Option<pulp::x86::V1>,
+}
+
+impl PixelResolver {
+    /// A resolver onto `background`.
+    #[inline]
+    pub fn new(background: [f32; 3]) -> Self {
+        PixelResolver {
+            background,
+            #[cfg(target_arch = "x86_64")]
+            simd: pulp::x86::V1::try_new(),
+        }
     }
-    resolve_pixel_one_channel_at_a_time(colors, background)
+
+    /// [`resolve_pixel`] of `colors`, front to back, onto the background.
+    #[inline(always)]
+    pub fn resolve(&self, colors: impl IntoIterator<Item = Rgba8>) -> [u8; 3] {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(simd) = self.simd {
+            return resolve_pixel_in_lanes(simd, colors, self.background);
+        }
+        resolve_pixel_one_channel_at_a_time(colors, self.background)
+    }
 }
 
 /// [`resolve_pixel`] a channel at a time: the definition the vector form must equal.

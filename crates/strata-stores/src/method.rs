@@ -112,6 +112,36 @@ pub trait Method: Send {
     /// record their stages as `resolve.<stage>` in `timings`.
     fn resolve(&mut self, background: [f32; 3], timings: &mut PassTimings) -> Rgb8Image;
 
+    /// Captures `input` and resolves the frame onto `background`: what [`Method::capture`]
+    /// followed by [`Method::resolve`] does, image, depth statistics and stored fragments alike.
+    /// Records the `capture` and `resolve` passes, each followed by its stages, in `timings`.
+    ///
+    /// The default runs the two passes one after the other. A store whose per-pixel state is cut
+    /// into the rasterizer's strips may fuse them instead: the linked list resolves each strip as
+    /// soon as the strip's scan ends, on the same thread, while the strip's nodes are still in
+    /// that core's cache. Such a store reports the fused pass's wall time split between
+    /// `capture.raster` and `resolve` by the thread time each part took.
+    fn capture_and_resolve(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        background: [f32; 3],
+        timings: &mut PassTimings,
+    ) -> Result<(CaptureReport, Rgb8Image), StoreError> {
+        let start = Instant::now();
+        let mut stages = PassTimings::new();
+        let capture = self.capture(raster, input, &mut stages)?;
+        timings.add("capture", start.elapsed());
+        timings.extend(&stages);
+
+        let start = Instant::now();
+        let mut stages = PassTimings::new();
+        let image = self.resolve(background, &mut stages);
+        timings.add("resolve", start.elapsed());
+        timings.extend(&stages);
+        Ok((capture, image))
+    }
+
     /// Depth complexity of what the store holds, as seen by the last resolve.
     fn depth_stats(&self) -> Option<DepthStats>;
 
@@ -161,7 +191,7 @@ pub struct FrameResult {
     pub used_memory_bytes: u64,
 }
 
-/// Runs clear → capture → resolve and times each pass.
+/// Runs clear → capture → resolve ([`Method::capture_and_resolve`]) and times each pass.
 ///
 /// Runs on the current rayon pool; wrap it in `ThreadPool::install` to choose the thread count.
 pub fn render_frame(
@@ -175,17 +205,7 @@ pub fn render_frame(
     method.clear(input.width, input.height)?;
     timings.add("clear", start.elapsed());
 
-    let start = Instant::now();
-    let mut stages = PassTimings::new();
-    let capture = method.capture(raster, input, &mut stages)?;
-    timings.add("capture", start.elapsed());
-    timings.extend(&stages);
-
-    let start = Instant::now();
-    let mut stages = PassTimings::new();
-    let image = method.resolve(background, &mut stages);
-    timings.add("resolve", start.elapsed());
-    timings.extend(&stages);
+    let (capture, image) = method.capture_and_resolve(raster, input, background, &mut timings)?;
 
     Ok(FrameResult {
         image,

@@ -1,0 +1,178 @@
+//! [`Method::capture_and_resolve`] does what `capture` then `resolve` does, for every store —
+//! the same image, depth statistics, capture report and DeepFrame — including the linked list's
+//! fused pass (each strip resolved as its scan ends): with a pool that overflows and drops, with
+//! an automatic pool that must grow and capture again, after an earlier chunk of the frame was
+//! captured on its own, and on one thread or two.
+
+mod common;
+
+use common::{pool, scene};
+use strata_core::{DeepFrame, DepthStats, PassTimings, Rgb8Image};
+use strata_raster::{FrameInput, Rasterizer};
+use strata_stores::{CaptureReport, Method, MethodOptions, PoolCapacity, create};
+
+/// What a frame left behind: image, depth statistics, the report's counts, the DeepFrame.
+#[derive(Debug, PartialEq)]
+struct Outcome {
+    image: Rgb8Image,
+    depth: Option<DepthStats>,
+    report: (u64, u64, u64, u32, u32),
+    deep: Option<DeepFrame>,
+}
+
+fn counts(r: &CaptureReport) -> (u64, u64, u64, u32, u32) {
+    (
+        r.fragments_rasterized,
+        r.fragments_stored,
+        r.dropped,
+        r.regrows,
+        r.raster_passes,
+    )
+}
+
+/// Renders `chunks` (all but the last captured alone, the last captured and resolved) with
+/// `method` on `threads` threads, fused or as two calls.
+fn run(
+    method: &mut dyn Method,
+    chunks: &[FrameInput<'_>],
+    background: [f32; 3],
+    threads: usize,
+    fused: bool,
+) -> (Outcome, PassTimings) {
+    let (width, height) = (chunks[0].width, chunks[0].height);
+    let mut raster = Rasterizer::default();
+    let mut timings = PassTimings::new();
+    pool(threads).install(|| {
+        method.clear(width, height).expect("clear");
+        let (last, earlier) = chunks.split_last().expect("a chunk");
+        for chunk in earlier {
+            method
+                .capture(&mut raster, chunk, &mut PassTimings::new())
+                .expect("capture");
+        }
+        let (report, image) = if fused {
+            method
+                .capture_and_resolve(&mut raster, last, background, &mut timings)
+                .expect("capture and resolve")
+        } else {
+            let report = method
+                .capture(&mut raster, last, &mut timings)
+                .expect("capture");
+            (report, method.resolve(background, &mut timings))
+        };
+        let outcome = Outcome {
+            image,
+            depth: method.depth_stats(),
+            report: counts(&report),
+            deep: method.deep_frame().map(|d| d.expect("valid DeepFrame")),
+        };
+        (outcome, timings)
+    })
+}
+
+#[test]
+fn capture_and_resolve_equals_capture_then_resolve_for_every_store() {
+    let background = [0.2, 0.5, 0.9];
+    let mut failures = Vec::new();
+    for scene_name in ["mixed", "overlap", "spheres"] {
+        // 40 rows: two full strips of 16 and a short one.
+        let s = scene(scene_name, 72, 40);
+        let input = FrameInput::from_scene(&s, 5);
+        for info in strata_stores::METHODS {
+            for threads in [1, 2] {
+                let mut a = create(info.name, &MethodOptions::default()).expect("registered");
+                let mut b = create(info.name, &MethodOptions::default()).expect("registered");
+                let one = std::slice::from_ref(&input);
+                let (apart, _) = run(a.as_mut(), one, background, threads, false);
+                let (fused, timings) = run(b.as_mut(), one, background, threads, true);
+                if apart != fused {
+                    failures.push(format!(
+                        "{} on {scene_name}, {threads} thread(s)",
+                        info.name
+                    ));
+                }
+                for pass in ["capture", "resolve"] {
+                    if timings.get(pass).is_none() {
+                        failures.push(format!("{}: no '{pass}' pass recorded", info.name));
+                    }
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "differ:\n{}", failures.join("\n"));
+}
+
+/// The linked list's fused pass under its pool's every path: enough room, a fixed pool that
+/// drops fragments, an automatic pool too small for the frame (grown, captured and resolved
+/// again), and an earlier chunk captured before the fused one.
+#[test]
+fn the_linked_lists_fused_pass_matches_under_overflow_regrow_and_chunks() {
+    let background = [1.0, 1.0, 1.0];
+    let s = scene("overlap", 64, 48);
+    let plain = FrameInput::from_scene(&s, 2);
+    // Drawn 16 times over (about 5 fragments a pixel): deeper than the automatic pool's first
+    // size, 2 nodes a pixel.
+    let deep_input = FrameInput {
+        objects: (0..16).flat_map(|_| plain.objects.clone()).collect(),
+        ..plain.clone()
+    };
+    let total = deep_input.triangle_count();
+    let halves = [
+        deep_input.triangle_range(0..total / 2),
+        deep_input.triangle_range(total / 2..total),
+    ];
+    let cases: [(&str, PoolCapacity, &[FrameInput<'_>]); 5] = [
+        (
+            "room",
+            PoolCapacity::PerPixel(64.0),
+            std::slice::from_ref(&plain),
+        ),
+        (
+            "drops",
+            PoolCapacity::Fragments(700),
+            std::slice::from_ref(&plain),
+        ),
+        (
+            "regrow",
+            PoolCapacity::Auto,
+            std::slice::from_ref(&deep_input),
+        ),
+        ("chunks", PoolCapacity::Auto, &halves),
+        ("chunks that drop", PoolCapacity::Fragments(3000), &halves),
+    ];
+    for (what, capacity, chunks) in cases {
+        let options = MethodOptions {
+            pool: capacity,
+            ..MethodOptions::default()
+        };
+        for threads in [1, 2] {
+            let mut a = create("abuffer", &options).expect("registered");
+            let mut b = create("abuffer", &options).expect("registered");
+            let (apart, _) = run(a.as_mut(), chunks, background, threads, false);
+            let (fused, _) = run(b.as_mut(), chunks, background, threads, true);
+            let (_, stored, dropped, regrows, _) = fused.report;
+            assert!(stored > 0, "{what}: nothing stored");
+            match what {
+                "drops" | "chunks that drop" => assert!(dropped > 0, "{what}: nothing dropped"),
+                "regrow" => assert!(regrows > 0, "{what}: the pool did not grow"),
+                _ => assert_eq!(dropped, 0, "{what}"),
+            }
+            if what == "drops" || what == "chunks that drop" {
+                // Which fragments a full pool drops depends on scheduling (module docs), so
+                // only one thread gives the same ones twice.
+                if threads == 1 {
+                    assert_eq!(apart, fused, "{what}, one thread");
+                }
+                // With two, the image is still what the kept fragments resolve to.
+                let deep = fused.deep.as_ref().expect("a DeepFrame");
+                assert_eq!(
+                    fused.image,
+                    deep.resolve(background),
+                    "{what}, {threads} threads"
+                );
+            } else {
+                assert_eq!(apart, fused, "{what}, {threads} thread(s)");
+            }
+        }
+    }
+}
