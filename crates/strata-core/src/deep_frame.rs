@@ -295,54 +295,51 @@ impl DeepFrame {
     where
         F: Fn(usize, &mut Vec<Fragment>) + Sync,
     {
-        /// One task's pixels: their counts and their fragments, column by column.
-        struct Gathered {
-            counts: Vec<u32>,
-            depth: Vec<f32>,
-            color: Vec<Rgba8>,
-            object: Vec<ObjectId>,
-        }
         let pixels = pixel_count(width, height);
-        let gathered: Vec<Gathered> = (0..pixels.div_ceil(PIXELS_PER_TASK))
+        let bands: Vec<GatheredPixels> = (0..pixels.div_ceil(PIXELS_PER_TASK))
             .into_par_iter()
             .map_init(
                 || Vec::with_capacity(64),
                 |scratch, task| {
                     let first = task * PIXELS_PER_TASK;
-                    let pixels = first..(first + PIXELS_PER_TASK).min(pixels);
-                    // Room for a fragment a pixel; only denser tasks grow.
-                    let mut g = Gathered {
-                        counts: Vec::with_capacity(pixels.len()),
-                        depth: Vec::with_capacity(pixels.len()),
-                        color: Vec::with_capacity(pixels.len()),
-                        object: Vec::with_capacity(pixels.len()),
-                    };
-                    for p in pixels {
-                        scratch.clear();
-                        fill(p, scratch);
-                        for f in scratch.iter_mut() {
-                            normalise_depth(&mut f.depth, p)?;
-                        }
-                        sort_front_to_back(scratch);
-                        let n = u32::try_from(scratch.len())
-                            .map_err(|_| DeepFrameError::TooManyFragments(scratch.len() as u64))?;
-                        g.counts.push(n);
-                        g.depth.extend(scratch.iter().map(|f| f.depth));
-                        g.color.extend(scratch.iter().map(|f| f.color));
-                        g.object.extend(scratch.iter().map(|f| f.object));
-                    }
-                    Ok(g)
+                    GatheredPixels::gather(
+                        first..(first + PIXELS_PER_TASK).min(pixels),
+                        scratch,
+                        &fill,
+                    )
                 },
             )
             .collect::<Result<_, DeepFrameError>>()?;
-        let counts = gathered.iter().flat_map(|g| g.counts.iter().copied());
+        Self::from_gathered(width, height, bands)
+    }
+
+    /// Assembles a frame from the gathered fragments of consecutive runs of its pixels, in
+    /// order: the offsets are summed over the runs' counts and each run's columns are copied
+    /// into place in parallel. An error if the runs do not hold `width × height` pixels, or more
+    /// than `u32::MAX` fragments in all.
+    pub fn from_gathered(
+        width: u32,
+        height: u32,
+        bands: Vec<GatheredPixels>,
+    ) -> Result<Self, DeepFrameError> {
+        let pixels = pixel_count(width, height);
+        let found: usize = bands.iter().map(|g| g.counts.len()).sum();
+        if found != pixels {
+            return Err(DeepFrameError::PixelCount {
+                width,
+                height,
+                expected: pixels as u64,
+                found: found as u64,
+            });
+        }
+        let counts = bands.iter().flat_map(|g| g.counts.iter().copied());
         let offsets = offsets_of(counts, pixels)?;
         let (mut depth, mut color, mut object) = columns(offsets[pixels] as usize);
-        // Each task's columns go to the disjoint slices its pixels own.
-        let lens: Vec<usize> = gathered.iter().map(|g| g.depth.len()).collect();
+        // Each run's columns go to the disjoint slices its pixels own.
+        let lens: Vec<usize> = bands.iter().map(|g| g.depth.len()).collect();
         let slices = split_columns((&mut depth, &mut color, &mut object), lens.into_iter());
-        // Consumed, so each task's columns are freed as soon as they are in place.
-        let places: Vec<_> = gathered.into_iter().zip(slices).collect();
+        // Consumed, so each run's columns are freed as soon as they are in place.
+        let places: Vec<_> = bands.into_iter().zip(slices).collect();
         places.into_par_iter().for_each(|(g, (d, c, o))| {
             d.copy_from_slice(&g.depth);
             c.copy_from_slice(&g.color);
@@ -828,6 +825,57 @@ fn runs_sorted(
     ok
 }
 
+/// The fragments of a run of consecutive pixels, sorted front to back, column by column: what
+/// one task of [`DeepFrame::gather`] collects, or one strip of a store that exports each strip
+/// as it is captured; [`DeepFrame::from_gathered`] assembles runs into a frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GatheredPixels {
+    counts: Vec<u32>,
+    depth: Vec<f32>,
+    color: Vec<Rgba8>,
+    object: Vec<ObjectId>,
+}
+
+impl GatheredPixels {
+    /// Gathers the row-major frame pixels `pixels`: `fill(p, out)` pushes pixel `p`'s fragments
+    /// into the empty `out` (`scratch`, reused), in any order; each run is checked and sorted as
+    /// [`DeepFrame::build`] does (−0 depths become +0; a depth outside `[0, 1]` or NaN is an
+    /// error naming its pixel).
+    pub fn gather(
+        pixels: std::ops::Range<usize>,
+        scratch: &mut Vec<Fragment>,
+        mut fill: impl FnMut(usize, &mut Vec<Fragment>),
+    ) -> Result<Self, DeepFrameError> {
+        // Room for a fragment a pixel; only denser runs grow.
+        let mut g = GatheredPixels {
+            counts: Vec::with_capacity(pixels.len()),
+            depth: Vec::with_capacity(pixels.len()),
+            color: Vec::with_capacity(pixels.len()),
+            object: Vec::with_capacity(pixels.len()),
+        };
+        for p in pixels {
+            scratch.clear();
+            fill(p, scratch);
+            for f in scratch.iter_mut() {
+                normalise_depth(&mut f.depth, p)?;
+            }
+            sort_front_to_back(scratch);
+            let n = u32::try_from(scratch.len())
+                .map_err(|_| DeepFrameError::TooManyFragments(scratch.len() as u64))?;
+            g.counts.push(n);
+            g.depth.extend(scratch.iter().map(|f| f.depth));
+            g.color.extend(scratch.iter().map(|f| f.color));
+            g.object.extend(scratch.iter().map(|f| f.object));
+        }
+        Ok(g)
+    }
+
+    /// Pixels gathered.
+    pub fn pixels(&self) -> usize {
+        self.counts.len()
+    }
+}
+
 fn valid_depth(d: f32) -> bool {
     (0.0..=1.0).contains(&d) && !(d == 0.0 && d.is_sign_negative())
 }
@@ -931,6 +979,34 @@ mod tests {
             matches!(nan, Err(DeepFrameError::BadDepth { index: 12_345, .. })),
             "{nan:?}"
         );
+
+        // Runs of any lengths, as a store's strips gather them, assemble to the same frame; runs
+        // that miss or add a pixel are refused.
+        let mut scratch = Vec::new();
+        let mut runs = |cuts: &[usize]| -> Vec<GatheredPixels> {
+            cuts.windows(2)
+                .map(|c| {
+                    GatheredPixels::gather(c[0]..c[1], &mut scratch, |p, out| {
+                        // Past the frame's last pixel: an empty pixel too many.
+                        if let Some(list) = lists.get(p) {
+                            out.extend_from_slice(list);
+                        }
+                    })
+                    .unwrap()
+                })
+                .collect()
+        };
+        let n = (w * h) as usize;
+        let strips = runs(&[0, 0, 1, 4_800, 9_000, n]);
+        assert_eq!(strips.iter().map(GatheredPixels::pixels).sum::<usize>(), n);
+        assert_eq!(DeepFrame::from_gathered(w, h, strips).unwrap(), built);
+        for cuts in [&[0, 4_800, n - 1][..], &[0, n, n + 1]] {
+            let short = DeepFrame::from_gathered(w, h, runs(cuts));
+            assert!(
+                matches!(short, Err(DeepFrameError::PixelCount { .. })),
+                "{cuts:?}: {short:?}"
+            );
+        }
     }
 
     fn frag(depth: f32, rgba: [u8; 4], object: u32) -> Fragment {

@@ -553,7 +553,7 @@ fn render_thread(
 }
 
 /// Renders the node's objects posed at `pose` with the request's camera and size: clear,
-/// capture, export the DeepFrame.
+/// capture and export the DeepFrame.
 fn render(
     config: &NodeConfig,
     method: &mut dyn Method,
@@ -571,12 +571,14 @@ fn render(
         input.output = FragmentOutput::PackedNormal;
     }
     method.clear(input.width, input.height)?;
-    let report = method.capture(raster, &input, &mut PassTimings::new())?;
+    // Captured and exported in one call: the linked list gathers each strip's fragments as its
+    // scan ends, while they are in the cache.
+    let (report, frame) = method.capture_and_export(raster, &input, &mut PassTimings::new())?;
     // Reprojection: the display must be able to hold exactly what was rendered.
     if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
         return Err(RenderError::Dropped(report.dropped));
     }
-    match method.deep_frame() {
+    match frame {
         Some(f) => Ok(f?),
         None => Err(RenderError::NoDeepFrame(config.method.clone())),
     }

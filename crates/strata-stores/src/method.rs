@@ -142,6 +142,22 @@ pub trait Method: Send {
         Ok((capture, image))
     }
 
+    /// Captures `input` and exports what the store then holds as a DeepFrame: what
+    /// [`Method::capture`] followed by [`Method::deep_frame`] does (a render node's frame).
+    /// Records the capture's stages in `timings`.
+    ///
+    /// The default runs the two one after the other; the linked list fuses them as it fuses
+    /// [`Method::capture_and_resolve`], each strip gathering its rows' fragments as its scan ends.
+    fn capture_and_export(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        timings: &mut PassTimings,
+    ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
+        let report = self.capture(raster, input, timings)?;
+        Ok((report, self.deep_frame()))
+    }
+
     /// Depth complexity of what the store holds, as seen by the last resolve.
     fn depth_stats(&self) -> Option<DepthStats>;
 

@@ -1,8 +1,9 @@
-//! [`Method::capture_and_resolve`] does what `capture` then `resolve` does, for every store —
-//! the same image, depth statistics, capture report and DeepFrame — including the linked list's
-//! fused pass (each strip resolved as its scan ends): with a pool that overflows and drops, with
-//! an automatic pool that must grow and capture again, after an earlier chunk of the frame was
-//! captured on its own, and on one thread or two.
+//! [`Method::capture_and_resolve`] does what `capture` then `resolve` does, and
+//! [`Method::capture_and_export`] what `capture` then `deep_frame` does, for every store — the
+//! same image, depth statistics, capture report and DeepFrame — including the linked list's
+//! fused passes (each strip resolved or gathered as its scan ends): with a pool that overflows
+//! and drops, with an automatic pool that must grow and capture again, after an earlier chunk of
+//! the frame was captured on its own, and on one thread or two.
 
 mod common;
 
@@ -30,14 +31,25 @@ fn counts(r: &CaptureReport) -> (u64, u64, u64, u32, u32) {
     )
 }
 
-/// Renders `chunks` (all but the last captured alone, the last captured and resolved) with
-/// `method` on `threads` threads, fused or as two calls.
+/// How the last chunk of a frame is captured and the frame read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Mode {
+    /// `capture`, then `resolve` and `deep_frame`.
+    Apart,
+    /// `capture_and_resolve`, then `deep_frame`.
+    Resolve,
+    /// `capture_and_export` (its frame must equal `deep_frame`'s), then `resolve`.
+    Export,
+}
+
+/// Renders `chunks` (all but the last captured alone) with `method` on `threads` threads, the
+/// last chunk as `mode` says.
 fn run(
     method: &mut dyn Method,
     chunks: &[FrameInput<'_>],
     background: [f32; 3],
     threads: usize,
-    fused: bool,
+    mode: Mode,
 ) -> (Outcome, PassTimings) {
     let (width, height) = (chunks[0].width, chunks[0].height);
     let mut raster = Rasterizer::default();
@@ -50,28 +62,51 @@ fn run(
                 .capture(&mut raster, chunk, &mut PassTimings::new())
                 .expect("capture");
         }
-        let (report, image) = if fused {
-            method
-                .capture_and_resolve(&mut raster, last, background, &mut timings)
-                .expect("capture and resolve")
-        } else {
-            let report = method
-                .capture(&mut raster, last, &mut timings)
-                .expect("capture");
-            (report, method.resolve(background, &mut timings))
+        let name = method.name();
+        let (report, image, exported) = match mode {
+            Mode::Resolve => {
+                let (report, image) = method
+                    .capture_and_resolve(&mut raster, last, background, &mut timings)
+                    .expect("capture and resolve");
+                (report, image, None)
+            }
+            Mode::Apart => {
+                let report = method
+                    .capture(&mut raster, last, &mut timings)
+                    .expect("capture");
+                (report, method.resolve(background, &mut timings), None)
+            }
+            Mode::Export => {
+                let (report, frame) = method
+                    .capture_and_export(&mut raster, last, &mut timings)
+                    .expect("capture and export");
+                let frame = frame.map(|f| f.expect("valid DeepFrame"));
+                (
+                    report,
+                    method.resolve(background, &mut timings),
+                    Some(frame),
+                )
+            }
         };
+        let deep = method.deep_frame().map(|d| d.expect("valid DeepFrame"));
+        if let Some(exported) = exported {
+            assert_eq!(
+                exported, deep,
+                "{name}: the exported frame is not deep_frame's"
+            );
+        }
         let outcome = Outcome {
             image,
             depth: method.depth_stats(),
             report: counts(&report),
-            deep: method.deep_frame().map(|d| d.expect("valid DeepFrame")),
+            deep,
         };
         (outcome, timings)
     })
 }
 
 #[test]
-fn capture_and_resolve_equals_capture_then_resolve_for_every_store() {
+fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
     let background = [0.2, 0.5, 0.9];
     let mut failures = Vec::new();
     for scene_name in ["mixed", "overlap", "spheres"] {
@@ -80,20 +115,26 @@ fn capture_and_resolve_equals_capture_then_resolve_for_every_store() {
         let input = FrameInput::from_scene(&s, 5);
         for info in strata_stores::METHODS {
             for threads in [1, 2] {
-                let mut a = create(info.name, &MethodOptions::default()).expect("registered");
-                let mut b = create(info.name, &MethodOptions::default()).expect("registered");
                 let one = std::slice::from_ref(&input);
-                let (apart, _) = run(a.as_mut(), one, background, threads, false);
-                let (fused, timings) = run(b.as_mut(), one, background, threads, true);
-                if apart != fused {
-                    failures.push(format!(
-                        "{} on {scene_name}, {threads} thread(s)",
-                        info.name
-                    ));
-                }
-                for pass in ["capture", "resolve"] {
-                    if timings.get(pass).is_none() {
-                        failures.push(format!("{}: no '{pass}' pass recorded", info.name));
+                let mut apart = create(info.name, &MethodOptions::default()).expect("registered");
+                let (want, _) = run(apart.as_mut(), one, background, threads, Mode::Apart);
+                for mode in [Mode::Resolve, Mode::Export] {
+                    let mut m = create(info.name, &MethodOptions::default()).expect("registered");
+                    let (got, timings) = run(m.as_mut(), one, background, threads, mode);
+                    if got != want {
+                        failures.push(format!(
+                            "{} on {scene_name}, {threads} thread(s), {mode:?}",
+                            info.name
+                        ));
+                    }
+                    let passes: &[&str] = match mode {
+                        Mode::Resolve => &["capture", "resolve"],
+                        _ => &["capture.setup"],
+                    };
+                    for pass in passes {
+                        if timings.get(pass).is_none() {
+                            failures.push(format!("{}: no '{pass}' recorded", info.name));
+                        }
                     }
                 }
             }
@@ -147,31 +188,27 @@ fn the_linked_lists_fused_pass_matches_under_overflow_regrow_and_chunks() {
         };
         for threads in [1, 2] {
             let mut a = create("abuffer", &options).expect("registered");
-            let mut b = create("abuffer", &options).expect("registered");
-            let (apart, _) = run(a.as_mut(), chunks, background, threads, false);
-            let (fused, _) = run(b.as_mut(), chunks, background, threads, true);
-            let (_, stored, dropped, regrows, _) = fused.report;
-            assert!(stored > 0, "{what}: nothing stored");
-            match what {
-                "drops" | "chunks that drop" => assert!(dropped > 0, "{what}: nothing dropped"),
-                "regrow" => assert!(regrows > 0, "{what}: the pool did not grow"),
-                _ => assert_eq!(dropped, 0, "{what}"),
-            }
-            if what == "drops" || what == "chunks that drop" {
-                // Which fragments a full pool drops depends on scheduling (module docs), so
-                // only one thread gives the same ones twice.
-                if threads == 1 {
-                    assert_eq!(apart, fused, "{what}, one thread");
+            let (apart, _) = run(a.as_mut(), chunks, background, threads, Mode::Apart);
+            for mode in [Mode::Resolve, Mode::Export] {
+                let mut b = create("abuffer", &options).expect("registered");
+                let (fused, _) = run(b.as_mut(), chunks, background, threads, mode);
+                let (_, stored, dropped, regrows, _) = fused.report;
+                let at = format!("{what}, {threads} thread(s), {mode:?}");
+                assert!(stored > 0, "{at}: nothing stored");
+                match what {
+                    "drops" | "chunks that drop" => assert!(dropped > 0, "{at}: nothing dropped"),
+                    "regrow" => assert!(regrows > 0, "{at}: the pool did not grow"),
+                    _ => assert_eq!(dropped, 0, "{at}"),
                 }
-                // With two, the image is still what the kept fragments resolve to.
-                let deep = fused.deep.as_ref().expect("a DeepFrame");
-                assert_eq!(
-                    fused.image,
-                    deep.resolve(background),
-                    "{what}, {threads} threads"
-                );
-            } else {
-                assert_eq!(apart, fused, "{what}, {threads} thread(s)");
+                if dropped > 0 && threads > 1 {
+                    // Which fragments a full pool drops depends on scheduling (module docs), so
+                    // only one thread gives the same ones twice; with two, the image is still
+                    // what the kept fragments resolve to.
+                    let deep = fused.deep.as_ref().expect("a DeepFrame");
+                    assert_eq!(fused.image, deep.resolve(background), "{at}");
+                } else {
+                    assert_eq!(apart, fused, "{at}");
+                }
             }
         }
     }

@@ -43,6 +43,9 @@
 //!   after the whole capture, the first node of a list was a cache miss: two loads took 47 % of
 //!   the resolve's time in `perf` on the dragon. A frame captured in several calls is resolved by
 //!   [`Method::resolve`], rows in parallel, with the same per-pixel code (`resolve_pixels`).
+//!   A render node's export is fused the same way ([`Method::capture_and_export`]): each strip
+//!   gathers its rows' sorted fragments into columns of its own
+//!   ([`strata_core::GatheredPixels`]) as its scan ends, and the frame is assembled from them.
 
 //! # Overflow
 //!
@@ -65,8 +68,8 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 use strata_core::fragment::sort_front_to_back;
 use strata_core::{
-    DeepFrame, DeepFrameError, DepthStats, Fragment, ObjectId, PassTimings, PixelRect, Rgb8Image,
-    Rgba8, composite,
+    DeepFrame, DeepFrameError, DepthStats, Fragment, GatheredPixels, ObjectId, PassTimings,
+    PixelRect, Rgb8Image, Rgba8, composite,
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Prepared, Rasterizer, StripLayout};
 
@@ -288,15 +291,7 @@ impl LinkedListABuffer {
     /// Walks pixel `p`'s list, newest first.
     #[inline]
     fn list(&self, p: usize) -> impl Iterator<Item = Fragment> + '_ {
-        let mut i = self.heads[p];
-        std::iter::from_fn(move || {
-            if i == EMPTY {
-                return None;
-            }
-            let (f, next) = self.nodes[i as usize].load();
-            i = next;
-            Some(f)
-        })
+        walk(self.heads[p], &self.nodes)
     }
 }
 
@@ -312,16 +307,21 @@ pub struct LinkedListSink<'a> {
     block: BlockCursor,
     n_stored: u64,
     n_dropped: u64,
-    resolve: Option<StripResolve<'a>>,
+    work: Option<StripWork<'a>>,
 }
 
-/// A strip's share of a fused capture and resolve: its rows of the image, and where its depth
-/// statistics and resolve time go.
+/// What a sink does with its strip when its scan ends, in a fused pass.
 #[derive(Debug)]
-struct StripResolve<'a> {
-    out: &'a mut [u8],
-    background: [f32; 3],
-    report: &'a mut StripReport,
+enum StripWork<'a> {
+    /// Resolve the strip into its rows of the image; its depth statistics and resolve time go
+    /// to `report`.
+    Resolve {
+        out: &'a mut [u8],
+        background: [f32; 3],
+        report: &'a mut StripReport,
+    },
+    /// Gather the strip's fragments for the frame's DeepFrame.
+    Export(&'a mut Option<Result<GatheredPixels, DeepFrameError>>),
 }
 
 /// What resolving one strip found and took.
@@ -347,26 +347,42 @@ impl FragmentSink for LinkedListSink<'_> {
         self.n_stored += 1;
     }
 
-    /// Ends the strip; in a fused pass, resolves its pixels now, on this thread, while the
-    /// nodes it just wrote are in this core's cache.
+    /// Ends the strip; in a fused pass, resolves or gathers its pixels now, on this thread,
+    /// while the nodes it just wrote are in this core's cache.
     fn finish(&mut self) {
-        if let Some(r) = self.resolve.take() {
-            let start = Instant::now();
-            let mut list = Vec::new();
-            // A fresh report: a pass captured again after a regrow resolves every strip anew.
-            let mut depth = DepthStats::default();
-            resolve_pixels(
-                self.heads,
-                self.nodes,
-                r.out,
-                r.background,
-                &mut depth,
-                &mut list,
-            );
-            *r.report = StripReport {
-                depth,
-                time: start.elapsed(),
-            };
+        match self.work.take() {
+            None => {}
+            Some(StripWork::Resolve {
+                out,
+                background,
+                report,
+            }) => {
+                let start = Instant::now();
+                // A fresh report: a pass captured again after a regrow resolves every strip
+                // anew.
+                let mut depth = DepthStats::default();
+                resolve_pixels(
+                    self.heads,
+                    self.nodes,
+                    out,
+                    background,
+                    &mut depth,
+                    &mut Vec::new(),
+                );
+                *report = StripReport {
+                    depth,
+                    time: start.elapsed(),
+                };
+            }
+            Some(StripWork::Export(slot)) => {
+                let (heads, nodes) = (&*self.heads, self.nodes);
+                let first = self.first_pixel as usize;
+                *slot = Some(GatheredPixels::gather(
+                    first..first + heads.len(),
+                    &mut Vec::new(),
+                    |p, out| out.extend(walk(heads[p - first], nodes)),
+                ));
+            }
         }
         self.stored.fetch_add(self.n_stored, Relaxed);
         self.dropped.fetch_add(self.n_dropped, Relaxed);
@@ -377,47 +393,67 @@ impl CaptureTarget for LinkedListABuffer {
     type Sink<'s> = LinkedListSink<'s>;
 
     fn sinks(&mut self, layout: &StripLayout) -> Vec<LinkedListSink<'_>> {
-        self.sinks_resolving(layout, None::<std::iter::Empty<StripResolve<'_>>>)
+        self.sinks_working(layout, None)
     }
 }
 
-/// The linked list as the target of a fused capture and resolve: each sink resolves its strip
-/// into `image` when the strip's scan ends.
-struct FusedTarget<'a> {
-    store: &'a mut LinkedListABuffer,
-    image: &'a mut [u8],
-    background: [f32; 3],
-    reports: &'a mut [StripReport],
+/// What a fused pass does with each strip as its scan ends.
+enum Fused<'a> {
+    /// Resolve into `image` (RGB bytes), each strip's report into `reports`.
+    Resolve {
+        image: &'a mut [u8],
+        background: [f32; 3],
+        reports: &'a mut [StripReport],
+    },
+    /// Gather each strip's fragments into its slot.
+    Export(&'a mut [Option<Result<GatheredPixels, DeepFrameError>>]),
 }
 
-impl CaptureTarget for FusedTarget<'_> {
+/// The linked list as the target of a fused pass: each sink resolves or gathers its strip when
+/// the strip's scan ends.
+struct FusedTarget<'a, 'f> {
+    store: &'a mut LinkedListABuffer,
+    fused: &'a mut Fused<'f>,
+}
+
+impl CaptureTarget for FusedTarget<'_, '_> {
     type Sink<'s>
         = LinkedListSink<'s>
     where
         Self: 's;
 
     fn sinks(&mut self, layout: &StripLayout) -> Vec<LinkedListSink<'_>> {
-        let resolves = self
-            .image
-            .chunks_mut(layout.pixels_per_strip() * 3)
-            .zip(self.reports.iter_mut())
-            .map(|(out, report)| StripResolve {
-                out,
-                background: self.background,
-                report,
-            });
-        self.store.sinks_resolving(layout, Some(resolves))
+        let work: Vec<StripWork<'_>> = match self.fused {
+            Fused::Resolve {
+                image,
+                background,
+                reports,
+            } => image
+                .chunks_mut(layout.pixels_per_strip() * 3)
+                .zip(reports.iter_mut())
+                .map(|(out, report)| StripWork::Resolve {
+                    out,
+                    background: *background,
+                    report,
+                })
+                .collect(),
+            Fused::Export(slots) => slots.iter_mut().map(StripWork::Export).collect(),
+        };
+        self.store.sinks_working(layout, Some(work))
     }
 }
 
 impl LinkedListABuffer {
-    /// One sink a strip; with `resolves`, one per strip too, each sink resolves its strip when
-    /// it finishes.
-    fn sinks_resolving<'s>(
+    /// One sink a strip; with `work`, one item a strip, each sink does its item when it
+    /// finishes.
+    fn sinks_working<'s>(
         &'s mut self,
         layout: &StripLayout,
-        resolves: Option<impl Iterator<Item = StripResolve<'s>>>,
+        work: Option<Vec<StripWork<'s>>>,
     ) -> Vec<LinkedListSink<'s>> {
+        if let Some(w) = &work {
+            assert_eq!(w.len(), layout.count(), "one work item a strip");
+        }
         assert_eq!(
             (layout.width, layout.height),
             (self.width, self.height),
@@ -429,7 +465,7 @@ impl LinkedListABuffer {
             &self.stored,
             &self.dropped,
         );
-        let mut resolves = resolves.map(|r| r.map(Some));
+        let mut work = work.map(Vec::into_iter);
         let sinks: Vec<LinkedListSink<'s>> = layout
             .split_mut(&mut self.heads)
             .enumerate()
@@ -443,24 +479,20 @@ impl LinkedListABuffer {
                 block: BlockCursor::default(),
                 n_stored: 0,
                 n_dropped: 0,
-                resolve: resolves.as_mut().and_then(|r| r.next().flatten()),
+                work: work.as_mut().and_then(Iterator::next),
             })
             .collect();
-        debug_assert!(
-            resolves.is_none_or(|mut r| r.next().is_none()),
-            "one resolve a strip"
-        );
         sinks
     }
 
     /// Captures a prepared frame, growing the pool and capturing again while an automatic pool
-    /// overflows; with `fused`, resolves each strip as its scan ends (see
+    /// overflows; with `fused`, resolves or gathers each strip as its scan ends (see
     /// [`Method::capture_and_resolve`]). Returns the report and the wall time of the final scan.
     fn capture_prepared(
         &mut self,
         prepared: &Prepared<'_, '_>,
         timings: &mut PassTimings,
-        mut fused: Option<(&mut [u8], [f32; 3], &mut [StripReport])>,
+        mut fused: Option<Fused<'_>>,
     ) -> Result<(CaptureReport, Duration), StoreError> {
         let mut regrows = 0;
         // What earlier captures of this frame hold (captures accumulate, see `Method`).
@@ -468,12 +500,7 @@ impl LinkedListABuffer {
         loop {
             let start = Instant::now();
             let stats = match fused.as_mut() {
-                Some((image, background, reports)) => prepared.rasterize(&mut FusedTarget {
-                    store: self,
-                    image,
-                    background: *background,
-                    reports,
-                }),
+                Some(fused) => prepared.rasterize(&mut FusedTarget { store: self, fused }),
                 None => prepared.rasterize(self),
             };
             let scan = start.elapsed();
@@ -507,6 +534,20 @@ impl LinkedListABuffer {
             timings.add("capture.regrow", start.elapsed());
         }
     }
+}
+
+/// The list starting at node `head`, newest first.
+#[inline]
+fn walk(head: u32, nodes: &[Node]) -> impl Iterator<Item = Fragment> + '_ {
+    let mut i = head;
+    std::iter::from_fn(move || {
+        if i == EMPTY {
+            return None;
+        }
+        let (f, next) = nodes[i as usize].load();
+        i = next;
+        Some(f)
+    })
 }
 
 /// Resolves the pixels whose list heads are `heads` into `out` (3 bytes a pixel), recording
@@ -650,7 +691,11 @@ impl Method for LinkedListABuffer {
         let (report, scan) = self.capture_prepared(
             &prepared,
             &mut stages,
-            Some((image.as_bytes_mut(), background, &mut reports)),
+            Some(Fused::Resolve {
+                image: image.as_bytes_mut(),
+                background,
+                reports: &mut reports,
+            }),
         )?;
         let threads = rayon::current_num_threads().clamp(1, layout.count()) as u32;
         let resolve = (reports.iter().map(|r| r.time).sum::<Duration>() / threads).min(scan);
@@ -664,6 +709,31 @@ impl Method for LinkedListABuffer {
         timings.extend(&stages);
         timings.add("resolve", resolve);
         Ok((report, image))
+    }
+
+    /// Fused: every strip gathers its rows' fragments as its scan ends, and the frame is
+    /// assembled from the strips' columns (see [`Method::capture_and_export`]).
+    fn capture_and_export(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        timings: &mut PassTimings,
+    ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
+        let prepared = raster.prepare(input);
+        timings.extend(prepared.timings());
+        let mut slots: Vec<Option<Result<GatheredPixels, DeepFrameError>>> =
+            (0..prepared.layout().count()).map(|_| None).collect();
+        let (report, scan) =
+            self.capture_prepared(&prepared, timings, Some(Fused::Export(&mut slots)))?;
+        timings.add("capture.raster", scan);
+        let start = Instant::now();
+        let bands: Result<Vec<GatheredPixels>, DeepFrameError> = slots
+            .into_iter()
+            .map(|s| s.expect("every strip finished"))
+            .collect();
+        let frame = bands.and_then(|b| DeepFrame::from_gathered(self.width, self.height, b));
+        timings.add("capture.export", start.elapsed());
+        Ok((report, Some(frame)))
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
@@ -808,11 +878,14 @@ mod tests {
         // The same lists resolved strip by strip, as the fused pass does.
         let mut image = Rgb8Image::filled(width, 1, [0; 3]);
         let mut reports = vec![StripReport::default(); 1];
-        let mut target = FusedTarget {
-            store: &mut ab,
+        let mut fused = Fused::Resolve {
             image: image.as_bytes_mut(),
             background,
             reports: &mut reports,
+        };
+        let mut target = FusedTarget {
+            store: &mut ab,
+            fused: &mut fused,
         };
         for mut s in target.sinks(&layout) {
             s.finish();
