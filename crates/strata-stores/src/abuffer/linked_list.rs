@@ -46,7 +46,7 @@
 //!   A render node's export is fused the same way ([`Method::capture_and_export`]): each strip
 //!   gathers its rows' sorted fragments into columns of its own
 //!   ([`strata_core::GatheredPixels`]) as its scan ends, and the frame is assembled from them.
-
+//!
 //! # Overflow
 //!
 //! When the counter passes the capacity, Alg. 5's check drops the fragment. Drops are counted and
