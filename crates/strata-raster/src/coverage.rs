@@ -566,6 +566,22 @@ impl Batch {
         }
     }
 
+    /// The micro-triangle set-up of every lane, read in place by
+    /// [`crate::shade_lanes::MicroShader`] (valid in [`Verdict::micro`] lanes).
+    #[inline(always)]
+    pub(crate) fn micro_lanes(&self) -> MicroLanes<'_> {
+        MicroLanes {
+            swapped: &self.swapped,
+            area: &self.area,
+            x0: &self.bounds[0],
+            y0: &self.bounds[2],
+            e: &self.e_unbiased,
+            dx: &self.dx,
+            dy: &self.dy,
+            mask: &self.mask,
+        }
+    }
+
     /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]), read in place, and its
     /// coverage mask.
     #[inline(always)]
@@ -608,6 +624,25 @@ impl Batch {
             self.mask[l],
         )
     }
+}
+
+/// A [`Batch`]'s micro-triangle set-up, lane arrays borrowed in place
+/// ([`Batch::micro_lanes`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct MicroLanes<'a> {
+    /// Vertices 1 and 2 exchanged to orient the triangle ([`Micro::order`] is `[0, 2, 1]`).
+    pub swapped: &'a [bool; LANES],
+    /// Twice the area, > 0.
+    pub area: &'a [i32; LANES],
+    /// The first pixel of the bounding box.
+    pub x0: &'a [i32; LANES],
+    pub y0: &'a [i32; LANES],
+    /// Edge values at the first pixel's centre (without the top-left bias) and their steps.
+    pub e: &'a [[i32; LANES]; 3],
+    pub dx: &'a [[i32; LANES]; 3],
+    pub dy: &'a [[i32; LANES]; 3],
+    /// Coverage within the block.
+    pub mask: &'a [u32; LANES],
 }
 
 /// Bits of the samples inside a box of `(last_x + 1) × (last_y + 1)` pixels.

@@ -26,7 +26,7 @@
 //!    ([`clip`]). Triangles are classified eight at a time in SIMD lanes
 //!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres,
 //!    vertices within 5 pixels) are finished here: exact coverage as a bitmask computed in the
-//!    same lanes, shading, and 12-byte fragment records appended to per-strip lists. Larger
+//!    same lanes, shading in lanes too ([`shade_lanes`]), and 12-byte fragment records appended to per-strip lists. Larger
 //!    triangles and clipped pieces are copied with their vertices and appended to the bin of
 //!    every *strip* their rows touch, with a cursor into the strip's record list.
 //! 3. **scan** ([`scan`]): strips are rasterised in parallel. A strip walks the chunks in order,
@@ -62,6 +62,7 @@ pub mod frame;
 pub mod rasterizer;
 pub mod scan;
 pub mod setup;
+pub mod shade_lanes;
 pub mod sink;
 pub mod vertex;
 

@@ -28,7 +28,8 @@
 //! vertices within 5 pixels of each other ([`crate::coverage::MICRO_SPREAD`]), most triangles of
 //! a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
 //! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
-//! are shaded at once, their fragments appended to the strip lists as 12-byte records (pixel index, depth, colour). Setup has
+//! are shaded at once, the batch's micro-triangles together in lanes ([`crate::shade_lanes`]),
+//! their fragments appended to the strip lists as 12-byte records (pixel index, depth, colour). Setup has
 //! their vertices in registers already; binning them instead would make the scan load and set up
 //! every one again. The scan of a strip replays the records into the store, interleaved with the
 //! binned triangles by the cursor in each bin entry, so every pixel still receives its fragments
@@ -55,7 +56,8 @@ use std::ops::Range;
 use strata_core::{Fragment, ObjectId, Rgba8};
 
 use crate::coverage::{Batch, LANES, Setup, orient, pixel_bounds};
-use crate::scan::{Shade, shade_small};
+use crate::scan::Shade;
+use crate::shade_lanes::MicroShader;
 use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, outcode};
 
 /// A bin entry: triangle reference and fragment-record cursor (see the module docs).
@@ -277,6 +279,7 @@ fn setup_chunk_impl<const LIT: bool>(
         };
     let tris = &draw.triangles[chunk.triangles.clone()];
     let mut batch = Batch::default();
+    let mut shader = MicroShader::default();
     for group in tris.chunks(LANES) {
         for (l, tri) in group.iter().enumerate() {
             let [i0, i1, i2] = tri.map(|i| i as usize);
@@ -291,6 +294,10 @@ fn setup_chunk_impl<const LIT: bool>(
         stats.culled_empty += u64::from(verdict.empty(group.len()).count_ones());
         stats.clipped += u64::from(verdict.clip.count_ones());
         stats.micro_triangles += u64::from(verdict.micro.count_ones());
+        if verdict.micro != 0 {
+            let vertices = |l: usize| group[l].map(|i| &attrs[i as usize]);
+            shader.shade::<LIT>(&batch, verdict.micro, vertices, w, cx.shade);
+        }
         // The lanes with work left, in primitive order.
         let mut todo = verdict.micro | verdict.large | verdict.clip;
         while todo != 0 {
@@ -298,17 +305,9 @@ fn setup_chunk_impl<const LIT: bool>(
             todo &= todo - 1;
             let [i0, i1, i2] = group[l].map(|i| i as usize);
             if verdict.micro >> l & 1 != 0 {
-                let (tri, mask) = batch.lane(l);
-                shade_small::<LIT>(
-                    &tri,
-                    [&attrs[i0], &attrs[i1], &attrs[i2]],
-                    mask,
-                    w,
-                    cx.shade,
-                    |row, pixel, fragment| {
-                        frags[(row >> shift) as usize].push(PixelFragment::new(pixel, fragment));
-                    },
-                );
+                for (row, fragment) in shader.fragments(l) {
+                    frags[(row >> shift) as usize].push(fragment);
+                }
             } else if verdict.large >> l & 1 != 0 {
                 match Setup::new([screen[i0], screen[i1], screen[i2]], w, h) {
                     Some(tri) => {
