@@ -7,7 +7,8 @@
 //!
 //! ```text
 //!  0  magic        [u8; 4]  "STRW"
-//!  4  version      u16      2 (version 1 predicted the deep layout across the whole frame)
+//!  4  version      u16      3 (version 2 packed reprojection normals as spherical angles,
+//!                           version 1 also predicted the deep layout across the whole frame)
 //!  6  type         u8       1 frame, 2 request, 4 error, 5 hello, 6 stats (3: reserved),
 //!                           7–9 multi-frame rendering (see `mfr.rs`)
 //!  7  flags        u8       0 (reserved)
@@ -64,7 +65,7 @@ use crate::removals::Removals;
 /// The four bytes every message starts with.
 pub const MAGIC: [u8; 4] = *b"STRW";
 /// The format version this crate writes and reads.
-pub const VERSION: u16 = 2;
+pub const VERSION: u16 = 3;
 /// Bytes in the prefix.
 pub const PREFIX_LEN: usize = 20;
 /// Offset of the prefix's `type` byte.
@@ -530,7 +531,7 @@ pub fn parse_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Prefix, Wir
             "flags",
             7,
             format!("{flags:#04x}"),
-            "no flags are defined in version 2",
+            "no flags are defined in version 3",
         ));
     }
     let body_len = r.u64("body_len")?;

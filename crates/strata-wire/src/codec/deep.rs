@@ -90,7 +90,7 @@ use crate::error::WireError;
 
 /// Rows of pixels in a prediction band. Prediction never reads a pixel of an earlier band (a
 /// band's first row has no `U` or `UL`, and `F` starts empty in every band), so the bands of a
-/// frame encode and decode independently, in parallel. Part of the format (version 2).
+/// frame encode and decode independently, in parallel. Part of the format (since version 2).
 pub const BAND_ROWS: usize = 64;
 
 /// The pixel ranges of the prediction bands of a frame of `pixels` pixels, `width` to a row.
