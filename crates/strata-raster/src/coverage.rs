@@ -316,71 +316,6 @@ impl Micro {
     }
 }
 
-/// What shading a micro-triangle's covered samples needs, wherever the triangle is kept: a
-/// [`Micro`], or a lane of a [`Batch`] ([`BatchLane`], read in place instead of copied out).
-pub trait MicroSamples {
-    /// Which input vertex is vertex 0, 1, 2 after orientation.
-    fn order(&self) -> [usize; 3];
-    /// Twice the area, > 0.
-    fn area(&self) -> i32;
-    /// The first pixel of the bounding box, `(x0, y0)`.
-    fn origin(&self) -> (i32, i32);
-    /// Barycentric numerators `E_k` of the sample at pixel offset `(i, j)`.
-    fn weights(&self, i: i32, j: i32) -> [f32; 3];
-}
-
-impl MicroSamples for Micro {
-    #[inline(always)]
-    fn order(&self) -> [usize; 3] {
-        self.order
-    }
-    #[inline(always)]
-    fn area(&self) -> i32 {
-        self.area
-    }
-    #[inline(always)]
-    fn origin(&self) -> (i32, i32) {
-        (self.bounds[0], self.bounds[2])
-    }
-    #[inline(always)]
-    fn weights(&self, i: i32, j: i32) -> [f32; 3] {
-        Micro::weights(self, i, j)
-    }
-}
-
-/// Lane `l` of a classified [`Batch`] that holds a micro-triangle (a lane of
-/// [`Verdict::micro`]): the same answers as the [`Micro`] that [`Batch::micro`] copies out.
-#[derive(Clone, Copy, Debug)]
-pub struct BatchLane<'a> {
-    batch: &'a Batch,
-    l: usize,
-}
-
-impl MicroSamples for BatchLane<'_> {
-    #[inline(always)]
-    fn order(&self) -> [usize; 3] {
-        if self.batch.swapped[self.l] {
-            [0, 2, 1]
-        } else {
-            [0, 1, 2]
-        }
-    }
-    #[inline(always)]
-    fn area(&self) -> i32 {
-        self.batch.area[self.l]
-    }
-    #[inline(always)]
-    fn origin(&self) -> (i32, i32) {
-        (self.batch.bounds[0][self.l], self.batch.bounds[2][self.l])
-    }
-    #[inline(always)]
-    fn weights(&self, i: i32, j: i32) -> [f32; 3] {
-        let (b, l) = (self.batch, self.l);
-        let w = |k: usize| (b.e_unbiased[k][l] + b.dx[k][l] * i + b.dy[k][l] * j) as f32;
-        [w(0), w(1), w(2)]
-    }
-}
-
 /// Triangles classified together by [`Batch`], one per SIMD lane.
 pub const LANES: usize = 8;
 
@@ -582,23 +517,10 @@ impl Batch {
         }
     }
 
-    /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]), read in place, and its
-    /// coverage mask.
-    #[inline(always)]
-    pub fn lane(&self, lane: usize) -> (BatchLane<'_>, u32) {
-        (
-            BatchLane {
-                batch: self,
-                l: lane,
-            },
-            self.mask[lane],
-        )
-    }
-
     /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]) and its coverage mask, as
     /// `Micro::new` and [`Micro::coverage`] would give them: copied out, for callers that keep
-    /// it past the batch (setup reads its lanes in place with [`Batch::lane`]; the tests hold
-    /// the two to each other).
+    /// it past the batch (setup shades its lanes in place with
+    /// [`crate::shade_lanes::MicroShader`]; the tests hold the two to each other).
     #[inline(always)]
     pub fn micro(&self, lane: usize) -> (Micro, u32) {
         let l = lane;
@@ -768,15 +690,6 @@ mod tests {
                     }
                 } else if bit(v.micro) {
                     let (m, mask) = batch.micro(l);
-                    // The lane read in place answers as the copied-out triangle does.
-                    let (lane, lane_mask) = batch.lane(l);
-                    assert_eq!(lane_mask, mask);
-                    assert_eq!(lane.order(), m.order);
-                    assert_eq!(lane.area(), m.area);
-                    assert_eq!(lane.origin(), (m.bounds[0], m.bounds[2]));
-                    for (i, j) in (0..SMALL).flat_map(|j| (0..SMALL).map(move |i| (i, j))) {
-                        assert_eq!(lane.weights(i, j), m.weights(i, j), "sample ({i}, {j})");
-                    }
                     Kind::Micro(m, mask)
                 } else {
                     Kind::Empty

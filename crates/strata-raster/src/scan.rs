@@ -10,14 +10,15 @@
 //!   `|N·L| = |n'·p'| / (|n'| |p'|)`.
 //!
 //! Attributes are loaded only once a triangle is known to cover something. Small triangles are
-//! shaded by [`shade_small`], which setup calls for micro-triangles and the scan for small clipped
-//! pieces; larger ones are scanned span by span by [`scan_triangle`].
+//! shaded by [`shade_small`] (which the scan calls for small clipped pieces, and which setup's
+//! lanes in [`crate::shade_lanes`] are tested against); larger ones are scanned span by span by
+//! [`scan_triangle`].
 
 use glam::Vec3A;
 use strata_core::material::headlight_rgba;
 use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
-use crate::coverage::{Edges, MicroSamples, SMALL, Triangle};
+use crate::coverage::{Edges, Micro, SMALL, Triangle};
 use crate::sink::FragmentSink;
 use crate::vertex::{Attrs, ScreenPos};
 
@@ -116,7 +117,7 @@ fn headlight(n: Vec3A, p: Vec3A) -> f32 {
 /// in sample order. Samples beyond the far plane are skipped.
 #[inline(always)]
 pub fn shade_small<const LIT: bool>(
-    t: &impl MicroSamples,
+    t: &Micro,
     attrs: [&Attrs; 3],
     mut mask: u32,
     width: i32,
@@ -126,10 +127,10 @@ pub fn shade_small<const LIT: bool>(
     if mask == 0 {
         return;
     }
-    let order = t.order();
+    let order = t.order;
     let attrs = [attrs[order[0]], attrs[order[1]], attrs[order[2]]];
-    let interp = Interp::new::<LIT>(attrs, t.area() as f32);
-    let (x0, y0) = t.origin();
+    let interp = Interp::new::<LIT>(attrs, t.area as f32);
+    let (x0, y0) = (t.bounds[0], t.bounds[2]);
     let first = y0 as u32 * width as u32 + x0 as u32;
     while mask != 0 {
         let bit = mask.trailing_zeros() as i32;

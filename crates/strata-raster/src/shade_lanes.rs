@@ -31,8 +31,13 @@
 //! Every lane evaluates exactly the expressions of the scalar path, in the same order and
 //! without fused multiply-adds: barycentric numerators from the edge values, `λ = E · 1/area`,
 //! `z = (λ₀z₀ + λ₁z₁) + λ₂z₂`, the headlight's dot products as `(x·x' + y·y') + z·z'`, the
-//! quantisation of [`unorm8`](strata_core::fragment::unorm8). IEEE arithmetic is exact per lane, so the fragments are bit for
-//! bit those of [`crate::scan::shade_small`] on every instruction set (tested below against it).
+//! quantisation of [`unorm8`](strata_core::fragment::unorm8). IEEE arithmetic is exact per lane,
+//! so the fragments are bit for bit those of [`crate::scan::shade_small`] on every instruction
+//! set (tested below against it).
+//!
+//! Each round is a function that writes only its own return value, in small loops of one kind
+//! of work each: written in place into the shader's arrays, LLVM feared aliasing and left some
+//! lane loops scalar.
 
 // Lane loops index several lane arrays by the same `l`, the shape LLVM vectorises.
 #![allow(
@@ -404,7 +409,7 @@ mod tests {
                     assert!(lanes.is_empty(), "lane {l} is not a micro-triangle");
                     continue;
                 }
-                let (tri, mask) = batch.lane(l);
+                let (tri, mask) = batch.micro(l);
                 let mut one = Vec::new();
                 let mut push = |row, pixel, f: strata_core::Fragment| {
                     one.push((row, PixelFragment::new(pixel, f)));
