@@ -28,9 +28,10 @@
 //! angles' (tested).
 //!
 //! The south pole `(0, 0, −1)` has four codes, the square's corners; packing always gives the
-//! corner `u = 1, v = −1`, so that [`PackedNormal::NONE`] (all ones, the corner `u = v = 1`, which packing
-//! never produces) can stand for "no normal": a degenerate interpolated normal, or an unlit
-//! object. It shades as `N·L = 0`, like a zero normal in [`crate::material::headlight_factor`].
+//! corner `u = 1, v = −1`, so that [`PackedNormal::NONE`] (all ones, the corner `u = v = 1`,
+//! which packing never produces) can stand for "no normal": a degenerate interpolated normal, or
+//! an unlit object. It shades as `N·L = 0`, like a zero normal in
+//! [`crate::material::headlight_factor`].
 
 /// A unit normal in 32 bits; see the module docs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -518,9 +518,9 @@ impl Batch {
     }
 
     /// The micro-triangle in `lane` (a lane of [`Verdict::micro`]) and its coverage mask, as
-    /// `Micro::new` and [`Micro::coverage`] would give them: copied out, for callers that keep
-    /// it past the batch (setup shades its lanes in place with
-    /// [`crate::shade_lanes::MicroShader`]; the tests hold the two to each other).
+    /// `Micro::new` and [`Micro::coverage`] would give them: copied out. Setup shades its lanes
+    /// in place with [`crate::shade_lanes::MicroShader`]; this is the reference the tests hold
+    /// the batch and the lanes to.
     #[inline(always)]
     pub fn micro(&self, lane: usize) -> (Micro, u32) {
         let l = lane;

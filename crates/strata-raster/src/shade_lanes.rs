@@ -361,8 +361,43 @@ mod tests {
         }
     }
 
+    /// [`MicroShader::shade`]'s arguments, for [`pulp::Arch::dispatch`] (a closure would be
+    /// called out of line, compiled for the baseline instruction set).
+    struct ShadeJob<'a, F> {
+        shader: &'a mut MicroShader,
+        batch: &'a Batch,
+        micro: u32,
+        vertices: F,
+        width: i32,
+        shade: &'a Shade,
+        lit: bool,
+    }
+
+    impl<'v, F: Fn(usize) -> [&'v Attrs; 3]> pulp::WithSimd for ShadeJob<'_, F> {
+        type Output = ();
+
+        #[inline(always)]
+        fn with_simd<S: pulp::Simd>(self, _: S) {
+            let ShadeJob {
+                shader,
+                batch,
+                micro,
+                vertices,
+                width,
+                shade,
+                lit,
+            } = self;
+            if lit {
+                shader.shade::<true>(batch, micro, vertices, width, shade);
+            } else {
+                shader.shade::<false>(batch, micro, vertices, width, shade);
+            }
+        }
+    }
+
     /// Every micro-triangle of many random batches, shaded in lanes and one at a time, in every
-    /// shading mode: the same fragments, bit for bit, in the same order.
+    /// shading mode: the same fragments, bit for bit, in the same order. The lanes run under
+    /// setup's instruction-set dispatch, the reference one at a time for the baseline.
     #[test]
     fn lanes_shade_exactly_like_one_triangle_at_a_time() {
         let mut rand = Rand(0x9e37_79b9_7f4a_7c15);
@@ -398,11 +433,17 @@ mod tests {
             }
             let verdict = batch.classify(LANES, w, h, outcode::VIEW, outcode::CLIP);
             let vertices = |l: usize| [&verts[l][0], &verts[l][1], &verts[l][2]];
-            if lit {
-                shader.shade::<true>(&batch, verdict.micro, vertices, w, &shade);
-            } else {
-                shader.shade::<false>(&batch, verdict.micro, vertices, w, &shade);
-            }
+            // Shaded under the same run-time choice of instruction set as setup (AVX2 where the
+            // CPU has it), so the vector code the renderer runs is the code tested.
+            pulp::Arch::new().dispatch(ShadeJob {
+                shader: &mut shader,
+                batch: &batch,
+                micro: verdict.micro,
+                vertices,
+                width: w,
+                shade: &shade,
+                lit,
+            });
             for l in 0..LANES {
                 let lanes: Vec<_> = shader.fragments(l).collect();
                 if verdict.micro >> l & 1 == 0 {
