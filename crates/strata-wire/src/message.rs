@@ -604,7 +604,13 @@ impl FrameDecoder {
     ) -> Result<FrameMessage, WireError> {
         let parsed = parse_frame(bytes, options)?;
         let scratch = &mut self.scratch;
-        codec::decompress_sections(&parsed.sections, &mut scratch.sections)?;
+        // Below the decode limits, which bound width·height and the fragments.
+        codec::decompress_sections(
+            &parsed.sections,
+            scratch,
+            parsed.info.width as usize * parsed.info.height as usize,
+            parsed.info.fragment_count as usize,
+        )?;
         let decoded = &scratch.sections[..parsed.sections.len()];
         // Below the decode limits; u32 because masks index pixels with u32.
         let pixels = u32::try_from(u64::from(parsed.info.width) * u64::from(parsed.info.height))

@@ -718,9 +718,14 @@ pub(crate) fn decode(
     let n = fragments as usize;
     let w = width as usize;
 
-    // Counts first: nothing per fragment is allocated before they add up.
+    // Counts first: nothing per fragment is allocated before they add up. They may have been
+    // read into `spare.offsets` already (`spare.counted`), while the other sections
+    // decompressed.
     let mut offsets = std::mem::take(&mut spare.offsets);
-    decode_counts(counts, pixels, n, at(0), &mut offsets)?;
+    match spare.counted.take() {
+        Some(read) => read?,
+        None => decode_counts(counts, pixels, n, at(0), &mut offsets)?,
+    }
     if depth.len() != 4 * n || color.len() != 4 * n {
         return Err(WireError::section(
             "depth",
@@ -784,7 +789,7 @@ const COUNTS_CHUNK: usize = 64 * 1024;
 
 /// The run offsets of the `pixels` counts in `bytes` into `offsets`, checked to add up to `n`
 /// exactly and to fill the section.
-fn decode_counts(
+pub(crate) fn decode_counts(
     bytes: &[u8],
     pixels: usize,
     n: usize,

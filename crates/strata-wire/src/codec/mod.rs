@@ -377,6 +377,10 @@ pub(crate) struct Columns {
     pub(crate) depth: Vec<f32>,
     pub(crate) color: Vec<strata_core::Rgba8>,
     pub(crate) object: Vec<strata_core::ObjectId>,
+    /// Whether `offsets` hold the frame's run offsets already, read from a deep layout's
+    /// counts section while the other sections were decompressed (`Some`), and what the
+    /// reading found; `None` before a decode and for other layouts.
+    pub(crate) counted: Option<Result<(), WireError>>,
 }
 
 impl Columns {
@@ -403,32 +407,100 @@ impl Scratch {
             depth,
             color,
             object,
+            counted: None,
         };
     }
 }
 
 /// Decompresses every section (in parallel) after the caller validated the table, into the
-/// first `sections.len()` buffers of `buffers`.
+/// first `sections.len()` buffers of `scratch.sections`, for a frame of `pixels` pixels and
+/// `fragments` fragments.
+///
+/// A deep layout's counts section is read into run offsets (`scratch.columns.offsets`) as
+/// soon as it is decompressed, beside the decompression of the larger sections: the counts
+/// take about as long to read as a small frame's depths take to decompress, and otherwise ran
+/// alone between the two stages. What the reading found waits in `scratch.columns.counted` for
+/// [`decode_sections`], so errors are reported in the same order as when it read them there.
+///
+/// The jobs are started largest first (by compressed bytes, plus the decompressed bytes of
+/// the counts for their reading), each idle thread taking the next: with two threads the
+/// colour section runs on one while the depths, the counts and the object ids run on the
+/// other. Decompression errors are reported for the first failing section in message order.
 pub(crate) fn decompress_sections(
     sections: &[SectionRef<'_>],
-    buffers: &mut Vec<Vec<u8>>,
+    scratch: &mut Scratch,
+    pixels: usize,
+    fragments: usize,
 ) -> Result<(), WireError> {
+    /// One section to decompress, and for the counts, the offsets to read them into.
+    struct Job<'a> {
+        section: &'a SectionRef<'a>,
+        out: &'a mut Vec<u8>,
+        offsets: Option<&'a mut Vec<u32>>,
+        decompressed: Result<(), WireError>,
+        counted: Option<Result<(), WireError>>,
+    }
+    let Scratch {
+        sections: buffers,
+        columns,
+    } = scratch;
+    columns.counted = None;
     if buffers.len() < sections.len() {
         buffers.resize_with(sections.len(), Vec::new);
     }
-    sections
-        .par_iter()
-        .zip(buffers.par_iter_mut())
-        .try_for_each(|(s, out)| {
-            compress::decompress_into(
-                s.payload,
-                s.info.compression,
-                s.info.decoded_len as usize,
-                s.info.tag.name(),
-                s.offset,
-                out,
-            )
+    let mut offsets = Some(&mut columns.offsets);
+    let mut jobs: Vec<Job<'_>> = sections
+        .iter()
+        .zip(buffers.iter_mut())
+        .map(|(section, out)| Job {
+            section,
+            out,
+            offsets: if section.info.tag == SectionTag::Counts {
+                offsets.take()
+            } else {
+                None
+            },
+            decompressed: Ok(()),
+            counted: None,
         })
+        .collect();
+    let cost = |j: &Job<'_>| {
+        let reading = if j.offsets.is_some() {
+            j.section.info.decoded_len
+        } else {
+            0
+        };
+        j.section.info.encoded_len + reading
+    };
+    let mut order: Vec<&mut Job<'_>> = jobs.iter_mut().collect();
+    order.sort_by_key(|j| std::cmp::Reverse(cost(j)));
+    rayon::scope_fifo(|scope| {
+        for job in order {
+            scope.spawn_fifo(move |_| {
+                let s = job.section;
+                job.decompressed = compress::decompress_into(
+                    s.payload,
+                    s.info.compression,
+                    s.info.decoded_len as usize,
+                    s.info.tag.name(),
+                    s.offset,
+                    job.out,
+                );
+                if let (Ok(()), Some(offsets)) = (&job.decompressed, job.offsets.as_deref_mut()) {
+                    job.counted = Some(deep::decode_counts(
+                        job.out, pixels, fragments, s.offset, offsets,
+                    ));
+                }
+            });
+        }
+    });
+    for job in &mut jobs {
+        std::mem::replace(&mut job.decompressed, Ok(()))?;
+        if job.counted.is_some() {
+            columns.counted = job.counted.take();
+        }
+    }
+    Ok(())
 }
 
 /// Rebuilds the frame from decompressed sections (in the codec's order), into `columns`'

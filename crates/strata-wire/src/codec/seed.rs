@@ -119,6 +119,7 @@ pub(crate) fn decode(
         depth,
         color,
         object,
+        counted: None,
     }
     .into_frame(width, height)
 }
