@@ -74,7 +74,11 @@
 //! pass, the decoder gathers a row from them before replaying it (sixteen fragments at a time
 //! in SSE2 registers, `Lanes::gather`), so the predictor loop touches three columns instead of
 //! eight planes. In a span, an object id with no residual there is its left neighbour's, copied
-//! without looking for residuals fragment by fragment. The colour predictor runs on the four channels at
+//! without looking for residuals fragment by fragment. In a decoded span of pixels of 1 to 4
+//! fragments, each fragment depends on the one `c` before it (its left neighbour's layer), so
+//! the row is a chain of predictions: the left values are carried in registers (colours in
+//! vector registers) from pixel to pixel instead of being stored and loaded again, which took a
+//! store-to-load round trip on every step. The colour predictor runs on the four channels at
 //! once in the byte lanes of an SSE2 register (`Lanes`, through pulp; every x86_64 CPU has
 //! SSE2; one channel at a time elsewhere), with the residual's byte add or subtract in the same
 //! register. The bytes are those of the first, per-fragment implementation; a test pins them.
@@ -318,28 +322,55 @@ impl Lanes {
     fn med4_then(self, a: u32, b: u32, c: u32, x: u32, then: Then) -> u32 {
         #[cfg(target_arch = "x86_64")]
         if let Some(s) = self.sse2 {
-            use pulp::bytemuck::cast;
-            use pulp::{m8x16, u8x16};
-            let v = |x: u32| cast::<[u32; 4], u8x16>([x, 0, 0, 0]);
-            let (a, b, c, x) = (v(a), v(b), v(c), v(x));
-            let (lo, hi) = (s.min_u8x16(a, b), s.max_u8x16(a, b));
-            let between = s.wrapping_sub_u8x16(s.wrapping_add_u8x16(a, b), c);
-            let mask = |m: m8x16| cast::<m8x16, u8x16>(m);
-            let above = mask(s.cmp_eq_u8x16(s.max_u8x16(c, hi), c));
-            let below = mask(s.cmp_eq_u8x16(s.min_u8x16(c, lo), c));
-            let pick = s.or_u8x16(s.and_u8x16(below, hi), s.andnot_u8x16(below, between));
-            let pick = s.or_u8x16(s.and_u8x16(above, lo), s.andnot_u8x16(above, pick));
-            let out = match then {
-                Then::Add => s.wrapping_add_u8x16(pick, x),
-                Then::SubFrom => s.wrapping_sub_u8x16(x, pick),
-            };
-            return cast::<u8x16, [u32; 4]>(out)[0];
+            let (a, b, c, x) = (to_lanes(a), to_lanes(b), to_lanes(c), to_lanes(x));
+            return from_lanes(med4_in_lanes(s, a, b, c, x, then));
         }
         let m = med4_bytes(a, b, c);
         match then {
             Then::Add => add_bytes(m, x),
             Then::SubFrom => sub_bytes(x, m),
         }
+    }
+}
+
+/// A packed colour in the low four bytes of an SSE2 register.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn to_lanes(x: u32) -> pulp::u8x16 {
+    pulp::bytemuck::cast::<[u32; 4], pulp::u8x16>([x, 0, 0, 0])
+}
+
+/// The packed colour in the low four bytes of `v`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn from_lanes(v: pulp::u8x16) -> u32 {
+    pulp::bytemuck::cast::<pulp::u8x16, [u32; 4]>(v)[0]
+}
+
+/// [`Lanes::med4_then`] on colours held in SSE2 registers (their low four bytes), so that a
+/// dependency chain of predictions stays in the vector registers.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn med4_in_lanes(
+    s: pulp::x86::V1,
+    a: pulp::u8x16,
+    b: pulp::u8x16,
+    c: pulp::u8x16,
+    x: pulp::u8x16,
+    then: Then,
+) -> pulp::u8x16 {
+    use pulp::bytemuck::cast;
+    use pulp::{m8x16, u8x16};
+    let (lo, hi) = (s.min_u8x16(a, b), s.max_u8x16(a, b));
+    let between = s.wrapping_sub_u8x16(s.wrapping_add_u8x16(a, b), c);
+    let mask = |m: m8x16| cast::<m8x16, u8x16>(m);
+    let above = mask(s.cmp_eq_u8x16(s.max_u8x16(c, hi), c));
+    let below = mask(s.cmp_eq_u8x16(s.min_u8x16(c, lo), c));
+    let pick = s.or_u8x16(s.and_u8x16(below, hi), s.andnot_u8x16(below, between));
+    let pick = s.or_u8x16(s.and_u8x16(above, lo), s.andnot_u8x16(above, pick));
+    match then {
+        Then::Add => s.wrapping_add_u8x16(pick, x),
+        Then::SubFrom => s.wrapping_sub_u8x16(x, pick),
     }
 }
 
@@ -1097,6 +1128,88 @@ impl BandDecoder<'_> {
     }
 }
 
+impl BandDecoder<'_> {
+    /// [`Visit::surface`] for fragments `me..me + len` that are pixels of `C` fragments each
+    /// (`len` a multiple of `C`), whose left neighbours are the `C` fragments before each:
+    /// layer `j` of a pixel is predicted from layer `j` of the pixel before it, held in
+    /// `left[j]`. The same arithmetic as the general loop, so the same values.
+    #[inline(always)]
+    fn span<const C: usize>(&mut self, me: usize, u: usize, ul: usize, len: usize) {
+        let at = me - self.row;
+        let dr = &self.depth_residuals[at..at + len];
+        let cr = &self.color_residuals[at..at + len];
+        // The row above ends before the left neighbours start.
+        let (done, w) = self.bits.split_at_mut(me);
+        let (du, dul, w) = (&done[u..u + len], &done[ul..ul + len], &mut w[..len]);
+        let mut left: [u32; C] = std::array::from_fn(|j| done[me - C + j].to_bits());
+        for (((out, up), up_left), r) in w
+            .chunks_exact_mut(C)
+            .zip(du.chunks_exact(C))
+            .zip(dul.chunks_exact(C))
+            .zip(dr.chunks_exact(C))
+        {
+            for j in 0..C {
+                left[j] = plane(left[j], up[j].to_bits(), up_left[j].to_bits()).wrapping_add(r[j]);
+                out[j] = f32::from_bits(left[j]);
+            }
+        }
+        let (done, w) = self.colors.split_at_mut(me);
+        let (cu, cul, w) = (&done[u..u + len], &done[ul..ul + len], &mut w[..len]);
+        let chunks = w
+            .chunks_exact_mut(C)
+            .zip(cu.chunks_exact(C))
+            .zip(cul.chunks_exact(C))
+            .zip(cr.chunks_exact(C));
+        let left: [u32; C] = std::array::from_fn(|j| packed(done[me - C + j].0));
+        #[cfg(target_arch = "x86_64")]
+        if let Some(s) = self.lanes.sse2 {
+            // The left colours stay in vector registers from one pixel to the next.
+            let mut left = left.map(to_lanes);
+            for (((out, up), up_left), r) in chunks {
+                for j in 0..C {
+                    let (u, ul) = (to_lanes(packed(up[j].0)), to_lanes(packed(up_left[j].0)));
+                    left[j] = med4_in_lanes(s, left[j], u, ul, to_lanes(r[j]), Then::Add);
+                    out[j] = Rgba8(from_lanes(left[j]).to_le_bytes());
+                }
+            }
+            return self.span_objects::<C>(me, len);
+        }
+        let mut left = left;
+        for (((out, up), up_left), r) in chunks {
+            for j in 0..C {
+                left[j] = self
+                    .lanes
+                    .med4_add(left[j], packed(up[j].0), packed(up_left[j].0), r[j]);
+                out[j] = Rgba8(left[j].to_le_bytes());
+            }
+        }
+        self.span_objects::<C>(me, len);
+    }
+
+    /// The object ids of [`BandDecoder::span`]'s fragments.
+    #[inline(always)]
+    fn span_objects<const C: usize>(&mut self, me: usize, len: usize) {
+        let l = me - C;
+        if self
+            .nonzero
+            .first()
+            .is_none_or(|&(at, _)| at as usize - self.first >= me + len)
+        {
+            // No object changes in the span (the common case): each id is its left one's.
+            let (done, w) = self.objects.split_at_mut(me);
+            let left: [ObjectId; C] = std::array::from_fn(|j| done[l + j]);
+            for out in w[..len].chunks_exact_mut(C) {
+                out.copy_from_slice(&left);
+            }
+        } else {
+            for k in 0..len {
+                let r = self.object_residual(me + k);
+                self.objects[me + k] = ObjectId(self.objects[l + k].0 ^ r);
+            }
+        }
+    }
+}
+
 impl Visit for BandDecoder<'_> {
     #[inline(always)]
     fn row_start(&mut self, frags: Range<usize>) {
@@ -1123,6 +1236,16 @@ impl Visit for BandDecoder<'_> {
 
     #[inline(always)]
     fn surface(&mut self, me: usize, l: usize, u: usize, ul: usize, len: usize) {
+        // A span of pixels of 1 to 4 fragments each: the left neighbours' values are carried
+        // in registers, fragment to fragment of a layer, instead of being stored and loaded
+        // again (a store-to-load round trip on every step of the row's dependency chain).
+        match me - l {
+            1 => return self.span::<1>(me, u, ul, len),
+            2 if len.is_multiple_of(2) => return self.span::<2>(me, u, ul, len),
+            3 if len.is_multiple_of(3) => return self.span::<3>(me, u, ul, len),
+            4 if len.is_multiple_of(4) => return self.span::<4>(me, u, ul, len),
+            _ => {}
+        }
         // `w` runs from the left neighbour of the first fragment to the last: fragment `k` is
         // `w[me − l + k]`, its left neighbour `w[k]` (written by this loop already, in a span).
         // The row above lies before `l`.
