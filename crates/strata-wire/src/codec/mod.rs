@@ -16,6 +16,7 @@
 
 pub mod compress;
 pub mod deep;
+pub(crate) mod lz4_block;
 pub mod seed;
 
 use std::fmt;
