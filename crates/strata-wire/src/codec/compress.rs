@@ -8,8 +8,8 @@
 //!   already carries the decoded length, which the decoder needs to size its output. Encoded by
 //!   lz4_flex's `block` module. A section that is mostly runs of one byte (it decodes to three
 //!   or more bytes a payload byte: the deep layout's counts and depths) is decoded by
-//!   [`super::lz4_block`], which copies a run at a time instead of a byte at a time; the others
-//!   by lz4_flex.
+//!   `codec/lz4_block.rs`, which copies a run at a time instead of a byte at a time; the
+//!   others by lz4_flex.
 //! - **zstd**: one standard zstd frame (`zstd::bulk::compress`, content size recorded).
 //!
 //! # Expansion bounds
