@@ -1172,7 +1172,7 @@ impl BandDecoder<'_> {
                     out[j] = Rgba8(from_lanes(left[j]).to_le_bytes());
                 }
             }
-            return self.span_objects::<C>(me, len);
+            return self.surface_objects(me, me - C, len);
         }
         let mut left = left;
         for (((out, up), up_left), r) in chunks {
@@ -1183,23 +1183,23 @@ impl BandDecoder<'_> {
                 out[j] = Rgba8(left[j].to_le_bytes());
             }
         }
-        self.span_objects::<C>(me, len);
+        self.surface_objects(me, me - C, len);
     }
 
-    /// The object ids of [`BandDecoder::span`]'s fragments.
+    /// The object ids of the fragments `me..me + len`, fragment `me + k` predicted from
+    /// `l + k` (its left neighbour's layer; in a span, a fragment of this call).
     #[inline(always)]
-    fn span_objects<const C: usize>(&mut self, me: usize, len: usize) {
-        let l = me - C;
+    fn surface_objects(&mut self, me: usize, l: usize, len: usize) {
+        let off = me - l;
+        let w = &mut self.objects[l..me + len];
         if self
             .nonzero
             .first()
             .is_none_or(|&(at, _)| at as usize - self.first >= me + len)
         {
             // No object changes in the span (the common case): each id is its left one's.
-            let (done, w) = self.objects.split_at_mut(me);
-            let left: [ObjectId; C] = std::array::from_fn(|j| done[l + j]);
-            for out in w[..len].chunks_exact_mut(C) {
-                out.copy_from_slice(&left);
+            for k in 0..len {
+                w[off + k] = w[k];
             }
         } else {
             for k in 0..len {
@@ -1264,22 +1264,7 @@ impl Visit for BandDecoder<'_> {
             let [left, up, up_left] = [w[k], cu[k], cul[k]].map(|c| packed(c.0));
             w[off + k] = Rgba8(self.lanes.med4_add(left, up, up_left, cr[k]).to_le_bytes());
         }
-        let w = &mut self.objects[l..me + len];
-        if self
-            .nonzero
-            .first()
-            .is_none_or(|&(at, _)| at as usize - self.first >= me + len)
-        {
-            // No object changes in the span (the common case): each id is its left one's.
-            for k in 0..len {
-                w[off + k] = w[k];
-            }
-        } else {
-            for k in 0..len {
-                let r = self.object_residual(me + k);
-                self.objects[me + k] = ObjectId(self.objects[l + k].0 ^ r);
-            }
-        }
+        self.surface_objects(me, l, len);
     }
 
     #[inline(always)]
