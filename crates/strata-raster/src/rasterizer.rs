@@ -10,7 +10,7 @@ use crate::scan::{Shade, scan_triangle};
 pub use crate::setup::SetupStats;
 use crate::setup::{BinnedTriangle, Chunk, PixelFragment, SetupContext, setup_chunk};
 use crate::sink::{CaptureTarget, FragmentSink, StripLayout};
-use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, transform_vertices};
+use crate::vertex::{Attrs, MAX_SIDE, ObjectTransform, ScreenPos, Viewport, transform_vertices};
 
 /// Vertices per parallel work item in the vertex stage.
 const VERTICES_PER_TASK: usize = 4096;
@@ -93,9 +93,14 @@ impl Rasterizer {
     /// Work runs on the current rayon pool (use `ThreadPool::install` to choose the thread count).
     ///
     /// # Panics
-    /// If the image is empty, or an object has a different number of normals than positions.
+    /// If the image is empty or a side is longer than [`MAX_SIDE`], or an object has a
+    /// different number of normals than positions.
     pub fn prepare<'r, 'a>(&'r mut self, input: &'r FrameInput<'a>) -> Prepared<'r, 'a> {
         assert!(input.width > 0 && input.height > 0, "empty image");
+        assert!(
+            input.width <= MAX_SIDE && input.height <= MAX_SIDE,
+            "image sides are at most {MAX_SIDE} pixels"
+        );
         let config = self.config;
         let vp = Viewport::new(input.width, input.height);
         let layout = StripLayout {

@@ -27,7 +27,6 @@
 //! function and the top-left rule gives every sample on it to exactly one of them.
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
-use wide::f32x8;
 
 /// Fractional bits of the fixed-point window coordinates.
 pub const SUBPIXEL_BITS: u32 = 8;
@@ -40,6 +39,11 @@ pub const HALF: i32 = ONE / 2;
 /// the guard band. At 2^16 pixels f32 window coordinates still resolve 1/256 pixel, and
 /// fixed-point values stay far inside `i32`.
 pub const GUARD_PIXELS: f32 = 65536.0;
+
+/// The widest and tallest image the rasterizer takes: a vertex inside the guard band then lies
+/// less than 2^18 pixels from the image, and its fixed-point window coordinates (and those of
+/// every sample) stay far inside `i32`.
+pub const MAX_SIDE: u32 = 1 << 17;
 
 /// Outcode bits: which clip-space half-spaces a vertex lies outside of.
 pub mod outcode {
@@ -221,7 +225,12 @@ impl ObjectTransform {
 /// Vertices go through [`VERTEX_LANES`] at a time in SIMD lanes (structure of arrays). Every
 /// lane performs, operation for operation, what [`transform_vertex`] (glam's matrix products,
 /// then [`Viewport::outcode`] and [`Viewport::project`]) performs for one vertex, with no fused
-/// multiply-adds, so both give the same bits (tested below).
+/// multiply-adds, so both give the same bits (tested below). The lane loops are compiled once per
+/// instruction set and chosen at run time ([`pulp::Arch::dispatch`]), so on AVX2 a lane array is
+/// one register; IEEE arithmetic gives the same bits on every set.
+///
+/// # Panics
+/// If the slices differ in length.
 #[allow(
     clippy::too_many_arguments,
     reason = "one output slice per vertex array"
@@ -240,25 +249,77 @@ pub fn transform_vertices(
     assert_eq!(positions.len(), screen.len());
     assert_eq!(positions.len(), codes.len());
     assert_eq!(positions.len(), attrs.len());
-    const L: usize = VERTEX_LANES;
-    let (pos, pos_tail) = positions.as_chunks::<L>();
-    let (nor, nor_tail) = normals.as_chunks::<L>();
-    let (scr, scr_tail) = screen.as_chunks_mut::<L>();
-    let (cod, cod_tail) = codes.as_chunks_mut::<L>();
-    let (att, att_tail) = attrs.as_chunks_mut::<L>();
-    for b in 0..pos.len() {
-        (scr[b], cod[b], att[b]) = transform_block(t, vp, &pos[b], &nor[b], with_normals);
-    }
-    // The last partial block, padded with zeros.
-    let count = pos_tail.len();
-    if count > 0 {
-        let (mut p, mut n) = ([[0.0f32; 3]; L], [[0.0f32; 3]; L]);
-        p[..count].copy_from_slice(pos_tail);
-        n[..count].copy_from_slice(nor_tail);
-        let (s, c, a) = transform_block(t, vp, &p, &n, with_normals);
-        scr_tail.copy_from_slice(&s[..count]);
-        cod_tail.copy_from_slice(&c[..count]);
-        att_tail.copy_from_slice(&a[..count]);
+    pulp::Arch::new().dispatch(VertexJob {
+        t,
+        vp,
+        positions,
+        normals,
+        with_normals,
+        screen,
+        codes,
+        attrs,
+    });
+}
+
+/// [`transform_vertices`]' arguments, for [`pulp::Arch::dispatch`].
+struct VertexJob<'a> {
+    t: &'a ObjectTransform,
+    vp: &'a Viewport,
+    positions: &'a [[f32; 3]],
+    normals: &'a [[f32; 3]],
+    with_normals: bool,
+    screen: &'a mut [ScreenPos],
+    codes: &'a mut [u8],
+    attrs: &'a mut [Attrs],
+}
+
+impl pulp::WithSimd for VertexJob<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        const L: usize = VERTEX_LANES;
+        let VertexJob {
+            t,
+            vp,
+            positions,
+            normals,
+            with_normals,
+            screen,
+            codes,
+            attrs,
+        } = self;
+        let (pos, pos_tail) = positions.as_chunks::<L>();
+        let (nor, nor_tail) = normals.as_chunks::<L>();
+        let (scr, scr_tail) = screen.as_chunks_mut::<L>();
+        let (cod, cod_tail) = codes.as_chunks_mut::<L>();
+        let (att, att_tail) = attrs.as_chunks_mut::<L>();
+        for b in 0..pos.len() {
+            transform_block(
+                t,
+                vp,
+                &pos[b],
+                &nor[b],
+                with_normals,
+                &mut scr[b],
+                &mut cod[b],
+                &mut att[b],
+            );
+        }
+        // The last partial block, padded with zeros.
+        let count = pos_tail.len();
+        if count > 0 {
+            let (mut p, mut n) = ([[0.0f32; 3]; L], [[0.0f32; 3]; L]);
+            p[..count].copy_from_slice(pos_tail);
+            n[..count].copy_from_slice(nor_tail);
+            let mut s = [ScreenPos::default(); L];
+            let mut c = [0u8; L];
+            let mut a = [Attrs::default(); L];
+            transform_block(t, vp, &p, &n, with_normals, &mut s, &mut c, &mut a);
+            scr_tail.copy_from_slice(&s[..count]);
+            cod_tail.copy_from_slice(&c[..count]);
+            att_tail.copy_from_slice(&a[..count]);
+        }
     }
 }
 
@@ -289,21 +350,30 @@ pub const VERTEX_LANES: usize = 8;
 
 /// [`VERTEX_LANES`] vertices at once; see [`transform_vertices`].
 ///
-/// Explicit `f32x8` vectors (the `wide` crate: one AVX register, or two SSE ones), each sum in
-/// the order glam adds: `((a·x + b·y) + c·z) + d`.
+/// Lane arrays (`[f32; VERTEX_LANES]`) and loops of one kind of work each, which LLVM
+/// vectorises under the caller's instruction set; each sum in the order glam adds:
+/// `((a·x + b·y) + c·z) + d`.
 #[inline(always)]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "lane loops index several lane arrays by one lane"
+)]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "one output block per vertex array"
+)]
 fn transform_block(
     t: &ObjectTransform,
     vp: &Viewport,
     positions: &[[f32; 3]; VERTEX_LANES],
     normals: &[[f32; 3]; VERTEX_LANES],
     with_normals: bool,
-) -> (
-    [ScreenPos; VERTEX_LANES],
-    [u8; VERTEX_LANES],
-    [Attrs; VERTEX_LANES],
+    screen: &mut [ScreenPos; VERTEX_LANES],
+    codes: &mut [u8; VERTEX_LANES],
+    attrs: &mut [Attrs; VERTEX_LANES],
 ) {
     const L: usize = VERTEX_LANES;
+    type Lanes = [f32; L];
     // Plain loops and explicit lanes throughout: `array::map` and `from_fn` here were left
     // outlined by LLVM, a call per use.
     let mut pin = [[0.0f32; L]; 3];
@@ -314,98 +384,110 @@ fn transform_block(
             nin[k][l] = normals[l][k];
         }
     }
-    let pin = [f32x8::new(pin[0]), f32x8::new(pin[1]), f32x8::new(pin[2])];
-    // `a·x + b·y + c·z` with the column entries `m[0..3][k]` splatted.
+    // `a·x + b·y + c·z` with the column entries `m[0..3][k]`.
     #[inline(always)]
-    fn combine(m: [&[f32]; 3], k: usize, v: &[f32x8; 3]) -> f32x8 {
-        f32x8::splat(m[0][k]) * v[0] + f32x8::splat(m[1][k]) * v[1] + f32x8::splat(m[2][k]) * v[2]
+    fn combine(m: &[[f32; 4]; 4], k: usize, v: &[Lanes; 3]) -> Lanes {
+        let mut out = [0.0; L];
+        for l in 0..L {
+            out[l] = m[0][k] * v[0][l] + m[1][k] * v[1][l] + m[2][k] * v[2][l];
+        }
+        out
     }
     // Eye space: `Mat4::transform_point3` and `Mat3 * Vec3`.
     let mv = t.model_view.to_cols_array_2d();
-    let mv3 = [&mv[0][..], &mv[1][..], &mv[2][..]];
-    let mut p = [f32x8::ZERO; 3];
-    let mut n = [f32x8::ZERO; 3];
     let nm = t.normal.to_cols_array_2d();
-    let nm = [&nm[0][..], &nm[1][..], &nm[2][..]];
-    let nin = [f32x8::new(nin[0]), f32x8::new(nin[1]), f32x8::new(nin[2])];
+    let nm = [
+        [nm[0][0], nm[0][1], nm[0][2], 0.0],
+        [nm[1][0], nm[1][1], nm[1][2], 0.0],
+        [nm[2][0], nm[2][1], nm[2][2], 0.0],
+        [0.0; 4],
+    ];
+    let mut p = [[0.0f32; L]; 3];
+    let mut n = [[0.0f32; L]; 3];
     for k in 0..3 {
-        p[k] = combine(mv3, k, &pin) + f32x8::splat(mv[3][k]);
+        let e = combine(&mv, k, &pin);
+        for l in 0..L {
+            p[k][l] = e[l] + mv[3][k];
+        }
         if with_normals {
-            n[k] = combine(nm, k, &nin);
+            n[k] = combine(&nm, k, &nin);
         }
     }
     // Clip space: `Mat4 * Vec4` with w = 1.
     let pr = t.projection.to_cols_array_2d();
-    let pr3 = [&pr[0][..], &pr[1][..], &pr[2][..]];
-    let mut c = [f32x8::ZERO; 4];
+    let mut c = [[0.0f32; L]; 4];
     for k in 0..4 {
-        c[k] = combine(pr3, k, &p) + f32x8::splat(pr[3][k]) * f32x8::ONE;
+        let e = combine(&pr, k, &p);
+        for l in 0..L {
+            c[k][l] = e[l] + pr[3][k] * 1.0;
+        }
     }
     let [cx, cy, cz, cw] = c;
-    // `Viewport::outcode`, one bitmask of lanes per plane.
-    let neg_w = -cw;
-    let inside = cx.abs().simd_le(f32x8::splat(vp.guard[0]) * cw)
-        & cy.abs().simd_le(f32x8::splat(vp.guard[1]) * cw);
-    let planes = [
-        (cx.simd_lt(neg_w).to_bitmask(), outcode::LEFT),
-        (cx.simd_gt(cw).to_bitmask(), outcode::RIGHT),
-        (cy.simd_lt(neg_w).to_bitmask(), outcode::BOTTOM),
-        (cy.simd_gt(cw).to_bitmask(), outcode::TOP),
-        (cz.simd_lt(neg_w).to_bitmask(), outcode::NEAR),
-        (cz.simd_gt(cw).to_bitmask(), outcode::FAR),
-        (!inside.to_bitmask(), outcode::GUARD),
-    ];
-    let mut code = [0u8; L];
-    for (l, o) in code.iter_mut().enumerate() {
-        for &(m, bit) in &planes {
-            *o |= u8::from(m >> l & 1 != 0) * bit;
-        }
-    }
-    // `Viewport::project`, meaningful where the outcode has no clip bit.
-    let half = f32x8::splat(0.5);
-    let iw = f32x8::ONE / cw;
-    let (xn, yn, zn) = (cx * iw, cy * iw, cz * iw);
-    let sx = snap_lanes((xn * half + half) * f32x8::splat(vp.w));
-    let sy = snap_lanes((half - yn * half) * f32x8::splat(vp.h));
-    let z = (zn * half + half).to_array();
-    let (p0, p1, p2) = (
-        (p[0] * iw).to_array(),
-        (p[1] * iw).to_array(),
-        (p[2] * iw).to_array(),
-    );
-    let (n0, n1, n2) = (
-        (n[0] * iw).to_array(),
-        (n[1] * iw).to_array(),
-        (n[2] * iw).to_array(),
-    );
-    let iw = iw.to_array();
-    let mut screen = [ScreenPos { x: 0, y: 0 }; L];
-    let mut attrs = [Attrs {
-        z: 0.0,
-        iw: 0.0,
-        p_w: [0.0; 3],
-        n_w: [0.0; 3],
-    }; L];
+    // `Viewport::outcode`, lane by lane in 32-bit lanes (NaN fails every comparison: outside
+    // the guard band).
+    let mut code = [0u32; L];
     for l in 0..L {
-        if code[l] & outcode::CLIP == 0 {
-            screen[l] = ScreenPos { x: sx[l], y: sy[l] };
-            attrs[l] = Attrs {
-                z: z[l],
-                iw: iw[l],
-                p_w: [p0[l], p1[l], p2[l]],
-                n_w: [n0[l], n1[l], n2[l]],
-            };
+        let (x, y, z, w) = (cx[l], cy[l], cz[l], cw[l]);
+        let inside = (x.abs() <= vp.guard[0] * w) & (y.abs() <= vp.guard[1] * w);
+        let bit = |outside: bool, plane: u8| u32::from(outside) * u32::from(plane);
+        code[l] = bit(x < -w, outcode::LEFT)
+            | bit(x > w, outcode::RIGHT)
+            | bit(y < -w, outcode::BOTTOM)
+            | bit(y > w, outcode::TOP)
+            | bit(z < -w, outcode::NEAR)
+            | bit(z > w, outcode::FAR)
+            | bit(!inside, outcode::GUARD);
+    }
+    // `Viewport::project`, kept where the outcode has no clip bit (zeros elsewhere).
+    let mut out = [[0.0f32; L]; 8];
+    let mut fixed = [[0i32; L]; 2];
+    for l in 0..L {
+        let keep = code[l] & u32::from(outcode::CLIP) == 0;
+        let iw = 1.0 / cw[l];
+        let (xn, yn, zn) = (cx[l] * iw, cy[l] * iw, cz[l] * iw);
+        let x = snap_in_guard((xn * 0.5 + 0.5) * vp.w);
+        let y = snap_in_guard((0.5 - yn * 0.5) * vp.h);
+        fixed[0][l] = if keep { x } else { 0 };
+        fixed[1][l] = if keep { y } else { 0 };
+        let values = [
+            zn * 0.5 + 0.5,
+            iw,
+            p[0][l] * iw,
+            p[1][l] * iw,
+            p[2][l] * iw,
+            n[0][l] * iw,
+            n[1][l] * iw,
+            n[2][l] * iw,
+        ];
+        for (o, v) in out.iter_mut().zip(values) {
+            o[l] = if keep { v } else { 0.0 };
         }
     }
-    (screen, code, attrs)
+    for l in 0..L {
+        screen[l] = ScreenPos {
+            x: fixed[0][l],
+            y: fixed[1][l],
+        };
+        codes[l] = code[l] as u8;
+        attrs[l] = Attrs {
+            z: out[0][l],
+            iw: out[1][l],
+            p_w: [out[2][l], out[3][l], out[4][l]],
+            n_w: [out[5][l], out[6][l], out[7][l]],
+        };
+    }
 }
 
-/// [`snap`] in lanes: `window · 256` is exact in `f32` (a power-of-two scale), so rounding it to
-/// the nearest integer, ties to even (the conversion's default mode), is what `snap` computes in
-/// `f64`; out of range and NaN saturate as `as i32` does (tested against `snap` below).
+/// [`snap`] for a window coordinate of a vertex inside the guard band, in a form LLVM
+/// vectorises: the same `f64` rounding, read from the sum's low mantissa bits instead of through
+/// Rust's saturating float-to-integer cast (converted a lane at a time). Equal to [`snap`]
+/// wherever `|window| · 256 < 2^31`; every vertex inside the guard band is, since
+/// [`crate::Rasterizer::prepare`] bounds the image's sides (tested).
 #[inline(always)]
-fn snap_lanes(window: f32x8) -> [i32; VERTEX_LANES] {
-    (window * f32x8::splat(ONE as f32)).round_int().to_array()
+fn snap_in_guard(window: f32) -> i32 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52
+    let v = f64::from(window) * f64::from(ONE);
+    (v + MAGIC).to_bits() as i32
 }
 
 #[cfg(test)]
@@ -439,40 +521,40 @@ mod tests {
     }
 
     #[test]
-    fn snapping_in_f32_equals_snapping_in_f64() {
-        let mut specials = vec![
+    fn snapping_from_the_sum_bits_equals_snapping_through_the_cast() {
+        let limit = MAX_SIDE as f32 + GUARD_PIXELS;
+        let mut values = vec![
             0.0,
             -0.0,
-            f32::NAN,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            f32::MAX,
-            f32::MIN,
             f32::MIN_POSITIVE,
             1e-40,
-            8_388_608.0,
-            16_777_216.0,
-            -16_777_216.0,
-            2_147_483_520.0 / 256.0,
+            -1e-40,
+            limit,
+            -limit,
+            (2_147_483_520.0 / 256.0f32).next_down(),
             -2_147_483_648.0 / 256.0,
         ];
-        // Ties, m + 1/2 in units of 1/256 pixel, across and beyond the guard band, and their
-        // neighbours one ulp away.
-        for m in (-20_000_000i32..20_000_000).step_by(97) {
+        // Ties, m + 1/2 in units of 1/256 pixel, across the guard band, and their neighbours
+        // one ulp away.
+        for m in (-21_000_000i32..21_000_000).step_by(97) {
             let tie = (2 * m + 1) as f32 / 512.0;
-            specials.extend([tie, tie.next_up(), tie.next_down()]);
+            values.extend([tie, tie.next_up(), tie.next_down()]);
         }
+        // Every 65,537th f32 whose fixed-point value fits in i32.
         for bits in (0..=u32::MAX).step_by(65_537) {
-            specials.push(f32::from_bits(bits));
-        }
-        for block in specials.chunks(VERTEX_LANES) {
-            let mut lanes = [0.0; VERTEX_LANES];
-            lanes[..block.len()].copy_from_slice(block);
-            let snapped = snap_lanes(f32x8::new(lanes));
-            for (v, s) in block.iter().zip(snapped) {
-                assert_eq!(s, snap(*v), "{v:e}");
+            let v = f32::from_bits(bits);
+            if (v * 256.0).abs() < 2_147_483_648.0 {
+                values.push(v);
             }
         }
+        let mut tested = 0;
+        for v in values {
+            assert_eq!(snap_in_guard(v), snap(v), "{v:e}");
+            tested += 1;
+        }
+        assert!(tested > 1_000_000, "{tested}");
+        // The widest window coordinate a vertex inside the guard band can have still fits.
+        assert!(f64::from(limit) * f64::from(ONE) < 2_147_483_648.0);
     }
 
     #[test]

@@ -526,6 +526,63 @@ fn rasterizer_buffers_are_reused_across_frames_of_different_sizes() {
     }
 }
 
+/// A frame as wide as the rasterizer takes is covered exactly: its vertices' window coordinates
+/// reach the largest fixed-point values the vertex stage's snapping must handle.
+#[test]
+fn the_widest_image_is_covered_exactly_and_a_wider_one_is_refused() {
+    use strata_raster::vertex::MAX_SIDE;
+    let grid = jittered_grid(20, 40.0, -1.5, 0.5);
+    let frame = |w: u32, h: u32| {
+        let cam = Cam::looking_down_z(w, h);
+        // The grid stretched to just past the long side of the view, so that its outer
+        // vertices lie beyond the image but inside the guard band.
+        let model = if w > h {
+            Mat4::from_scale(Vec3::new(w as f32 / h as f32 / 40.0, 1.0, 1.0))
+        } else {
+            Mat4::from_scale(Vec3::new(1.0, 1.0 / 40.0, 1.0))
+        };
+        FrameInput {
+            width: w,
+            height: h,
+            view: cam.view(),
+            projection: cam.projection(),
+            background: [1.0; 3],
+            objects: vec![DrawObject {
+                positions: grid.positions(),
+                normals: grid.normals(),
+                triangles: grid.triangles(),
+                model,
+                material: material(Shading::Unlit),
+                id: ObjectId(0),
+            }],
+            output: FragmentOutput::Shaded,
+        }
+    };
+    let mut raster = Rasterizer::default();
+    for (w, h) in [(MAX_SIDE, 1), (1, MAX_SIDE)] {
+        let mut out = FragmentVec::new();
+        raster.prepare(&frame(w, h)).rasterize(&mut out);
+        let mut per_pixel = vec![0u8; (w * h) as usize];
+        for &(p, _) in out.fragments() {
+            per_pixel[p as usize] += 1;
+        }
+        assert!(
+            per_pixel.iter().all(|&n| n == 1),
+            "{w}x{h}: every pixel exactly once"
+        );
+    }
+    let wider = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        Rasterizer::default()
+            .prepare(&frame(MAX_SIDE + 1, 1))
+            .setup_stats()
+    }));
+    let message = wider.expect_err("a wider image is refused");
+    let message = message
+        .downcast_ref::<String>()
+        .expect("a formatted message");
+    assert!(message.contains("image sides are at most"), "{message}");
+}
+
 #[test]
 fn strip_height_and_chunk_size_do_not_change_any_pixel() {
     // Same fragments, in the same (primitive) order, whatever the tiling: micro-triangle records
