@@ -494,28 +494,34 @@ fn unlit_fragments_carry_the_object_colour_and_id() {
     assert!(centre[0].depth < centre[1].depth);
 }
 
+/// A `w` × `h` frame of one unlit object, `mesh` placed by `model`, seen by
+/// [`Cam::looking_down_z`].
+fn unlit_frame(mesh: &Mesh, model: Mat4, w: u32, h: u32) -> FrameInput<'_> {
+    let cam = Cam::looking_down_z(w, h);
+    FrameInput {
+        width: w,
+        height: h,
+        view: cam.view(),
+        projection: cam.projection(),
+        background: [1.0; 3],
+        objects: vec![DrawObject {
+            positions: mesh.positions(),
+            normals: mesh.normals(),
+            triangles: mesh.triangles(),
+            model,
+            material: material(Shading::Unlit),
+            id: ObjectId(0),
+        }],
+        output: FragmentOutput::Shaded,
+    }
+}
+
 #[test]
 fn rasterizer_buffers_are_reused_across_frames_of_different_sizes() {
     let grid = jittered_grid(20, 40.0, -1.5, 0.5);
     let mut raster = Rasterizer::default();
     for (w, h) in [(64, 48), (200, 10), (7, 300), (64, 48)] {
-        let cam = Cam::looking_down_z(w, h);
-        let input = FrameInput {
-            width: w,
-            height: h,
-            view: cam.view(),
-            projection: cam.projection(),
-            background: [1.0; 3],
-            objects: vec![DrawObject {
-                positions: grid.positions(),
-                normals: grid.normals(),
-                triangles: grid.triangles(),
-                model: Mat4::IDENTITY,
-                material: material(Shading::Unlit),
-                id: ObjectId(0),
-            }],
-            output: FragmentOutput::Shaded,
-        };
+        let input = unlit_frame(&grid, Mat4::IDENTITY, w, h);
         let mut out = FragmentVec::new();
         raster.prepare(&input).rasterize(&mut out);
         assert_eq!(
@@ -533,7 +539,6 @@ fn the_widest_image_is_covered_exactly_and_a_wider_one_is_refused() {
     use strata_raster::vertex::MAX_SIDE;
     let grid = jittered_grid(20, 40.0, -1.5, 0.5);
     let frame = |w: u32, h: u32| {
-        let cam = Cam::looking_down_z(w, h);
         // The grid stretched to just past the long side of the view, so that its outer
         // vertices lie beyond the image but inside the guard band.
         let model = if w > h {
@@ -541,22 +546,7 @@ fn the_widest_image_is_covered_exactly_and_a_wider_one_is_refused() {
         } else {
             Mat4::from_scale(Vec3::new(1.0, 1.0 / 40.0, 1.0))
         };
-        FrameInput {
-            width: w,
-            height: h,
-            view: cam.view(),
-            projection: cam.projection(),
-            background: [1.0; 3],
-            objects: vec![DrawObject {
-                positions: grid.positions(),
-                normals: grid.normals(),
-                triangles: grid.triangles(),
-                model,
-                material: material(Shading::Unlit),
-                id: ObjectId(0),
-            }],
-            output: FragmentOutput::Shaded,
-        }
+        unlit_frame(&grid, model, w, h)
     };
     let mut raster = Rasterizer::default();
     for (w, h) in [(MAX_SIDE, 1), (1, MAX_SIDE)] {
