@@ -279,21 +279,12 @@ impl pulp::WithSimd for VertexJob<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
         const L: usize = VERTEX_LANES;
-        let VertexJob {
-            t,
-            vp,
-            positions,
-            normals,
-            with_normals,
-            screen,
-            codes,
-            attrs,
-        } = self;
-        let (pos, pos_tail) = positions.as_chunks::<L>();
-        let (nor, nor_tail) = normals.as_chunks::<L>();
-        let (scr, scr_tail) = screen.as_chunks_mut::<L>();
-        let (cod, cod_tail) = codes.as_chunks_mut::<L>();
-        let (att, att_tail) = attrs.as_chunks_mut::<L>();
+        let (t, vp, with_normals) = (self.t, self.vp, self.with_normals);
+        let (pos, pos_tail) = self.positions.as_chunks::<L>();
+        let (nor, nor_tail) = self.normals.as_chunks::<L>();
+        let (scr, scr_tail) = self.screen.as_chunks_mut::<L>();
+        let (cod, cod_tail) = self.codes.as_chunks_mut::<L>();
+        let (att, att_tail) = self.attrs.as_chunks_mut::<L>();
         for b in 0..pos.len() {
             transform_block(
                 t,

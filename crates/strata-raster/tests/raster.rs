@@ -548,6 +548,20 @@ fn the_widest_image_is_covered_exactly_and_a_wider_one_is_refused() {
         };
         unlit_frame(&grid, model, w, h)
     };
+    // The premise: on the wide frame some grid vertex lies right of the image, yet is not
+    // clipped (no guard-band or near-plane bit), so it is snapped to fixed point.
+    {
+        use strata_raster::vertex::{ONE, ObjectTransform, Viewport, outcode, transform_vertex};
+        let input = frame(MAX_SIDE, 1);
+        let object = &input.objects[0];
+        let t = ObjectTransform::new(input.view, object.model, input.projection);
+        let vp = Viewport::new(input.width, input.height);
+        let beyond = object.positions.iter().zip(object.normals).any(|(&p, &n)| {
+            let (s, code, _) = transform_vertex(&t, &vp, p, n, false);
+            code & outcode::CLIP == 0 && s.x > (MAX_SIDE as i32) * ONE
+        });
+        assert!(beyond, "no unclipped vertex beyond the image's right edge");
+    }
     let mut raster = Rasterizer::default();
     for (w, h) in [(MAX_SIDE, 1), (1, MAX_SIDE)] {
         let mut out = FragmentVec::new();
