@@ -106,9 +106,14 @@ impl ReprojCopy {
                 entries.clear();
                 counts.clear();
                 let mut ins: Vec<Entry> = Vec::new();
+                let (mut row_entries, mut known) = (Vec::new(), Vec::new());
                 let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
                 let first = rows.start * w;
+                let offsets = inserts.offsets();
                 for (p, &k) in (first..).zip(&slot[first..rows.end * w]) {
+                    if p % w == 0 {
+                        view.row_entries(inserts, p / w, &mut row_entries, &mut known);
+                    }
                     let start = entries.len();
                     let held = projected.run(p);
                     match k {
@@ -124,14 +129,15 @@ impl ReprojCopy {
                                 )));
                             }
                             ins.clear();
-                            for f in inserts.run(p).iter() {
-                                let e = view.entry(p as u32, f).ok_or_else(|| {
-                                    ApplyError::Mismatch(format!(
+                            let row_first = offsets[p - p % w] as usize;
+                            for (k, f) in (offsets[p] as usize..).zip(inserts.run(p).iter()) {
+                                if !known[k - row_first] {
+                                    return Err(ApplyError::Mismatch(format!(
                                         "pixel {p}: object {} is not in the scene",
                                         f.object.0
-                                    ))
-                                })?;
-                                ins.push(e);
+                                    )));
+                                }
+                                ins.push(row_entries[k - row_first]);
                             }
                             sort_entries(&mut ins);
                             merge_pixel(held, removed, &ins, entries);
@@ -144,10 +150,7 @@ impl ReprojCopy {
             .collect();
         results.into_iter().collect::<Result<(), ApplyError>>()?;
         let held = &mut self.spare;
-        held.assemble(
-            view,
-            self.bands.iter().map(|(e, c)| (e.as_slice(), c.as_slice())),
-        );
+        held.assemble(view, &self.bands, |(e, c)| (e.as_slice(), c.as_slice()));
         let ours = held.digest();
         if ours != removals.checksum() {
             return Err(ApplyError::Diverged {

@@ -109,12 +109,18 @@ impl ReprojEncoder {
             let mut removed: Vec<u32> = Vec::new();
             let mut inserts: Vec<Entry> = Vec::new();
             let mut inserted_wire: Vec<Fragment> = Vec::new();
+            let (mut row_entries, mut known) = (Vec::new(), Vec::new());
             let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+            let offsets = rendered.offsets();
             for p in rows.start * w..rows.end * w {
+                if p % w == 0 {
+                    view.row_entries(rendered, p / w, &mut row_entries, &mut known);
+                }
+                let row_first = offsets[p - p % w] as usize;
                 truth.clear();
-                for f in rendered.run(p).iter() {
-                    if let Some(e) = view.entry(p as u32, f) {
-                        truth.push((e, f));
+                for (k, f) in (offsets[p] as usize..).zip(rendered.run(p).iter()) {
+                    if known[k - row_first] {
+                        truth.push((row_entries[k - row_first], f));
                     }
                 }
                 sort_truth(&mut truth);
@@ -180,12 +186,9 @@ impl ReprojEncoder {
         // inserts, band by band.
         let pixels = w * height as usize;
         let mut held = old.unwrap_or_else(|| Held::empty(0, 0));
-        held.assemble(
-            view,
-            self.bands
-                .iter()
-                .map(|o| (o.entries.as_slice(), o.counts.as_slice())),
-        );
+        held.assemble(view, &self.bands, |o| {
+            (o.entries.as_slice(), o.counts.as_slice())
+        });
         let mut mask = MaskBuilder::new(pixels as u32);
         let mut removals = Removals::new(0);
         let mut insert_counts = vec![0u32; pixels];

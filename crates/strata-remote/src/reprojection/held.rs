@@ -5,8 +5,9 @@
 //! [`Entry`] (12-byte fragment, 24-byte surfel, padding) as the column.
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, Fragment};
+use strata_core::{DeepFrame, Fragment, ObjectId};
 
+use super::lanes::LANES;
 use super::view::View;
 use super::{BAND_ROWS, sort_entries};
 
@@ -78,94 +79,220 @@ impl Held {
 
     /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (no allocation once
     /// they have grown to the scene's needs).
+    ///
+    /// Four parallel passes, none of them over the whole list on one thread:
+    ///
+    /// 1. per source band (of [`BAND_ROWS`] rows): every entry moved to `view`
+    ///    ([`View::project_batch`], a batch of one object's consecutive entries at a time), and
+    ///    how many land in each destination band;
+    /// 2. (serial, bands × bands) where each source band's share of each destination band
+    ///    starts in the bucket list;
+    /// 3. per source band: the indices of its entries that stay in view, appended to their
+    ///    destination band's bucket in source order;
+    /// 4. per destination band: a counting sort of its bucket by pixel straight into the band's
+    ///    share of `out` (its offsets serve as the cursors), then each run sorted front to back.
+    ///
+    /// Buckets keep source order and the counting sort is stable, so the result is the stable
+    /// sort of the whole list by pixel, then by fragment order, whatever the thread count.
     pub fn reproject_into(&self, view: &View, out: &mut Held, scratch: &mut Scratch) {
         let (width, height) = view.size();
-        let pixels = width as usize * height as usize;
+        let (new_w, new_h) = (width as usize, height as usize);
+        let pixels = new_w * new_h;
         let unchanged: Vec<bool> = match &self.view {
             Some(old) => (0..view.object_slots())
                 .map(|o| view.unchanged(old, o))
                 .collect(),
             None => Vec::new(),
         };
-        let moved = &mut scratch.moved;
-        moved.clear();
+        let dst_bands = new_h.div_ceil(BAND_ROWS);
+        let band_of = |p: u32| p as usize / new_w / BAND_ROWS;
+        let Scratch {
+            moved,
+            bucket,
+            shares,
+        } = scratch;
+        // Every element is written in pass 1: no need to clear what the last frame left.
         moved.resize(self.entries.len(), (u32::MAX, Fragment::default()));
+        let (w, h) = (self.width as usize, self.height as usize);
+        let src_bands = h.div_ceil(BAND_ROWS);
+        shares.resize_with(src_bands, Vec::new);
+
+        // 1. Move every entry; count where each source band's entries land.
         {
-            let w = self.width as usize;
             let offsets = &self.offsets;
-            split_bands(moved, offsets, w, self.height as usize)
+            split_bands(moved, offsets, w, h)
                 .into_par_iter()
-                .for_each(|(row, band)| {
+                .zip(shares.par_iter_mut())
+                .for_each(|((row, band), share)| {
                     let base = offsets[row * w] as usize;
-                    let end = (row + BAND_ROWS).min(self.height as usize);
+                    let end = (row + BAND_ROWS).min(h);
+                    let mut batch = Batch::default();
                     for p in row * w..end * w {
                         for i in offsets[p] as usize..offsets[p + 1] as usize {
                             let e = &self.entries[i];
-                            let o = e.fragment.object.0 as usize;
-                            band[i - base] = if unchanged.get(o) == Some(&true) {
-                                (p as u32, e.fragment)
-                            } else {
-                                view.project(e.fragment.object, &e.surfel)
-                                    .unwrap_or((u32::MAX, Fragment::default()))
-                            };
+                            let object = e.fragment.object;
+                            if unchanged.get(object.0 as usize) == Some(&true) {
+                                band[i - base] = (p as u32, e.fragment);
+                                continue;
+                            }
+                            if batch.len == LANES || (batch.len > 0 && batch.object != object) {
+                                batch.flush(view, band, base);
+                            }
+                            batch.push(object, i, e.surfel);
+                        }
+                    }
+                    batch.flush(view, band, base);
+                    share.clear();
+                    share.resize(dst_bands, 0);
+                    for &(p, _) in band.iter() {
+                        if p != u32::MAX {
+                            share[band_of(p)] += 1;
                         }
                     }
                 });
         }
-        let offsets = &mut out.offsets;
-        offsets.clear();
-        offsets.resize(pixels + 1, 0);
-        for &(p, _) in moved.iter() {
-            if p != u32::MAX {
-                offsets[p as usize + 1] += 1;
+
+        // 2. Where each (destination band, source band) share starts in the bucket list, and
+        // each destination band's first entry.
+        let mut band_starts = Vec::with_capacity(dst_bands + 1);
+        let mut total = 0usize;
+        for d in 0..dst_bands {
+            band_starts.push(total);
+            total += shares.iter().map(|s| s[d] as usize).sum::<usize>();
+        }
+        band_starts.push(total);
+        bucket.resize(total, 0);
+
+        // 3. Each source band appends its entries' indices to the destination buckets.
+        {
+            // Cut the bucket list into (destination, source) shares, then hand each source
+            // band its row of them.
+            let mut per_source: Vec<Vec<&mut [u32]>> = (0..src_bands)
+                .map(|_| Vec::with_capacity(dst_bands))
+                .collect();
+            let mut rest = bucket.as_mut_slice();
+            for d in 0..dst_bands {
+                for (s, share) in shares.iter().enumerate() {
+                    let (piece, tail) = std::mem::take(&mut rest).split_at_mut(share[d] as usize);
+                    per_source[s].push(piece);
+                    rest = tail;
+                }
             }
+            let offsets = &self.offsets;
+            let moved = &*moved;
+            per_source
+                .into_par_iter()
+                .enumerate()
+                .for_each(|(s, mut pieces)| {
+                    let row = s * BAND_ROWS;
+                    let first = offsets[row * w] as usize;
+                    let last = offsets[(row + BAND_ROWS).min(h) * w] as usize;
+                    let mut fill = vec![0usize; dst_bands];
+                    for (i, &(p, _)) in (first..last).zip(&moved[first..last]) {
+                        if p != u32::MAX {
+                            let d = band_of(p);
+                            pieces[d][fill[d]] = i as u32;
+                            fill[d] += 1;
+                        }
+                    }
+                });
         }
-        for p in 0..pixels {
-            offsets[p + 1] += offsets[p];
-        }
-        let total = offsets[pixels] as usize;
-        out.entries.clear();
+
+        // 4. Each destination band: a counting sort of its bucket by pixel into its share of
+        // the entries, then its runs sorted.
+        // Every entry and offset is written below (the counts start from zero): no need to
+        // clear what the last frame left.
+        out.offsets.resize(pixels + 1, 0);
+        out.offsets[pixels] = total as u32;
         out.entries.resize(total, Entry::default());
-        let cursor = &mut scratch.cursor;
-        cursor.clear();
-        cursor.extend_from_slice(&offsets[..pixels]);
-        for (e, &(p, f)) in self.entries.iter().zip(moved.iter()) {
-            if p != u32::MAX {
-                let c = &mut cursor[p as usize];
-                out.entries[*c as usize] = Entry {
-                    fragment: f,
-                    surfel: e.surfel,
-                };
-                *c += 1;
+        {
+            let mut jobs = Vec::with_capacity(dst_bands);
+            let (mut offs_rest, mut entries_rest) =
+                (&mut out.offsets[..pixels], out.entries.as_mut_slice());
+            for d in 0..dst_bands {
+                let rows = BAND_ROWS.min(new_h - d * BAND_ROWS);
+                let (offs, o_tail) = std::mem::take(&mut offs_rest).split_at_mut(rows * new_w);
+                let n = band_starts[d + 1] - band_starts[d];
+                let (entries, e_tail) = std::mem::take(&mut entries_rest).split_at_mut(n);
+                jobs.push((d, offs, entries));
+                (offs_rest, entries_rest) = (o_tail, e_tail);
             }
+            let (bucket, moved) = (&*bucket, &*moved);
+            jobs.into_par_iter().for_each(|(d, offs, entries)| {
+                let base = band_starts[d];
+                let first_pixel = d * BAND_ROWS * new_w;
+                let items = &bucket[base..band_starts[d + 1]];
+                // Counts, then each pixel's end; filling backwards leaves each pixel's start.
+                offs.fill(0);
+                for &i in items {
+                    offs[moved[i as usize].0 as usize - first_pixel] += 1;
+                }
+                let mut end = base as u32;
+                for o in offs.iter_mut() {
+                    end += *o;
+                    *o = end;
+                }
+                for &i in items.iter().rev() {
+                    let (p, f) = moved[i as usize];
+                    let o = &mut offs[p as usize - first_pixel];
+                    *o -= 1;
+                    entries[(*o as usize) - base] = Entry {
+                        fragment: f,
+                        surfel: self.entries[i as usize].surfel,
+                    };
+                }
+                for (k, &start) in offs.iter().enumerate() {
+                    let stop = offs
+                        .get(k + 1)
+                        .map_or(entries.len() + base, |&s| s as usize);
+                    sort_entries(&mut entries[start as usize - base..stop - base]);
+                }
+            });
         }
         out.width = width;
         out.height = height;
         out.view = Some(view.clone());
-        out.sort_runs();
     }
 
     /// Rebuilds this list for `view` from bands of consecutive pixels, each its entries and its
-    /// pixels' run lengths, in order; keeps the buffers.
-    pub(super) fn assemble<'a>(
+    /// pixels' run lengths (`parts` of each of `bands`), in order; keeps the buffers. The bands
+    /// are copied in parallel, each into its own share of the list.
+    pub(super) fn assemble<B: Sync>(
         &mut self,
         view: &View,
-        bands: impl Iterator<Item = (&'a [Entry], &'a [u32])>,
+        bands: &[B],
+        parts: impl Fn(&B) -> (&[Entry], &[u32]) + Sync,
     ) {
         (self.width, self.height) = view.size();
         self.view = Some(view.clone());
-        self.offsets.clear();
-        self.offsets.push(0);
-        self.entries.clear();
-        let mut last = 0u32;
-        for (entries, counts) in bands {
-            for &c in counts {
-                last += c;
-                self.offsets.push(last);
-            }
-            self.entries.extend_from_slice(entries);
+        let pixels: usize = bands.iter().map(|b| parts(b).1.len()).sum();
+        let total: usize = bands.iter().map(|b| parts(b).0.len()).sum();
+        // Every element is written below: no need to clear what the last frame left.
+        self.offsets.resize(pixels + 1, 0);
+        self.entries.resize(total, Entry::default());
+        let mut jobs = Vec::with_capacity(bands.len());
+        let (mut offs_rest, mut entries_rest) =
+            (&mut self.offsets[1..], self.entries.as_mut_slice());
+        let mut start = 0u32;
+        for b in bands {
+            let (entries, counts) = parts(b);
+            let (offs, o_tail) = std::mem::take(&mut offs_rest).split_at_mut(counts.len());
+            let (dest, e_tail) = std::mem::take(&mut entries_rest).split_at_mut(entries.len());
+            jobs.push((b, start, offs, dest));
+            (offs_rest, entries_rest) = (o_tail, e_tail);
+            start += entries.len() as u32;
         }
-        debug_assert_eq!(last as usize, self.entries.len());
+        jobs.into_par_iter().for_each(|(b, start, offs, dest)| {
+            let (entries, counts) = parts(b);
+            dest.copy_from_slice(entries);
+            let mut end = start;
+            for (o, &c) in offs.iter_mut().zip(counts) {
+                end += c;
+                *o = end;
+            }
+            debug_assert_eq!(end as usize, start as usize + entries.len());
+        });
+        self.offsets[0] = 0;
     }
 
     /// Empties this list for a `width` × `height` frame, keeping its buffers.
@@ -176,22 +303,6 @@ impl Held {
         self.offsets.resize(width as usize * height as usize + 1, 0);
         self.entries.clear();
         self.view = None;
-    }
-
-    /// Sorts every run front to back, stably, in parallel bands.
-    fn sort_runs(&mut self) {
-        let width = self.width as usize;
-        let offsets = &self.offsets;
-        split_bands(&mut self.entries, offsets, width, self.height as usize)
-            .into_par_iter()
-            .for_each(|(row, band)| {
-                let base = offsets[row * width] as usize;
-                let end = (row + BAND_ROWS).min(self.height as usize);
-                for p in row * width..end * width {
-                    let run = &mut band[offsets[p] as usize - base..offsets[p + 1] as usize - base];
-                    sort_entries(run);
-                }
-            });
     }
 
     /// The colour DeepFrame the display resolves.
@@ -270,8 +381,47 @@ fn split_bands<'a, T>(
 /// Buffers [`Held::reproject_into`] reuses from frame to frame.
 #[derive(Clone, Debug, Default)]
 pub struct Scratch {
+    /// Per held entry, its pixel and fragment in the new view (`u32::MAX`: out of view).
     moved: Vec<(u32, Fragment)>,
-    cursor: Vec<u32>,
+    /// Indices of the entries that stay in view, grouped by destination band.
+    bucket: Vec<u32>,
+    /// Per source band, how many of its entries land in each destination band.
+    shares: Vec<Vec<u32>>,
+}
+
+/// Up to [`LANES`] consecutive entries of one object waiting to be moved together.
+#[derive(Default)]
+struct Batch {
+    object: ObjectId,
+    len: usize,
+    index: [usize; LANES],
+    surfels: [Surfel; LANES],
+}
+
+impl Batch {
+    #[inline]
+    fn push(&mut self, object: ObjectId, index: usize, surfel: Surfel) {
+        self.object = object;
+        self.index[self.len] = index;
+        self.surfels[self.len] = surfel;
+        self.len += 1;
+    }
+
+    /// Moves the batch to `view`, into `band` (whose first entry is entry `base`).
+    #[inline]
+    fn flush(&mut self, view: &View, band: &mut [(u32, Fragment)], base: usize) {
+        let n = self.len;
+        if n == 0 {
+            return;
+        }
+        let mut moved = [(u32::MAX, Fragment::default()); LANES];
+        // Lanes past `n` hold earlier batches' surfels: moved, and not written back.
+        view.project_batch(self.object, &self.surfels, &mut moved);
+        for (&i, m) in self.index[..n].iter().zip(moved) {
+            band[i - base] = m;
+        }
+        self.len = 0;
+    }
 }
 
 /// A small multiply-rotate hash (not cryptographic: it detects divergence, not tampering).

@@ -49,13 +49,17 @@
 //!
 //! - `view`: one frame's matrices and materials; eq. 5.9 (project a surfel), eq. 5.10 (a
 //!   rendered normal fragment to a surfel), shading;
-//! - `held`: the per-pixel runs both ends hold, reprojection, the digest;
+//! - `lanes`: eq. 5.9 and 5.10 with their shading for eight fragments of one object at a time,
+//!   the same bits as `view`'s one-fragment forms (what both ends run);
+//! - `held`: the per-pixel runs both ends hold, reprojection (four parallel passes: move, count,
+//!   bucket by destination band, counting sort per band), the digest;
 //! - `encoder`: the node's side — matching, removals and inserts;
 //! - `copy`: the display's side — applying a frame, and which pixels need a fixup.
 
 mod copy;
 mod encoder;
 mod held;
+mod lanes;
 mod view;
 
 pub use copy::{ApplyError, ReprojCopy, ambiguous};

@@ -1,7 +1,7 @@
 //! Node and display side by side, without sockets.
 
 use super::*;
-use strata_core::{DeepFrame, Fragment, ObjectId, PackedNormal, Rgb8Image, Rgba8};
+use strata_core::{DeepFrame, Fragment, ObjectId, PackedNormal, Rgb8Image, Rgba8, Shading};
 use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
 use strata_scene::{Animation, SearchPath, open_scene};
@@ -266,4 +266,248 @@ fn ambiguous_pixels_are_where_two_nodes_come_closer_than_the_error_bound() {
     // A node not taking part this frame is asked for nothing.
     let masks = ambiguous(&[&a, &b], &[1e-3, 0.0], &[true, false]);
     assert_eq!((pixels(&masks[0]), pixels(&masks[1])), (vec![0], vec![]));
+}
+
+/// A deterministic stream of awkward values: ordinary ones of many scales and, now and then,
+/// signed zeros, infinities, NaN, huge and tiny numbers, and arbitrary bit patterns.
+struct Awkward(u64);
+
+impl Awkward {
+    fn bits(&mut self) -> u32 {
+        // xorshift64*
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 32) as u32
+    }
+    fn unit(&mut self) -> f32 {
+        self.bits() as f32 / u32::MAX as f32
+    }
+    fn f32(&mut self, scale: f32) -> f32 {
+        let r = self.bits();
+        match r % 16 {
+            0 => [
+                0.0,
+                -0.0,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                f32::NAN,
+                1e-30,
+                1e30,
+                -1e30,
+            ][(r >> 4) as usize % 8],
+            1 => f32::from_bits(self.bits()),
+            _ => (self.unit() - 0.5) * 2.0 * scale,
+        }
+    }
+}
+
+/// `mixed` with its first object unlit, so that batches of both kinds of shading are checked.
+fn lit_and_unlit() -> (Scene, Vec<ObjectId>) {
+    let mut s = scene("mixed", 5.0);
+    s.objects[0].material.shading = Shading::Unlit;
+    let ids = s.objects.iter().map(|o| o.id).collect();
+    (s, ids)
+}
+
+/// The views the lane tests use: the scene's camera at frames 0, 3 and 40, and a camera
+/// looking at the scene askew, so that every matrix entry is non-zero and the order of the
+/// additions shows in the bits.
+fn lane_test_views(s: &Scene, ids: &[ObjectId]) -> Vec<View> {
+    let askew = glam::Mat4::look_at_rh(
+        glam::Vec3::new(0.9, 0.6, 2.3),
+        glam::Vec3::new(0.1, -0.05, 0.0),
+        glam::Vec3::new(0.1, 1.0, 0.05),
+    );
+    let mut views: Vec<View> = [0, 3, 40].iter().map(|&t| view(s, ids, t)).collect();
+    views.push(View::new(
+        s,
+        ids,
+        7,
+        (W, H),
+        askew,
+        s.camera.projection(W, H),
+    ));
+    views
+}
+
+/// The bits of a moved fragment, so that -0 and 0 differ and NaN equals itself.
+fn moved_bits(m: Option<(u32, Fragment)>) -> (u32, u32, Rgba8, ObjectId) {
+    match m {
+        Some((p, f)) => (p, f.depth.to_bits(), f.color, f.object),
+        None => (u32::MAX, 0, Rgba8::default(), ObjectId::default()),
+    }
+}
+
+fn entry_bits(e: &Entry) -> ([u32; 7], Rgba8, ObjectId) {
+    let (p, n) = (e.surfel.position, e.surfel.normal);
+    (
+        [p[0], p[1], p[2], n[0], n[1], n[2], e.fragment.depth].map(f32::to_bits),
+        e.fragment.color,
+        e.fragment.object,
+    )
+}
+
+#[test]
+fn surfels_moved_in_lanes_are_those_moved_one_at_a_time_bit_for_bit() {
+    let (s, ids) = lit_and_unlit();
+    let mut values = Awkward(0x5EED);
+    let unknown = ObjectId(ids.iter().map(|o| o.0).max().unwrap() + 7);
+    let mut checked = [0usize; 2];
+    for v in lane_test_views(&s, &ids) {
+        for &object in ids.iter().chain([&unknown]) {
+            for round in 0..400 {
+                // Mostly points near the scene (in view), sometimes anywhere.
+                let scale = [0.6, 2.0, 50.0, 1e6][round % 4];
+                let surfels: [Surfel; lanes::LANES] = std::array::from_fn(|_| Surfel {
+                    position: std::array::from_fn(|_| values.f32(scale)),
+                    normal: std::array::from_fn(|_| values.f32(1.0)),
+                });
+                let mut out = [(0, Fragment::default()); lanes::LANES];
+                v.project_batch(object, &surfels, &mut out);
+                for (surfel, lane) in surfels.iter().zip(out) {
+                    let one = v.project(object, surfel);
+                    checked[usize::from(one.is_some())] += 1;
+                    let lane = (lane.0 != u32::MAX).then_some(lane);
+                    assert_eq!(
+                        moved_bits(lane),
+                        moved_bits(one),
+                        "{surfel:?} of {object:?}"
+                    );
+                }
+            }
+        }
+    }
+    // Both outcomes were exercised in numbers.
+    assert!(checked.iter().all(|&n| n > 10_000), "{checked:?}");
+}
+
+#[test]
+fn entries_made_in_lanes_are_those_made_one_at_a_time_bit_for_bit() {
+    let (s, ids) = lit_and_unlit();
+    let mut values = Awkward(0xD1CE);
+    let unknown = ObjectId(ids.iter().map(|o| o.0).max().unwrap() + 7);
+    let objects: Vec<ObjectId> = ids.iter().copied().chain([unknown]).collect();
+    let counts: Vec<u32> = (0..W * H).map(|_| values.bits() % 5).collect();
+    // Runs of random length, objects, depths and normal bits (the "no normal" pattern
+    // included); sorted, as a DeepFrame's runs are.
+    let runs: Vec<Vec<Fragment>> = counts
+        .iter()
+        .map(|&n| {
+            let mut run: Vec<Fragment> = (0..n)
+                .map(|_| Fragment {
+                    depth: values.unit(),
+                    color: Rgba8::from_bits(if values.bits().is_multiple_of(8) {
+                        PackedNormal::NONE.to_bits()
+                    } else {
+                        values.bits()
+                    }),
+                    object: objects[values.bits() as usize % objects.len()],
+                })
+                .collect();
+            run.sort_by_key(Fragment::order_key);
+            run
+        })
+        .collect();
+    let frame = DeepFrame::build(W, H, &counts, |p, out| out.extend_from_slice(&runs[p]))
+        .expect("a valid frame");
+    let (mut entries, mut known) = (Vec::new(), Vec::new());
+    let mut checked = [0usize; 2];
+    for v in lane_test_views(&s, &ids) {
+        for row in 0..H as usize {
+            v.row_entries(&frame, row, &mut entries, &mut known);
+            let first = frame.offsets()[row * W as usize] as usize;
+            assert_eq!(
+                entries.len(),
+                frame.offsets()[(row + 1) * W as usize] as usize - first
+            );
+            for p in row * W as usize..(row + 1) * W as usize {
+                for (k, f) in (frame.offsets()[p] as usize..).zip(frame.run(p).iter()) {
+                    let one = v.entry(p as u32, f);
+                    assert_eq!(known[k - first], one.is_some(), "{f:?} at {p}");
+                    checked[usize::from(one.is_some())] += 1;
+                    if let Some(one) = one {
+                        assert_eq!(
+                            entry_bits(&entries[k - first]),
+                            entry_bits(&one),
+                            "{f:?} at {p}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked.iter().all(|&n| n > 1_000), "{checked:?}");
+}
+
+#[test]
+fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_size() {
+    let (s, ids) = lit_and_unlit();
+    // Something held: a few frames of the node and display side by side.
+    let mut enc = ReprojEncoder::new(1);
+    let mut copy = ReprojCopy::empty(W, H);
+    for t in 0..3 {
+        let v = view(&s, &ids, t);
+        let d = enc
+            .encode(&v, &render(&s, &ids, t, FragmentOutput::PackedNormal))
+            .expect("encodes");
+        copy.apply(&v, &d.touched, &d.removals, &d.inserts)
+            .expect("applies");
+    }
+    let held = copy.held();
+    assert!(held.len() > 10_000, "{}", held.len());
+    // The definition: every entry moved in list order, appended to its new pixel, each run
+    // then sorted stably.
+    let reference = |v: &View| {
+        let (w, h) = v.size();
+        let mut runs = vec![Vec::new(); w as usize * h as usize];
+        for p in 0..(W * H) as usize {
+            for e in held.run(p) {
+                if let Some((q, f)) = v.project(e.fragment.object, &e.surfel) {
+                    runs[q as usize].push(Entry {
+                        fragment: f,
+                        surfel: e.surfel,
+                    });
+                }
+            }
+        }
+        runs.iter_mut().for_each(|r| sort_entries(r));
+        runs
+    };
+    // Views of the next frames at this size, and smaller and larger ones.
+    let sized = |t: u64, (w, h): (u32, u32)| {
+        View::new(
+            &s,
+            &ids,
+            t as u32,
+            (w, h),
+            s.camera.view(),
+            s.camera.projection(w, h),
+        )
+    };
+    let views = [
+        sized(4, (W, H)),
+        sized(9, (W / 2 + 3, H / 2 + 5)),
+        sized(6, (W * 2, H + 17)),
+    ];
+    let mut out = Held::empty(0, 0);
+    let mut scratch = Scratch::default();
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        // The buffers are reused from view to view, larger and smaller, stale data in them.
+        for v in views.iter().chain(views.iter().rev()) {
+            pool.install(|| held.reproject_into(v, &mut out, &mut scratch));
+            let want = reference(v);
+            let (w, h) = v.size();
+            assert_eq!(out.len(), want.iter().map(Vec::len).sum::<usize>());
+            for (p, r) in want.iter().enumerate() {
+                let got: Vec<_> = out.run(p).iter().map(entry_bits).collect();
+                let want: Vec<_> = r.iter().map(entry_bits).collect();
+                assert_eq!(got, want, "pixel {p} of {w}x{h}, {threads} threads");
+            }
+        }
+    }
 }

@@ -13,26 +13,26 @@ use super::held::{Entry, Surfel};
 
 /// One object's matrices and material at one frame.
 #[derive(Clone, Debug, PartialEq)]
-struct ObjectView {
-    model_view: Mat4,
-    inverse_model_view: Mat4,
+pub(super) struct ObjectView {
+    pub(super) model_view: Mat4,
+    pub(super) inverse_model_view: Mat4,
     /// Object → eye for normals: inverse-transpose of the model-view's 3×3.
-    normal: Mat3,
+    pub(super) normal: Mat3,
     /// Eye → object for normals: the transpose of the model-view's 3×3.
-    to_object_normal: Mat3,
-    rgb: [f32; 3],
-    alpha: u8,
-    lit: bool,
-    flat: Rgba8,
+    pub(super) to_object_normal: Mat3,
+    pub(super) rgb: [f32; 3],
+    pub(super) alpha: u8,
+    pub(super) lit: bool,
+    pub(super) flat: Rgba8,
 }
 
 /// One frame's camera and object placements, as both ends compute them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct View {
-    width: u32,
-    height: u32,
-    projection: Mat4,
-    inverse_projection: Mat4,
+    pub(super) width: u32,
+    pub(super) height: u32,
+    pub(super) projection: Mat4,
+    pub(super) inverse_projection: Mat4,
     /// Indexed by object id (scene ids are dense).
     objects: Vec<Option<ObjectView>>,
 }
@@ -108,7 +108,7 @@ impl View {
     }
 
     #[inline]
-    fn object(&self, id: ObjectId) -> Option<&ObjectView> {
+    pub(super) fn object(&self, id: ObjectId) -> Option<&ObjectView> {
         self.objects.get(id.0 as usize).and_then(Option::as_ref)
     }
 

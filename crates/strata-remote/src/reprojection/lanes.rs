@@ -1,0 +1,367 @@
+//! Eq. 5.9 ([`View::project`]) and eq. 5.10 ([`View::entry`]) with their shading, eight
+//! fragments of one object at a time.
+//!
+//! A reprojection frame moves every held surfel and converts every rendered fragment on the node,
+//! and moves every held surfel again on the display: about three million of these a dragon frame.
+//! One at a time, each is a chain of dependent divisions and square roots (the perspective
+//! divide, the headlight's `|n·p| / √(n²p²)`, the octahedral normal's normalisation) that the
+//! processor cannot overlap across fragments; `perf` put the shading alone at 28 % of a
+//! reprojection node and display.
+//!
+//! # Layout
+//!
+//! A batch is up to [`LANES`] fragments of **one object**, so its matrices and material are
+//! broadcast and only the fragments' own values are lanes: `[f32; LANES]` arrays (structure of
+//! arrays), filled from the entries, computed, and written back. Lanes past the batch's length
+//! are padding and are not written back. The loops are compiled once per instruction set and
+//! chosen at run time ([`pulp::Arch::dispatch`]): on AVX2 a lane array is one register.
+//!
+//! # Same bits
+//!
+//! Every lane performs, operation for operation, what the one-fragment definitions perform:
+//! glam's matrix products in glam's order of additions, the same divisions (not reciprocals where
+//! the definition divides), no fused multiply-adds. IEEE arithmetic gives the same bits on every
+//! instruction set, so a node and a display on different machines still agree, and the lanes
+//! equal [`View::project`] and [`View::entry`] bit for bit (tested, NaN, infinities and pixels
+//! behind the eye included, in `reprojection::tests`). The one-fragment forms stay the
+//! definitions.
+
+use glam::{Mat3, Mat4};
+use strata_core::{DeepFrame, Fragment, ObjectId, PackedNormal, Rgba8};
+
+use super::held::{Entry, Surfel};
+use super::view::{ObjectView, View};
+
+/// Fragments in one batch.
+pub(crate) const LANES: usize = 8;
+
+type Lane = [f32; LANES];
+
+/// `f(i)` for every lane: a plain loop the compiler unrolls and vectorises (the closures below
+/// have no branches on the lane, only selects).
+#[inline(always)]
+fn lanes(f: impl Fn(usize) -> f32) -> Lane {
+    let mut out = [0.0; LANES];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = f(i);
+    }
+    out
+}
+
+/// `m · (x, y, z, 1)` in lanes, as glam's `Mat4::transform_point3` adds: x, then y, z, w.
+#[inline(always)]
+fn transform_point(m: &Mat4, [x, y, z]: &[Lane; 3]) -> [Lane; 3] {
+    let (c0, c1, c2, c3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
+    let row = |a: f32, b: f32, c: f32, d: f32| lanes(|i| d + (c * z[i] + (b * y[i] + a * x[i])));
+    [
+        row(c0.x, c1.x, c2.x, c3.x),
+        row(c0.y, c1.y, c2.y, c3.y),
+        row(c0.z, c1.z, c2.z, c3.z),
+    ]
+}
+
+/// `m · (x, y, z, 1)` in lanes, as glam's `Mat4 * Vec4` adds: x, y, z, then w: the x, y, z
+/// and w rows.
+#[inline(always)]
+fn mul_point4(m: &Mat4, [x, y, z]: &[Lane; 3]) -> [Lane; 4] {
+    let (c0, c1, c2, c3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
+    let row = |a: f32, b: f32, c: f32, d: f32| lanes(|i| a * x[i] + b * y[i] + c * z[i] + d * 1.0);
+    [
+        row(c0.x, c1.x, c2.x, c3.x),
+        row(c0.y, c1.y, c2.y, c3.y),
+        row(c0.z, c1.z, c2.z, c3.z),
+        row(c0.w, c1.w, c2.w, c3.w),
+    ]
+}
+
+/// `m · (x, y, z)` in lanes, as glam's `Mat3 * Vec3` adds: x, then y, then z.
+#[inline(always)]
+fn mul_mat3(m: &Mat3, [x, y, z]: &[Lane; 3]) -> [Lane; 3] {
+    let (c0, c1, c2) = (m.x_axis, m.y_axis, m.z_axis);
+    let row = |a: f32, b: f32, c: f32| lanes(|i| a * x[i] + b * y[i] + c * z[i]);
+    [
+        row(c0.x, c1.x, c2.x),
+        row(c0.y, c1.y, c2.y),
+        row(c0.z, c1.z, c2.z),
+    ]
+}
+
+/// [`unorm8`] in lanes, the same bits: after the clamp, `v · 255 + 0.5` lies in
+/// `[0.5, 255.5]`, whose truncation is exact in `f32` and reads off the low bits of
+/// `t + 2²³` (Rust's saturating `as u8` would run a lane at a time).
+#[inline(always)]
+fn unorm8_lanes(v: &Lane) -> [u8; LANES] {
+    let t = lanes(|i| {
+        let c = if v[i] > 0.0 { v[i] } else { 0.0 };
+        let c = if c < 1.0 { c } else { 1.0 };
+        (c * 255.0 + 0.5).trunc() + 8_388_608.0
+    });
+    std::array::from_fn(|i| t[i].to_bits() as u8)
+}
+
+/// The headlight colour of object `o` for eye-space normals `n` at eye-space points `p`
+/// (`View::shade` with `strata_core::material`'s `headlight_factor` and `headlight_rgba`).
+#[inline(always)]
+fn shade(o: &ObjectView, n: &[Lane; 3], p: &[Lane; 3]) -> [Rgba8; LANES] {
+    if !o.lit {
+        return [o.flat; LANES];
+    }
+    let dot = |a: &[Lane; 3], b: &[Lane; 3]| {
+        lanes(|i| a[0][i] * b[0][i] + a[1][i] * b[1][i] + a[2][i] * b[2][i])
+    };
+    let (nn, pp, np) = (dot(n, n), dot(p, p), dot(n, p));
+    let factor = lanes(|i| {
+        let denom = (nn[i] * pp[i]).sqrt();
+        let ratio = np[i].abs() / denom;
+        // `f32::min(ratio, 1.0)`, NaN included: the compare fails and 1 is taken.
+        let ratio = if ratio < 1.0 { ratio } else { 1.0 };
+        let cos = if denom > 0.0 { ratio } else { 0.0 };
+        0.25 + 0.75 * cos
+    });
+    let channel = |c: usize| unorm8_lanes(&lanes(|i| o.rgb[c] * factor[i]));
+    let (r, g, b) = (channel(0), channel(1), channel(2));
+    std::array::from_fn(|i| Rgba8([r[i], g[i], b[i], o.alpha]))
+}
+
+/// One batch of [`View::project_batch`].
+struct ProjectJob<'a> {
+    view: &'a View,
+    o: &'a ObjectView,
+    object: ObjectId,
+    surfels: &'a [Surfel; LANES],
+    out: &'a mut [(u32, Fragment); LANES],
+}
+
+impl pulp::WithSimd for ProjectJob<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let (view, o, s) = (self.view, self.o, self.surfels);
+        let column = |f: fn(&Surfel) -> [f32; 3]| -> [Lane; 3] {
+            let mut out = [[0.0; LANES]; 3];
+            for (i, s) in s.iter().enumerate() {
+                let v = f(s);
+                (out[0][i], out[1][i], out[2][i]) = (v[0], v[1], v[2]);
+            }
+            out
+        };
+        let eye = transform_point(&o.model_view, &column(|s| s.position));
+        let [cx, cy, cz, cw] = mul_point4(&view.projection, &eye);
+        let (width, height) = (view.width as f32, view.height as f32);
+        let iw = lanes(|i| 1.0 / cw[i]);
+        let wx = lanes(|i| (cx[i] * iw[i] * 0.5 + 0.5) * width);
+        let wy = lanes(|i| (0.5 - cy[i] * iw[i] * 0.5) * height);
+        let wz = lanes(|i| cz[i] * iw[i] * 0.5 + 0.5);
+        let colour = shade(o, &mul_mat3(&o.normal, &column(|s| s.normal)), &eye);
+        for (i, out) in self.out.iter_mut().enumerate() {
+            let (x, y, z) = (wx[i], wy[i], wz[i]);
+            // `View::project`'s tests, written so that NaN fails every one.
+            let inside = cw[i] > 0.0
+                && x >= 0.0
+                && x < width
+                && y >= 0.0
+                && y < height
+                && (0.0..=1.0).contains(&z);
+            *out = if inside {
+                let (px, py) = (
+                    (x as u32).min(view.width - 1),
+                    (y as u32).min(view.height - 1),
+                );
+                (
+                    py * view.width + px,
+                    Fragment {
+                        depth: if z > 0.0 { z } else { 0.0 },
+                        color: colour[i],
+                        object: self.object,
+                    },
+                )
+            } else {
+                (u32::MAX, Fragment::default())
+            };
+        }
+    }
+}
+
+/// One batch of [`View::entry_batch`].
+struct EntryJob<'a> {
+    view: &'a View,
+    o: &'a ObjectView,
+    at: &'a [[u32; 2]; LANES],
+    fragments: &'a [Fragment; LANES],
+    out: &'a mut [Entry; LANES],
+}
+
+impl pulp::WithSimd for EntryJob<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let (view, o, f, at) = (self.view, self.o, self.fragments, self.at);
+        let (width, height) = (view.width as f32, view.height as f32);
+        // The pixel centre and the depth in normalised device coordinates.
+        let ndc = [
+            lanes(|i| (at[i][0] as f32 + 0.5) / width * 2.0 - 1.0),
+            lanes(|i| 1.0 - (at[i][1] as f32 + 0.5) / height * 2.0),
+            lanes(|i| f[i].depth * 2.0 - 1.0),
+        ];
+        // P⁻¹ · ndc, then the division by w.
+        let [ex, ey, ez, ew] = mul_point4(&view.inverse_projection, &ndc);
+        let eye = [ex, ey, ez].map(|e| lanes(|i| e[i] / ew[i]));
+        // The octahedral normal (`PackedNormal::unpack`), then to object space.
+        let bits: [u32; LANES] = std::array::from_fn(|i| f[i].color.to_bits());
+        const SCALE: f32 = 65535.0;
+        let u = lanes(|i| f32::from(bits[i] as u16) / SCALE * 2.0 - 1.0);
+        let v = lanes(|i| f32::from((bits[i] >> 16) as u16) / SCALE * 2.0 - 1.0);
+        let z = lanes(|i| 1.0 - u[i].abs() - v[i].abs());
+        let sign = |a: f32| if a >= 0.0 { 1.0 } else { -1.0 };
+        let x = lanes(|i| {
+            let folded = (1.0 - v[i].abs()) * sign(u[i]);
+            if z[i] >= 0.0 { u[i] } else { folded }
+        });
+        let y = lanes(|i| {
+            let folded = (1.0 - u[i].abs()) * sign(v[i]);
+            if z[i] >= 0.0 { v[i] } else { folded }
+        });
+        let inv = lanes(|i| 1.0 / (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]).sqrt());
+        let unit = [x, y, z].map(|c| lanes(|i| c[i] * inv[i]));
+        let none = PackedNormal::NONE.to_bits();
+        let object_normal = mul_mat3(&o.to_object_normal, &unit)
+            .map(|c| lanes(|i| if o.lit && bits[i] != none { c[i] } else { 0.0 }));
+        let position = transform_point(&o.inverse_model_view, &eye);
+        let colour = shade(o, &mul_mat3(&o.normal, &object_normal), &eye);
+        for (i, out) in self.out.iter_mut().enumerate() {
+            *out = Entry {
+                fragment: Fragment {
+                    depth: f[i].depth,
+                    color: colour[i],
+                    object: f[i].object,
+                },
+                surfel: Surfel {
+                    position: [position[0][i], position[1][i], position[2][i]],
+                    normal: [
+                        object_normal[0][i],
+                        object_normal[1][i],
+                        object_normal[2][i],
+                    ],
+                },
+            };
+        }
+    }
+}
+
+impl View {
+    /// [`View::project`] of [`LANES`] surfels of `object`, into `out`: `(pixel, fragment)`, or
+    /// `(u32::MAX, Fragment::default())` where `project` gives `None` (so also for every lane
+    /// when `object` is unknown).
+    #[inline]
+    pub(crate) fn project_batch(
+        &self,
+        object: ObjectId,
+        surfels: &[Surfel; LANES],
+        out: &mut [(u32, Fragment); LANES],
+    ) {
+        match self.object(object) {
+            Some(o) => pulp::Arch::new().dispatch(ProjectJob {
+                view: self,
+                o,
+                object,
+                surfels,
+                out,
+            }),
+            None => out.fill((u32::MAX, Fragment::default())),
+        }
+    }
+
+    /// [`View::entry`] of [`LANES`] normal fragments of `object` rendered at pixel columns and
+    /// rows `at`, into `out`; `false` (and `out` untouched) if `object` is unknown, where
+    /// `entry` gives `None`. Every fragment's object must be `object`.
+    #[inline]
+    pub(crate) fn entry_batch(
+        &self,
+        object: ObjectId,
+        at: &[[u32; 2]; LANES],
+        fragments: &[Fragment; LANES],
+        out: &mut [Entry; LANES],
+    ) -> bool {
+        debug_assert!(fragments.iter().all(|f| f.object == object));
+        let Some(o) = self.object(object) else {
+            return false;
+        };
+        pulp::Arch::new().dispatch(EntryJob {
+            view: self,
+            o,
+            at,
+            fragments,
+            out,
+        });
+        true
+    }
+}
+
+impl View {
+    /// [`View::entry`] of every normal fragment of row `row` of `frame` (rendered at this
+    /// view), in the frame's order: `out[k]` is fragment `first + k`'s entry, where `first` is
+    /// the row's first fragment, and `known[k]` says whether its object is known (`entry`
+    /// gives `Some`); `out[k]` is meaningless where it is not. Consecutive fragments of one
+    /// object go through [`View::entry_batch`] together.
+    pub(crate) fn row_entries(
+        &self,
+        frame: &DeepFrame,
+        row: usize,
+        out: &mut Vec<Entry>,
+        known: &mut Vec<bool>,
+    ) {
+        let w = frame.width() as usize;
+        let offsets = frame.offsets();
+        let (first, last) = (offsets[row * w] as usize, offsets[(row + 1) * w] as usize);
+        out.clear();
+        out.resize(last - first, Entry::default());
+        known.clear();
+        known.resize(last - first, false);
+        let (depths, colors, objects) = (frame.depths(), frame.colors(), frame.objects());
+        let mut at = [[0u32; 2]; LANES];
+        let mut fragments = [Fragment::default(); LANES];
+        let mut entries = [Entry::default(); LANES];
+        let mut len = 0;
+        let mut start = first;
+        let mut flush =
+            |len: usize, start: usize, at: &[[u32; 2]; LANES], fragments: &[Fragment; LANES]| {
+                if len == 0 {
+                    return;
+                }
+                let object = fragments[0].object;
+                // Lanes past `len` hold earlier fragments of this object or none: computed and
+                // not written back.
+                let mut f = *fragments;
+                for x in &mut f[len..] {
+                    x.object = object;
+                }
+                if self.entry_batch(object, at, &f, &mut entries) {
+                    out[start - first..start - first + len].copy_from_slice(&entries[..len]);
+                    known[start - first..start - first + len].fill(true);
+                }
+            };
+        for x in 0..w {
+            let p = row * w + x;
+            for k in offsets[p] as usize..offsets[p + 1] as usize {
+                let f = Fragment {
+                    depth: depths[k],
+                    color: colors[k],
+                    object: objects[k],
+                };
+                if len == LANES || (len > 0 && fragments[0].object != f.object) {
+                    flush(len, start, &at, &fragments);
+                    len = 0;
+                }
+                if len == 0 {
+                    start = k;
+                }
+                at[len] = [x as u32, row as u32];
+                fragments[len] = f;
+                len += 1;
+            }
+        }
+        flush(len, start, &at, &fragments);
+    }
+}
