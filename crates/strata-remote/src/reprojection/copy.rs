@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use strata_core::DeepFrame;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
-use super::held::{Entry, Held, Scratch};
+use super::held::{Entry, Held, Scratch, band_digest, frame_digest};
 use super::view::View;
 use super::{BAND_ROWS, merge_pixel, sort_entries};
 
@@ -28,8 +28,8 @@ pub enum ApplyError {
     },
 }
 
-/// One band's new runs: the entries and each pixel's count.
-type BandRuns = (Vec<Entry>, Vec<u32>);
+/// One band's new runs: the entries, each pixel's count, and the band's digest.
+type BandRuns = (Vec<Entry>, Vec<u32>, u64);
 
 /// The display's side: one node's held fragments.
 #[derive(Clone, Debug)]
@@ -102,56 +102,58 @@ impl ReprojCopy {
             .bands
             .par_iter_mut()
             .enumerate()
-            .map(|(b, (entries, counts))| {
+            .map(|(b, (entries, counts, digest))| {
                 entries.clear();
                 counts.clear();
                 let mut ins: Vec<Entry> = Vec::new();
                 let (mut row_entries, mut known) = (Vec::new(), Vec::new());
                 let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-                let first = rows.start * w;
                 let offsets = inserts.offsets();
-                for (p, &k) in (first..).zip(&slot[first..rows.end * w]) {
-                    if p % w == 0 {
-                        view.row_entries(inserts, p / w, &mut row_entries, &mut known);
-                    }
-                    let start = entries.len();
-                    let held = projected.run(p);
-                    match k {
-                        u32::MAX => entries.extend_from_slice(held),
-                        k => {
-                            let removed = removals.pixel(k as usize);
-                            if let Some(&last) = removed.last()
-                                && last as usize >= held.len()
-                            {
-                                return Err(ApplyError::Mismatch(format!(
-                                    "pixel {p} holds {} fragments, the node removes position {last}",
-                                    held.len()
-                                )));
-                            }
-                            ins.clear();
-                            let row_first = offsets[p - p % w] as usize;
-                            for (k, f) in (offsets[p] as usize..).zip(inserts.run(p).iter()) {
-                                if !known[k - row_first] {
+                for row in rows {
+                    let first = row * w;
+                    // Each row's inserted entries are made first (in lanes).
+                    view.row_entries(inserts, row, &mut row_entries, &mut known);
+                    let row_first = offsets[first] as usize;
+                    for (p, &k) in (first..).zip(&slot[first..first + w]) {
+                        let start = entries.len();
+                        let held = projected.run(p);
+                        match k {
+                            u32::MAX => entries.extend_from_slice(held),
+                            k => {
+                                let removed = removals.pixel(k as usize);
+                                if let Some(&last) = removed.last()
+                                    && last as usize >= held.len()
+                                {
                                     return Err(ApplyError::Mismatch(format!(
-                                        "pixel {p}: object {} is not in the scene",
-                                        f.object.0
+                                        "pixel {p} holds {} fragments, the node removes position {last}",
+                                        held.len()
                                     )));
                                 }
-                                ins.push(row_entries[k - row_first]);
+                                ins.clear();
+                                for (k, f) in (offsets[p] as usize..).zip(inserts.run(p).iter()) {
+                                    if !known[k - row_first] {
+                                        return Err(ApplyError::Mismatch(format!(
+                                            "pixel {p}: object {} is not in the scene",
+                                            f.object.0
+                                        )));
+                                    }
+                                    ins.push(row_entries[k - row_first]);
+                                }
+                                sort_entries(&mut ins);
+                                merge_pixel(held, removed, &ins, entries);
                             }
-                            sort_entries(&mut ins);
-                            merge_pixel(held, removed, &ins, entries);
                         }
+                        counts.push((entries.len() - start) as u32);
                     }
-                    counts.push((entries.len() - start) as u32);
                 }
+                *digest = band_digest(b, entries, counts);
                 Ok(())
             })
             .collect();
         results.into_iter().collect::<Result<(), ApplyError>>()?;
         let held = &mut self.spare;
-        held.assemble(view, &self.bands, |(e, c)| (e.as_slice(), c.as_slice()));
-        let ours = held.digest();
+        held.assemble(view, &self.bands, |(e, c, _)| (e.as_slice(), c.as_slice()));
+        let ours = frame_digest(width, height, self.bands.iter().map(|(_, _, d)| *d));
         if ours != removals.checksum() {
             return Err(ApplyError::Diverged {
                 ours,

@@ -7,7 +7,7 @@ use strata_core::{DeepFrame, Fragment};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
-use super::held::{Entry, Held, Scratch};
+use super::held::{Entry, Held, Scratch, band_digest, frame_digest};
 use super::view::View;
 use super::{BAND_ROWS, DEPTH_SLACK, close, merge_pixel, sort_stably_by_key};
 
@@ -60,6 +60,8 @@ struct BandOut {
     inserts: Vec<Fragment>,
     /// Largest |kept depth − rendered depth|.
     depth_error: f32,
+    /// The band's share of the new state's digest ([`band_digest`]).
+    digest: u64,
 }
 
 impl ReprojEncoder {
@@ -112,11 +114,20 @@ impl ReprojEncoder {
             let (mut row_entries, mut known) = (Vec::new(), Vec::new());
             let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
             let offsets = rendered.offsets();
-            for p in rows.start * w..rows.end * w {
-                if p % w == 0 {
-                    view.row_entries(rendered, p / w, &mut row_entries, &mut known);
+            // Pixel by pixel, with each row's entries made first (in lanes).
+            let pixels = rows.flat_map(|row| (0..w).map(move |x| (row, x)));
+            let mut row_first = 0;
+            for (row, x) in pixels {
+                let p = row * w + x;
+                if x == 0 {
+                    view.row_entries(rendered, row, &mut row_entries, &mut known);
+                    row_first = offsets[p] as usize;
                 }
-                let row_first = offsets[p - p % w] as usize;
+                if offsets[p] == offsets[p + 1] && projected.run(p).is_empty() {
+                    // Nothing rendered, nothing held: nothing to say.
+                    out.counts.push(0);
+                    continue;
+                }
                 truth.clear();
                 for (k, f) in (offsets[p] as usize..).zip(rendered.run(p).iter()) {
                     if known[k - row_first] {
@@ -180,6 +191,7 @@ impl ReprojEncoder {
                     out.inserts.extend_from_slice(&inserted_wire);
                 }
             }
+            out.digest = band_digest(b, &out.entries, &out.counts);
         });
 
         // Assemble the new state (in the old state's buffers), the mask, the removals and the
@@ -212,7 +224,11 @@ impl ReprojEncoder {
             }
             insert_list.extend_from_slice(&o.inserts);
         }
-        removals.set_checksum(held.digest());
+        removals.set_checksum(frame_digest(
+            width,
+            height,
+            self.bands.iter().map(|o| o.digest),
+        ));
         removals.set_depth_error(depth_error);
         let mut starts = Vec::with_capacity(pixels + 1);
         let mut acc = 0u32;

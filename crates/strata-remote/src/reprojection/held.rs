@@ -323,37 +323,57 @@ impl Held {
     }
 
     /// A 64-bit digest of what is held — run lengths, fragments and surfel positions, in order —
-    /// computed over fixed bands, so it does not depend on the thread count.
+    /// computed over fixed bands ([`band_digest`], combined by [`frame_digest`]), so it does not
+    /// depend on the thread count.
     pub fn digest(&self) -> u64 {
         let width = self.width as usize;
         let bands = (self.height as usize).div_ceil(BAND_ROWS);
         let parts: Vec<u64> = (0..bands)
             .into_par_iter()
             .map(|b| {
-                let mut h = Digest::new(b as u64);
                 let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(self.height as usize);
-                for p in rows.start * width..rows.end * width {
-                    let run = self.run(p);
-                    h.word(run.len() as u64);
-                    for e in run {
-                        // The fragment and the position: two ends that differ anywhere upstream
-                        // (matrices, trigonometry) differ here. Normals are left out to keep the
-                        // digest cheap; a difference in one shows once it changes a colour.
-                        let (f, q) = (&e.fragment, &e.surfel.position);
-                        h.word(u64::from(f.depth.to_bits()) << 32 | u64::from(f.color.to_bits()));
-                        h.word(u64::from(f.object.0) << 32 | u64::from(q[0].to_bits()));
-                        h.word(u64::from(q[1].to_bits()) << 32 | u64::from(q[2].to_bits()));
-                    }
-                }
-                h.finish()
+                let (first, last) = (rows.start * width, rows.end * width);
+                let counts: Vec<u32> = (first..last)
+                    .map(|p| self.offsets[p + 1] - self.offsets[p])
+                    .collect();
+                let entries =
+                    &self.entries[self.offsets[first] as usize..self.offsets[last] as usize];
+                band_digest(b, entries, &counts)
             })
             .collect();
-        let mut h = Digest::new(u64::from(self.width) << 32 | u64::from(self.height));
-        for p in parts {
-            h.word(p);
-        }
-        h.finish()
+        frame_digest(self.width, self.height, parts)
     }
+}
+
+/// The digest of band `b` (rows `b · BAND_ROWS` on) of a held list: its pixels' run lengths
+/// `counts` and their `entries`, in order. The ends compute it in their band tasks, while the
+/// band is in cache; [`Held::digest`] computes the same from a whole list.
+pub(super) fn band_digest(b: usize, entries: &[Entry], counts: &[u32]) -> u64 {
+    let mut h = Digest::new(b as u64);
+    let mut at = 0;
+    for &n in counts {
+        h.word(u64::from(n));
+        for e in &entries[at..at + n as usize] {
+            // The fragment and the position: two ends that differ anywhere upstream
+            // (matrices, trigonometry) differ here. Normals are left out to keep the
+            // digest cheap; a difference in one shows once it changes a colour.
+            let (f, q) = (&e.fragment, &e.surfel.position);
+            h.word(u64::from(f.depth.to_bits()) << 32 | u64::from(f.color.to_bits()));
+            h.word(u64::from(f.object.0) << 32 | u64::from(q[0].to_bits()));
+            h.word(u64::from(q[1].to_bits()) << 32 | u64::from(q[2].to_bits()));
+        }
+        at += n as usize;
+    }
+    h.finish()
+}
+
+/// The digest of a `width` × `height` held list from its bands' [`band_digest`]s, in order.
+pub(super) fn frame_digest(width: u32, height: u32, bands: impl IntoIterator<Item = u64>) -> u64 {
+    let mut h = Digest::new(u64::from(width) << 32 | u64::from(height));
+    for p in bands {
+        h.word(p);
+    }
+    h.finish()
 }
 
 /// Cuts `items`, one per fragment of a list laid out by `offsets` over `height` rows of `width`

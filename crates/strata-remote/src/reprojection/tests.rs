@@ -71,6 +71,8 @@ fn run(scene: &Scene, frames: u64, tolerance: u8) -> Vec<usize> {
         copy.apply(&v, &d.touched, &d.removals, &d.inserts)
             .expect("the display follows the node");
         assert_eq!(copy.held().len() as u64, d.held);
+        // The digest both ends computed band by band is that of the whole list.
+        assert_eq!(copy.held().digest(), d.removals.checksum());
         assert_eq!(copy.held().len(), rendered.fragment_count());
         let image = copy.held().to_frame().resolve(scene.background);
         let exact = render(scene, &ids, t, FragmentOutput::Shaded).resolve(scene.background);
