@@ -3,7 +3,7 @@
 //! what is missing, and check the merged run (see the module docs of `reprojection`).
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, Fragment};
+use strata_core::{DeepFrame, Fragment, ObjectId, Rgba8};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
@@ -188,6 +188,9 @@ impl ReprojEncoder {
                     out.removed_counts.push(removed.len() as u32);
                     out.removed.extend_from_slice(&removed);
                     out.insert_counts.push(inserted_wire.len() as u32);
+                    // In the wire's order (the truth is in the entries' order, which differs
+                    // only where depths tie).
+                    sort_stably_by_key(&mut inserted_wire, Fragment::order_key);
                     out.inserts.extend_from_slice(&inserted_wire);
                 }
             }
@@ -203,8 +206,6 @@ impl ReprojEncoder {
         });
         let mut mask = MaskBuilder::new(pixels as u32);
         let mut removals = Removals::new(0);
-        let mut insert_counts = vec![0u32; pixels];
-        let mut insert_list: Vec<Fragment> = Vec::new();
         let mut depth_error = 0f32;
         if let Some(&n) = self.bands.iter().flat_map(|o| &o.removed_counts).max()
             && n > MAX_REMOVALS_PER_PIXEL
@@ -220,9 +221,7 @@ impl ReprojEncoder {
                 let n = o.removed_counts[k] as usize;
                 removals.push_pixel(o.removed[at..at + n].iter().copied());
                 at += n;
-                insert_counts[p as usize] = o.insert_counts[k];
             }
-            insert_list.extend_from_slice(&o.inserts);
         }
         removals.set_checksum(frame_digest(
             width,
@@ -230,19 +229,7 @@ impl ReprojEncoder {
             self.bands.iter().map(|o| o.digest),
         ));
         removals.set_depth_error(depth_error);
-        let mut starts = Vec::with_capacity(pixels + 1);
-        let mut acc = 0u32;
-        for &c in &insert_counts {
-            starts.push(acc);
-            acc += c;
-        }
-        starts.push(acc);
-        // The inserts were rendered fragments: every run is at most a pixel's depth complexity,
-        // and the total fits the rendered frame, so building cannot fail.
-        let inserts = DeepFrame::build(width, height, &insert_counts, |p, out| {
-            out.extend_from_slice(&insert_list[starts[p] as usize..starts[p + 1] as usize]);
-        })
-        .unwrap_or_else(|_| DeepFrame::empty(width, height));
+        let inserts = inserts_frame(width, height, &self.bands);
         let count = held.len() as u64;
         self.held = Some(held);
         Ok(ReprojDelta {
@@ -252,6 +239,57 @@ impl ReprojEncoder {
             held: count,
         })
     }
+}
+
+/// The inserted normal fragments of every band as one `width` × `height` DeepFrame, its offsets
+/// and columns filled band by band in parallel.
+fn inserts_frame(width: u32, height: u32, bands: &[BandOut]) -> DeepFrame {
+    let w = width as usize;
+    let pixels = w * height as usize;
+    let total: usize = bands.iter().map(|o| o.inserts.len()).sum();
+    let mut offsets = vec![0u32; pixels + 1];
+    offsets[pixels] = total as u32;
+    let mut depth = vec![0f32; total];
+    let mut color = vec![Rgba8::default(); total];
+    let mut object = vec![ObjectId::default(); total];
+    let mut jobs = Vec::with_capacity(bands.len());
+    let mut rest = (
+        &mut offsets[..pixels],
+        &mut depth[..],
+        &mut color[..],
+        &mut object[..],
+    );
+    let (mut first, mut base) = (0, 0u32);
+    for (b, o) in bands.iter().enumerate() {
+        let band_pixels = (BAND_ROWS * w).min(pixels - first);
+        let n = o.inserts.len();
+        let (offs, o_tail) = std::mem::take(&mut rest.0).split_at_mut(band_pixels);
+        let (d, d_tail) = std::mem::take(&mut rest.1).split_at_mut(n);
+        let (c, c_tail) = std::mem::take(&mut rest.2).split_at_mut(n);
+        let (ob, ob_tail) = std::mem::take(&mut rest.3).split_at_mut(n);
+        jobs.push((b, first, base, offs, d, c, ob));
+        rest = (o_tail, d_tail, c_tail, ob_tail);
+        first += band_pixels;
+        base += n as u32;
+    }
+    jobs.into_par_iter()
+        .for_each(|(b, first, base, offs, d, c, ob)| {
+            let o = &bands[b];
+            let (mut at, mut t) = (base, 0);
+            for (p, off) in (first..).zip(offs.iter_mut()) {
+                *off = at;
+                if o.touched.get(t) == Some(&(p as u32)) {
+                    at += o.insert_counts[t];
+                    t += 1;
+                }
+            }
+            for (k, f) in o.inserts.iter().enumerate() {
+                (d[k], c[k], ob[k]) = (f.depth, f.color, f.object);
+            }
+        });
+    // The inserts are rendered fragments, each pixel's in order: this cannot fail.
+    DeepFrame::from_parts(width, height, offsets, depth, color, object)
+        .unwrap_or_else(|_| DeepFrame::empty(width, height))
 }
 
 /// Sorts (entry, wire fragment) pairs by the entry's order, stably.
