@@ -82,8 +82,8 @@ impl Held {
     ///
     /// Four parallel passes, none of them over the whole list on one thread:
     ///
-    /// 1. per source band (of [`BAND_ROWS`] rows): every entry moved to `view`
-    ///    ([`View::project_batch`], a batch of one object's consecutive entries at a time), and
+    /// 1. per source band (of 16 rows): every entry moved to `view`
+    ///    (`View::project_batch`, a batch of one object's consecutive entries at a time), and
     ///    how many land in each destination band;
     /// 2. (serial, bands × bands) where each source band's share of each destination band
     ///    starts in the bucket list;
@@ -323,7 +323,7 @@ impl Held {
     }
 
     /// A 64-bit digest of what is held — run lengths, fragments and surfel positions, in order —
-    /// computed over fixed bands ([`band_digest`], combined by [`frame_digest`]), so it does not
+    /// computed over fixed bands (`band_digest`, combined by `frame_digest`), so it does not
     /// depend on the thread count.
     pub fn digest(&self) -> u64 {
         let width = self.width as usize;
