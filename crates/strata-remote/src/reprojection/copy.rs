@@ -98,7 +98,7 @@ impl ReprojCopy {
         let w = width as usize;
         let bands = (height as usize).div_ceil(BAND_ROWS);
         self.bands.resize_with(bands, BandRuns::default);
-        let results: Vec<Result<(), ApplyError>> = self
+        let results: Vec<Result<usize, ApplyError>> = self
             .bands
             .par_iter_mut()
             .enumerate()
@@ -106,6 +106,8 @@ impl ReprojCopy {
                 entries.clear();
                 counts.clear();
                 let mut ins: Vec<Entry> = Vec::new();
+                // Inserts taken, to check that none lies outside the touched pixels.
+                let mut taken = 0;
                 let (mut row_entries, mut known) = (Vec::new(), Vec::new());
                 let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
                 let offsets = inserts.offsets();
@@ -139,6 +141,7 @@ impl ReprojCopy {
                                     }
                                     ins.push(row_entries[k - row_first]);
                                 }
+                                taken += ins.len();
                                 sort_entries(&mut ins);
                                 merge_pixel(held, removed, &ins, entries);
                             }
@@ -147,10 +150,16 @@ impl ReprojCopy {
                     }
                 }
                 *digest = band_digest(b, entries, counts);
-                Ok(())
+                Ok(taken)
             })
             .collect();
-        results.into_iter().collect::<Result<(), ApplyError>>()?;
+        let taken: usize = results.into_iter().sum::<Result<usize, ApplyError>>()?;
+        if taken != inserts.fragment_count() {
+            return Err(ApplyError::Mismatch(format!(
+                "{} inserted fragments lie outside the touched pixels",
+                inserts.fragment_count() - taken
+            )));
+        }
         let held = &mut self.spare;
         held.assemble(view, &self.bands, |(e, c, _)| (e.as_slice(), c.as_slice()));
         let ours = frame_digest(width, height, self.bands.iter().map(|(_, _, d)| *d));

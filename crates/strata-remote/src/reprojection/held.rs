@@ -1,8 +1,8 @@
 //! What both ends hold for one node: per pixel a run of entries (surfel + the fragment it shades
 //! to now), sorted front to back; how it moves to a new view; its digest.
 //!
-//! Layout: `offsets[w·h + 1]` into one `entries` array, like a DeepFrame, with the 40-byte
-//! [`Entry`] (12-byte fragment, 24-byte surfel, padding) as the column.
+//! Layout: `offsets[w·h + 1]` into one `entries` array, like a DeepFrame, with the 36-byte
+//! [`Entry`] (12-byte fragment, 24-byte surfel) as the column.
 
 use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId};
@@ -77,15 +77,15 @@ impl Held {
         out
     }
 
-    /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (no allocation once
-    /// they have grown to the scene's needs).
+    /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (once they have grown
+    /// to the scene's needs, a call allocates only a few vectors per band, none per entry).
     ///
-    /// Four parallel passes, none of them over the whole list on one thread:
+    /// Three parallel passes and a small serial one, none over the whole list on one thread:
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
     ///    (`View::project_batch`, a batch of one object's consecutive entries at a time), and
     ///    how many land in each destination band;
-    /// 2. (serial, bands × bands) where each source band's share of each destination band
+    /// 2. (serial, over bands × bands) where each source band's share of each destination band
     ///    starts in the bucket list;
     /// 3. per source band: the indices of its entries that stay in view, appended to their
     ///    destination band's bucket in source order;
@@ -358,9 +358,12 @@ pub(super) fn band_digest(b: usize, entries: &[Entry], counts: &[u32]) -> u64 {
             // (matrices, trigonometry) differ here. Normals are left out to keep the
             // digest cheap; a difference in one shows once it changes a colour.
             let (f, q) = (&e.fragment, &e.surfel.position);
-            h.word(u64::from(f.depth.to_bits()) << 32 | u64::from(f.color.to_bits()));
-            h.word(u64::from(f.object.0) << 32 | u64::from(q[0].to_bits()));
-            h.word(u64::from(q[1].to_bits()) << 32 | u64::from(q[2].to_bits()));
+            // NaN is hashed as one value: IEEE arithmetic fixes values on every instruction
+            // set, not NaN payloads (a point unprojected at w = 0 is NaN).
+            let bits = |x: f32| u64::from(if x.is_nan() { f32::NAN } else { x }.to_bits());
+            h.word(bits(f.depth) << 32 | u64::from(f.color.to_bits()));
+            h.word(u64::from(f.object.0) << 32 | bits(q[0]));
+            h.word(bits(q[1]) << 32 | bits(q[2]));
         }
         at += n as usize;
     }

@@ -51,8 +51,8 @@
 //!   rendered normal fragment to a surfel), shading;
 //! - `lanes`: eq. 5.9 and 5.10 with their shading for eight fragments of one object at a time,
 //!   the same bits as `view`'s one-fragment forms (what both ends run);
-//! - `held`: the per-pixel runs both ends hold, reprojection (four parallel passes: move, count,
-//!   bucket by destination band, counting sort per band), the digest;
+//! - `held`: the per-pixel runs both ends hold, reprojection (in parallel: move and count per
+//!   source band, bucket by destination band, counting sort per destination band), the digest;
 //! - `encoder`: the node's side — matching, removals and inserts;
 //! - `copy`: the display's side — applying a frame, and which pixels need a fixup.
 

@@ -133,6 +133,29 @@ fn a_removal_beyond_a_run_or_a_wrong_digest_is_an_error_and_keeps_the_copy() {
         Err(ApplyError::Mismatch(_))
     ));
     assert_eq!(copy.held(), &before);
+    // An insert at a pixel the mask does not touch (the display would ignore it, so a node
+    // that sends one is broken).
+    let untouched = (0..W * H).find(|&q| q != p).unwrap() as usize;
+    let f = render(&s, &ids, 0, FragmentOutput::PackedNormal)
+        .run(p as usize)
+        .iter()
+        .next()
+        .expect("a touched pixel of the first frame was rendered");
+    let stray = DeepFrame::build(W, H, &vec_with_one(untouched), |_, out| out.push(f)).unwrap();
+    let mut r = Removals::new(0);
+    r.push_pixel([]);
+    assert!(matches!(
+        copy.apply(&v, &touched, &r, &stray),
+        Err(ApplyError::Mismatch(m)) if m.contains("outside the touched pixels")
+    ));
+    assert_eq!(copy.held(), &before);
+}
+
+/// Per-pixel counts of a frame with one fragment at pixel `p`.
+fn vec_with_one(p: usize) -> Vec<u32> {
+    let mut counts = vec![0; (W * H) as usize];
+    counts[p] = 1;
+    counts
 }
 
 #[test]
@@ -160,6 +183,12 @@ fn digest_and_reprojection_do_not_depend_on_the_thread_count() {
             })
     };
     assert_eq!(go(1), go(3));
+}
+
+#[test]
+fn an_entry_is_36_bytes_as_the_layout_says() {
+    // held.rs's layout and the README's memory figures count on it.
+    assert_eq!(std::mem::size_of::<Entry>(), 36);
 }
 
 #[test]
@@ -333,10 +362,19 @@ fn lane_test_views(s: &Scene, ids: &[ObjectId]) -> Vec<View> {
     views
 }
 
+/// `x`'s bits, every NaN as one: IEEE arithmetic fixes values, not NaN payloads.
+fn bits(x: f32) -> u32 {
+    if x.is_nan() {
+        f32::NAN.to_bits()
+    } else {
+        x.to_bits()
+    }
+}
+
 /// The bits of a moved fragment, so that -0 and 0 differ and NaN equals itself.
 fn moved_bits(m: Option<(u32, Fragment)>) -> (u32, u32, Rgba8, ObjectId) {
     match m {
-        Some((p, f)) => (p, f.depth.to_bits(), f.color, f.object),
+        Some((p, f)) => (p, bits(f.depth), f.color, f.object),
         None => (u32::MAX, 0, Rgba8::default(), ObjectId::default()),
     }
 }
@@ -344,7 +382,7 @@ fn moved_bits(m: Option<(u32, Fragment)>) -> (u32, u32, Rgba8, ObjectId) {
 fn entry_bits(e: &Entry) -> ([u32; 7], Rgba8, ObjectId) {
     let (p, n) = (e.surfel.position, e.surfel.normal);
     (
-        [p[0], p[1], p[2], n[0], n[1], n[2], e.fragment.depth].map(f32::to_bits),
+        [p[0], p[1], p[2], n[0], n[1], n[2], e.fragment.depth].map(bits),
         e.fragment.color,
         e.fragment.object,
     )
@@ -458,14 +496,22 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
     }
     let held = copy.held();
     assert!(held.len() > 10_000, "{}", held.len());
-    // The definition: every entry moved in list order, appended to its new pixel, each run
-    // then sorted stably.
+    // The definition: every entry moved in list order (kept as it is where its object is
+    // placed and seen as in the list's view, that of frame 2), appended to its new pixel, each
+    // run then sorted stably.
+    let held_view = view(&s, &ids, 2);
     let reference = |v: &View| {
         let (w, h) = v.size();
         let mut runs = vec![Vec::new(); w as usize * h as usize];
         for p in 0..(W * H) as usize {
             for e in held.run(p) {
-                if let Some((q, f)) = v.project(e.fragment.object, &e.surfel) {
+                let object = e.fragment.object;
+                let moved = if v.unchanged(&held_view, object.0 as usize) {
+                    Some((p as u32, e.fragment))
+                } else {
+                    v.project(object, &e.surfel)
+                };
+                if let Some((q, f)) = moved {
                     runs[q as usize].push(Entry {
                         fragment: f,
                         surfel: e.surfel,
@@ -487,10 +533,13 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
             s.camera.projection(w, h),
         )
     };
+    // Frame 2 is where the list was made: every object unchanged, kept bit for bit.
     let views = [
         sized(4, (W, H)),
+        sized(2, (W, H)),
         sized(9, (W / 2 + 3, H / 2 + 5)),
         sized(6, (W * 2, H + 17)),
+        sized(5, (1, 1)),
     ];
     let mut out = Held::empty(0, 0);
     let mut scratch = Scratch::default();
