@@ -3,7 +3,7 @@
 //! what is missing, and check the merged run (see the module docs of `reprojection`).
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, Fragment, ObjectId, Rgba8};
+use strata_core::{DeepFrame, Fragment, GatheredPixels};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
@@ -62,6 +62,8 @@ struct BandOut {
     depth_error: f32,
     /// The band's share of the new state's digest ([`band_digest`]).
     digest: u64,
+    /// `inserts` as the band's share of the inserts frame ([`DeepFrame::from_gathered`]).
+    gathered: GatheredPixels,
 }
 
 impl ReprojEncoder {
@@ -113,6 +115,7 @@ impl ReprojEncoder {
             let mut inserted_wire: Vec<Fragment> = Vec::new();
             let (mut row_entries, mut known) = (Vec::new(), Vec::new());
             let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+            let band_pixels = rows.start * w..rows.end * w;
             let offsets = rendered.offsets();
             // Pixel by pixel, with each row's entries made first (in lanes).
             let pixels = rows.flat_map(|row| (0..w).map(move |x| (row, x)));
@@ -188,13 +191,23 @@ impl ReprojEncoder {
                     out.removed_counts.push(removed.len() as u32);
                     out.removed.extend_from_slice(&removed);
                     out.insert_counts.push(inserted_wire.len() as u32);
-                    // In the wire's order (the truth is in the entries' order, which differs
-                    // only where depths tie).
-                    sort_stably_by_key(&mut inserted_wire, Fragment::order_key);
                     out.inserts.extend_from_slice(&inserted_wire);
                 }
             }
             out.digest = band_digest(b, &out.entries, &out.counts);
+            // The band's inserts, each pixel's run sorted in the wire's order (the truth is in
+            // the entries' order, which differs where depths tie).
+            let (mut t, mut at) = (0, 0);
+            let (touched, counts, list) = (&out.touched, &out.insert_counts, &out.inserts);
+            let gathered = GatheredPixels::gather(band_pixels, &mut inserted_wire, |p, run| {
+                if touched.get(t) == Some(&(p as u32)) {
+                    let n = counts[t] as usize;
+                    run.extend_from_slice(&list[at..at + n]);
+                    (t, at) = (t + 1, at + n);
+                }
+            });
+            // Rendered fragments are in range: gathering them cannot fail.
+            out.gathered = gathered.unwrap_or_default();
         });
 
         // Assemble the new state (in the old state's buffers), the mask, the removals and the
@@ -229,7 +242,15 @@ impl ReprojEncoder {
             self.bands.iter().map(|o| o.digest),
         ));
         removals.set_depth_error(depth_error);
-        let inserts = inserts_frame(width, height, &self.bands);
+        // The bands' inserts, assembled in parallel. They are rendered fragments of this frame's
+        // size, so this cannot fail; were it to, the empty frame would make the display's
+        // digest differ and the link reset, not lose fragments silently.
+        let gathered = self
+            .bands
+            .iter_mut()
+            .map(|o| std::mem::take(&mut o.gathered));
+        let inserts = DeepFrame::from_gathered(width, height, gathered.collect())
+            .unwrap_or_else(|_| DeepFrame::empty(width, height));
         let count = held.len() as u64;
         self.held = Some(held);
         Ok(ReprojDelta {
@@ -239,57 +260,6 @@ impl ReprojEncoder {
             held: count,
         })
     }
-}
-
-/// The inserted normal fragments of every band as one `width` × `height` DeepFrame, its offsets
-/// and columns filled band by band in parallel.
-fn inserts_frame(width: u32, height: u32, bands: &[BandOut]) -> DeepFrame {
-    let w = width as usize;
-    let pixels = w * height as usize;
-    let total: usize = bands.iter().map(|o| o.inserts.len()).sum();
-    let mut offsets = vec![0u32; pixels + 1];
-    offsets[pixels] = total as u32;
-    let mut depth = vec![0f32; total];
-    let mut color = vec![Rgba8::default(); total];
-    let mut object = vec![ObjectId::default(); total];
-    let mut jobs = Vec::with_capacity(bands.len());
-    let mut rest = (
-        &mut offsets[..pixels],
-        &mut depth[..],
-        &mut color[..],
-        &mut object[..],
-    );
-    let (mut first, mut base) = (0, 0u32);
-    for (b, o) in bands.iter().enumerate() {
-        let band_pixels = (BAND_ROWS * w).min(pixels - first);
-        let n = o.inserts.len();
-        let (offs, o_tail) = std::mem::take(&mut rest.0).split_at_mut(band_pixels);
-        let (d, d_tail) = std::mem::take(&mut rest.1).split_at_mut(n);
-        let (c, c_tail) = std::mem::take(&mut rest.2).split_at_mut(n);
-        let (ob, ob_tail) = std::mem::take(&mut rest.3).split_at_mut(n);
-        jobs.push((b, first, base, offs, d, c, ob));
-        rest = (o_tail, d_tail, c_tail, ob_tail);
-        first += band_pixels;
-        base += n as u32;
-    }
-    jobs.into_par_iter()
-        .for_each(|(b, first, base, offs, d, c, ob)| {
-            let o = &bands[b];
-            let (mut at, mut t) = (base, 0);
-            for (p, off) in (first..).zip(offs.iter_mut()) {
-                *off = at;
-                if o.touched.get(t) == Some(&(p as u32)) {
-                    at += o.insert_counts[t];
-                    t += 1;
-                }
-            }
-            for (k, f) in o.inserts.iter().enumerate() {
-                (d[k], c[k], ob[k]) = (f.depth, f.color, f.object);
-            }
-        });
-    // The inserts are rendered fragments, each pixel's in order: this cannot fail.
-    DeepFrame::from_parts(width, height, offsets, depth, color, object)
-        .unwrap_or_else(|_| DeepFrame::empty(width, height))
 }
 
 /// Sorts (entry, wire fragment) pairs by the entry's order, stably.
