@@ -798,9 +798,10 @@ impl<'o> Driver<'o> {
                 tokio::task::block_in_place(|| n.reproj.apply(v, &touched, &removals, &msg.frame))
                     .map_err(|e| e.to_string())?;
                 n.depth_error = removals.depth_error();
-                // The copy it replaces is the size of a full frame; the message only held
-                // the inserted fragments.
-                n.spare.put(n.copy.replace(n.reproj.held().to_frame()));
+                // The message's buffers (its inserts) grow into the new copy; the copy it
+                // replaces, the size of a full frame, serves the next decode.
+                let frame = tokio::task::block_in_place(|| n.reproj.held().frame_into(msg.frame));
+                n.spare.put(n.copy.replace(frame));
             }
             (None, None, None, None) => n.spare.put(n.copy.replace(msg.frame)),
             _ => {

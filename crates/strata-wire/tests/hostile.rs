@@ -623,19 +623,19 @@ fn cases() -> Vec<Case> {
             needles: &["magic", "byte 0", "STRW"],
         },
         Case {
-            what: "version 2 (the previous format)",
-            edit: |b| b[4] = 2,
-            needles: &["version 2", "byte 4", "reads version 3"],
+            what: "version 3 (the previous format)",
+            edit: |b| b[4] = 3,
+            needles: &["version 3", "byte 4", "reads version 4"],
         },
         Case {
             what: "version 1",
             edit: |b| b[4] = 1,
-            needles: &["version 1", "byte 4", "reads version 3"],
+            needles: &["version 1", "byte 4", "reads version 4"],
         },
         Case {
-            what: "version 4",
-            edit: |b| b[4] = 4,
-            needles: &["version 4", "byte 4"],
+            what: "version 5",
+            edit: |b| b[4] = 5,
+            needles: &["version 5", "byte 4"],
         },
         Case {
             what: "version u16::MAX",

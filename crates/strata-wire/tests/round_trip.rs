@@ -1017,7 +1017,7 @@ fn messages_are_laid_out_as_specified() {
         // Prefix.
         assert_eq!(&bytes[0..4], b"STRW");
         assert_eq!(&bytes[4..6], &VERSION.to_le_bytes());
-        assert_eq!(&bytes[4..8], &[3, 0, 1, 0]);
+        assert_eq!(&bytes[4..8], &[4, 0, 1, 0]);
         assert_eq!(&bytes[8..16], &((bytes.len() - 20) as u64).to_le_bytes());
         assert_eq!(&bytes[16..20], &crc32fast::hash(&bytes[20..]).to_le_bytes());
         // Frame header.
@@ -1198,7 +1198,7 @@ fn squeeze(text: &str) -> String {
 
 /// The `raw` message of the worked example, as printed in the document.
 const WORKED_EXAMPLE_RAW: &str = "
-    53 54 52 57 03 00 01 00 e8 00 00 00 00 00 00 00
+    53 54 52 57 04 00 01 00 e8 00 00 00 00 00 00 00
     3c 43 ec 42 07 00 00 00 00 00 00 00 01 00 00 00
     02 00 00 00 01 00 00 00 03 00 00 00 00 00 00 00
     00 00 00 00 00 00 00 00 00 00 80 3f 00 00 00 00
@@ -1217,7 +1217,7 @@ const WORKED_EXAMPLE_RAW: &str = "
 ";
 /// The `deep-lz4` message of the worked example (every section stored: too small to shrink).
 const WORKED_EXAMPLE_DEEP_LZ4: &str = "
-    53 54 52 57 03 00 01 00 19 01 00 00 00 00 00 00
+    53 54 52 57 04 00 01 00 19 01 00 00 00 00 00 00
     88 17 bd dc 07 00 00 00 00 00 00 00 01 00 00 00
     02 00 00 00 01 00 00 00 03 00 00 00 00 00 03 00
     00 00 00 00 00 00 00 00 00 00 80 3f 00 00 00 00

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use strata_core::DeepFrame;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
-use super::held::{Entry, Held, Scratch, band_digest, frame_digest};
+use super::held::{Entry, Held, Scratch, SortedBand, band_digest, frame_digest};
 use super::view::View;
 use super::{BAND_ROWS, merge_pixel, sort_entries};
 
@@ -35,8 +35,7 @@ type BandRuns = (Vec<Entry>, Vec<u32>, u64);
 #[derive(Clone, Debug)]
 pub struct ReprojCopy {
     held: Held,
-    /// Buffers reused from frame to frame: the reprojected list, the next state, bands.
-    projected: Held,
+    /// Buffers reused from frame to frame: the next state, bands.
     spare: Held,
     scratch: Scratch,
     slot: Vec<u32>,
@@ -48,7 +47,6 @@ impl ReprojCopy {
     pub fn empty(width: u32, height: u32) -> Self {
         ReprojCopy {
             held: Held::empty(width, height),
-            projected: Held::empty(0, 0),
             spare: Held::empty(0, 0),
             scratch: Scratch::default(),
             slot: Vec::new(),
@@ -83,85 +81,73 @@ impl ReprojCopy {
                 removals.pixel_count()
             )));
         }
-        self.held
-            .reproject_into(view, &mut self.projected, &mut self.scratch);
-        let projected = &self.projected;
+        // The held list moved to the view; each band task sorts its band of it and merges it
+        // with the node's removals and inserts straight into its share of the next state.
+        let moved = self.held.move_to(view, &mut self.scratch);
         let pixels = width as usize * height as usize;
-        // Which removal entry each touched pixel owns.
+        let w = width as usize;
+        let bands = moved.band_count();
+        let band_of = |p: usize| p / w / BAND_ROWS;
+        // Which removal entry each touched pixel owns, and how many positions each band loses.
         let slot = &mut self.slot;
         slot.clear();
         slot.resize(pixels, u32::MAX);
+        let mut lens: Vec<i64> = (0..bands).map(|d| moved.band_len(d) as i64).collect();
         for (k, p) in touched.iter().enumerate() {
             slot[p as usize] = k as u32;
+            lens[band_of(p as usize)] -= removals.pixel(k).len() as i64;
         }
         let slot = &*slot;
-        let w = width as usize;
-        let bands = (height as usize).div_ceil(BAND_ROWS);
-        self.bands.resize_with(bands, BandRuns::default);
-        let results: Vec<Result<usize, ApplyError>> = self
-            .bands
-            .par_iter_mut()
+        // Each band's next length: what it holds, less its removals, plus its inserts. The
+        // merge checks every removal against its run (a band that would lose more than it
+        // holds fails there, with the pixel named), and the band's length against this.
+        let offsets = inserts.offsets();
+        let lens: Vec<usize> = lens
+            .into_iter()
             .enumerate()
-            .map(|(b, (entries, counts, digest))| {
-                entries.clear();
-                counts.clear();
-                let mut ins: Vec<Entry> = Vec::new();
-                // Inserts taken, to check that none lies outside the touched pixels.
-                let mut taken = 0;
-                let (mut row_entries, mut known) = (Vec::new(), Vec::new());
-                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-                let offsets = inserts.offsets();
-                for row in rows {
-                    let first = row * w;
-                    // Each row's inserted entries are made first (in lanes).
-                    view.row_entries(inserts, row, &mut row_entries, &mut known);
-                    let row_first = offsets[first] as usize;
-                    for (p, &k) in (first..).zip(&slot[first..first + w]) {
-                        let start = entries.len();
-                        let held = projected.run(p);
-                        match k {
-                            u32::MAX => entries.extend_from_slice(held),
-                            k => {
-                                let removed = removals.pixel(k as usize);
-                                if let Some(&last) = removed.last()
-                                    && last as usize >= held.len()
-                                {
-                                    return Err(ApplyError::Mismatch(format!(
-                                        "pixel {p} holds {} fragments, the node removes position {last}",
-                                        held.len()
-                                    )));
-                                }
-                                ins.clear();
-                                for (k, f) in (offsets[p] as usize..).zip(inserts.run(p).iter()) {
-                                    if !known[k - row_first] {
-                                        return Err(ApplyError::Mismatch(format!(
-                                            "pixel {p}: object {} is not in the scene",
-                                            f.object.0
-                                        )));
-                                    }
-                                    ins.push(row_entries[k - row_first]);
-                                }
-                                taken += ins.len();
-                                sort_entries(&mut ins);
-                                merge_pixel(held, removed, &ins, entries);
-                            }
-                        }
-                        counts.push((entries.len() - start) as u32);
-                    }
-                }
-                *digest = band_digest(b, entries, counts);
-                Ok(taken)
+            .map(|(d, n)| {
+                let band = moved.band_pixels(d);
+                let ins = i64::from(offsets[band.end] - offsets[band.start]);
+                (n + ins).max(0) as usize
             })
             .collect();
-        let taken: usize = results.into_iter().sum::<Result<usize, ApplyError>>()?;
+        self.bands.resize_with(bands, BandRuns::default);
+        let built = self
+            .spare
+            .build_bands(view, &lens, &mut self.bands, |b, runs, dest, out| {
+                let (entries, counts, digest) = runs;
+                let taken = moved.sort_band(b, |projected| {
+                    merge_band(b, view, projected, slot, removals, inserts, entries, counts)
+                })?;
+                if entries.len() != dest.len() {
+                    // Inserts outside the touched pixels (counted in the length, not taken),
+                    // reported below.
+                    return Ok((taken, false));
+                }
+                dest.copy_from_slice(entries);
+                out.copy_from_slice(counts);
+                *digest = band_digest(b, entries, counts);
+                Ok((taken, true))
+            });
+        let (mut taken, mut all_fit) = (0, true);
+        for (result, fits) in built {
+            let (t, fit) = result?;
+            taken += t;
+            all_fit &= fit && fits;
+        }
         if taken != inserts.fragment_count() {
             return Err(ApplyError::Mismatch(format!(
                 "{} inserted fragments lie outside the touched pixels",
                 inserts.fragment_count() - taken
             )));
         }
-        let held = &mut self.spare;
-        held.assemble(view, &self.bands, |(e, c, _)| (e.as_slice(), c.as_slice()));
+        if !all_fit {
+            // Not reached: with every removal in its run and every insert taken, each band
+            // holds the length it was given.
+            return Err(ApplyError::Mismatch(
+                "a band's runs do not add up to its length".into(),
+            ));
+        }
         let ours = frame_digest(width, height, self.bands.iter().map(|(_, _, d)| *d));
         if ours != removals.checksum() {
             return Err(ApplyError::Diverged {
@@ -172,6 +158,83 @@ impl ReprojCopy {
         std::mem::swap(&mut self.held, &mut self.spare);
         Ok(())
     }
+}
+
+/// Band `b`'s next runs into `entries` and `counts`: the `projected` runs where no pixel is
+/// touched, and elsewhere each touched pixel's run less its removals, merged with its inserts.
+/// Returns how many inserts the band took.
+#[allow(clippy::too_many_arguments)]
+fn merge_band(
+    b: usize,
+    view: &View,
+    projected: &SortedBand,
+    slot: &[u32],
+    removals: &Removals,
+    inserts: &DeepFrame,
+    entries: &mut Vec<Entry>,
+    counts: &mut Vec<u32>,
+) -> Result<usize, ApplyError> {
+    let (width, height) = view.size();
+    let w = width as usize;
+    entries.clear();
+    counts.clear();
+    let mut ins: Vec<Entry> = Vec::new();
+    // Inserts taken, to check that none lies outside the touched pixels.
+    let mut taken = 0;
+    let (mut row_entries, mut known) = (Vec::new(), Vec::new());
+    let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+    let offsets = inserts.offsets();
+    for row in rows {
+        let first = row * w;
+        // Each row's inserted entries are made first (in lanes).
+        view.row_entries(inserts, row, &mut row_entries, &mut known);
+        let row_first = offsets[first] as usize;
+        let (mut p, end) = (first, first + w);
+        while p < end {
+            // A stretch of untouched pixels keeps its runs: one copy for all.
+            let stop = slot[p..end]
+                .iter()
+                .position(|&k| k != u32::MAX)
+                .map_or(end, |n| p + n);
+            if stop > p {
+                let (held, offs) = projected.span(p..stop);
+                entries.extend_from_slice(held);
+                counts.extend(offs.windows(2).map(|o| o[1] - o[0]));
+                p = stop;
+                if p == end {
+                    break;
+                }
+            }
+            let k = slot[p] as usize;
+            let start = entries.len();
+            let held = projected.run(p);
+            let removed = removals.pixel(k);
+            if let Some(&last) = removed.last()
+                && last as usize >= held.len()
+            {
+                return Err(ApplyError::Mismatch(format!(
+                    "pixel {p} holds {} fragments, the node removes position {last}",
+                    held.len()
+                )));
+            }
+            ins.clear();
+            for (k, f) in (offsets[p] as usize..).zip(inserts.run(p).iter()) {
+                if !known[k - row_first] {
+                    return Err(ApplyError::Mismatch(format!(
+                        "pixel {p}: object {} is not in the scene",
+                        f.object.0
+                    )));
+                }
+                ins.push(row_entries[k - row_first]);
+            }
+            taken += ins.len();
+            sort_entries(&mut ins);
+            merge_pixel(held, removed, &ins, entries);
+            counts.push((entries.len() - start) as u32);
+            p += 1;
+        }
+    }
+    Ok(taken)
 }
 
 /// For each node, the pixels whose order against another node's fragments the display cannot

@@ -41,7 +41,6 @@ pub struct ReprojEncoder {
     tolerance: u8,
     held: Option<Held>,
     /// Buffers reused from frame to frame.
-    projected: Held,
     scratch: Scratch,
     bands: Vec<BandOut>,
 }
@@ -72,7 +71,6 @@ impl ReprojEncoder {
         ReprojEncoder {
             tolerance,
             held: None,
-            projected: Held::empty(0, 0),
             scratch: Scratch::default(),
             bands: Vec::new(),
         }
@@ -90,130 +88,132 @@ impl ReprojEncoder {
     /// [`MAX_REMOVALS_PER_PIXEL`] fragments in one frame, which the wire cannot say.
     pub fn encode(&mut self, view: &View, rendered: &DeepFrame) -> Result<ReprojDelta, TooDeep> {
         let (width, height) = view.size();
-        let old = self.held.take();
-        match &old {
-            Some(h) => h.reproject_into(view, &mut self.projected, &mut self.scratch),
-            None => self.projected.clear_to(width, height),
-        }
-        let projected = &self.projected;
+        // The old state moved to the view; each band task sorts its band of it.
+        let old = self
+            .held
+            .take()
+            .unwrap_or_else(|| Held::empty(width, height));
+        let moved = old.move_to(view, &mut self.scratch);
         let w = width as usize;
         let bands = (height as usize).div_ceil(BAND_ROWS);
         let tolerance = self.tolerance;
         self.bands.resize_with(bands, BandOut::default);
         self.bands.par_iter_mut().enumerate().for_each(|(b, out)| {
-            out.entries.clear();
-            out.counts.clear();
-            out.touched.clear();
-            out.removed_counts.clear();
-            out.removed.clear();
-            out.insert_counts.clear();
-            out.inserts.clear();
-            out.depth_error = 0.0;
-            let mut truth: Vec<(Entry, Fragment)> = Vec::new();
-            let mut removed: Vec<u32> = Vec::new();
-            let mut inserts: Vec<Entry> = Vec::new();
-            let mut inserted_wire: Vec<Fragment> = Vec::new();
-            let (mut row_entries, mut known) = (Vec::new(), Vec::new());
-            let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-            let band_pixels = rows.start * w..rows.end * w;
-            let offsets = rendered.offsets();
-            // Pixel by pixel, with each row's entries made first (in lanes).
-            let pixels = rows.flat_map(|row| (0..w).map(move |x| (row, x)));
-            let mut row_first = 0;
-            for (row, x) in pixels {
-                let p = row * w + x;
-                if x == 0 {
-                    view.row_entries(rendered, row, &mut row_entries, &mut known);
-                    row_first = offsets[p] as usize;
-                }
-                if offsets[p] == offsets[p + 1] && projected.run(p).is_empty() {
-                    // Nothing rendered, nothing held: nothing to say.
-                    out.counts.push(0);
-                    continue;
-                }
-                truth.clear();
-                for (k, f) in (offsets[p] as usize..).zip(rendered.run(p).iter()) {
-                    if known[k - row_first] {
-                        truth.push((row_entries[k - row_first], f));
+            moved.sort_band(b, |projected| {
+                out.entries.clear();
+                out.counts.clear();
+                out.touched.clear();
+                out.removed_counts.clear();
+                out.removed.clear();
+                out.insert_counts.clear();
+                out.inserts.clear();
+                out.depth_error = 0.0;
+                let mut truth: Vec<(Entry, Fragment)> = Vec::new();
+                let mut removed: Vec<u32> = Vec::new();
+                let mut inserts: Vec<Entry> = Vec::new();
+                let mut inserted_wire: Vec<Fragment> = Vec::new();
+                let (mut row_entries, mut known) = (Vec::new(), Vec::new());
+                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+                let band_pixels = rows.start * w..rows.end * w;
+                let offsets = rendered.offsets();
+                // Pixel by pixel, with each row's entries made first (in lanes).
+                let pixels = rows.flat_map(|row| (0..w).map(move |x| (row, x)));
+                let mut row_first = 0;
+                for (row, x) in pixels {
+                    let p = row * w + x;
+                    if x == 0 {
+                        view.row_entries(rendered, row, &mut row_entries, &mut known);
+                        row_first = offsets[p] as usize;
                     }
-                }
-                sort_truth(&mut truth);
-                let held = projected.run(p);
-                removed.clear();
-                inserts.clear();
-                inserted_wire.clear();
-                let mut j = 0;
-                for (n, f) in &truth {
-                    let z = view.eye_depth(n.fragment.depth);
-                    match held[j..].iter().position(|h| {
-                        close(&h.fragment, &n.fragment, tolerance)
-                            && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
-                    }) {
-                        Some(k) => {
-                            removed.extend(j as u32..(j + k) as u32);
-                            j += k + 1;
+                    if offsets[p] == offsets[p + 1] && projected.run(p).is_empty() {
+                        // Nothing rendered, nothing held: nothing to say.
+                        out.counts.push(0);
+                        continue;
+                    }
+                    truth.clear();
+                    for (k, f) in (offsets[p] as usize..).zip(rendered.run(p).iter()) {
+                        if known[k - row_first] {
+                            truth.push((row_entries[k - row_first], f));
                         }
-                        None => {
+                    }
+                    sort_truth(&mut truth);
+                    let held = projected.run(p);
+                    removed.clear();
+                    inserts.clear();
+                    inserted_wire.clear();
+                    let mut j = 0;
+                    for (n, f) in &truth {
+                        let z = view.eye_depth(n.fragment.depth);
+                        match held[j..].iter().position(|h| {
+                            close(&h.fragment, &n.fragment, tolerance)
+                                && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
+                        }) {
+                            Some(k) => {
+                                removed.extend(j as u32..(j + k) as u32);
+                                j += k + 1;
+                            }
+                            None => {
+                                inserts.push(*n);
+                                inserted_wire.push(*f);
+                            }
+                        }
+                    }
+                    removed.extend(j as u32..held.len() as u32);
+                    let start = out.entries.len();
+                    merge_pixel(held, &removed, &inserts, &mut out.entries);
+                    let merged = &out.entries[start..];
+                    let ok = merged.len() == truth.len()
+                        && merged
+                            .iter()
+                            .zip(&truth)
+                            .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
+                    if ok {
+                        for (m, (n, _)) in merged.iter().zip(&truth) {
+                            let e = (m.fragment.depth - n.fragment.depth).abs();
+                            out.depth_error = out.depth_error.max(e);
+                        }
+                    } else {
+                        out.entries.truncate(start);
+                        removed.clear();
+                        removed.extend(0..held.len() as u32);
+                        inserts.clear();
+                        inserted_wire.clear();
+                        for (n, f) in &truth {
                             inserts.push(*n);
                             inserted_wire.push(*f);
                         }
+                        merge_pixel(held, &removed, &inserts, &mut out.entries);
+                    }
+                    out.counts.push((out.entries.len() - start) as u32);
+                    if !removed.is_empty() || !inserts.is_empty() {
+                        out.touched.push(p as u32);
+                        out.removed_counts.push(removed.len() as u32);
+                        out.removed.extend_from_slice(&removed);
+                        out.insert_counts.push(inserted_wire.len() as u32);
+                        out.inserts.extend_from_slice(&inserted_wire);
                     }
                 }
-                removed.extend(j as u32..held.len() as u32);
-                let start = out.entries.len();
-                merge_pixel(held, &removed, &inserts, &mut out.entries);
-                let merged = &out.entries[start..];
-                let ok = merged.len() == truth.len()
-                    && merged
-                        .iter()
-                        .zip(&truth)
-                        .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
-                if ok {
-                    for (m, (n, _)) in merged.iter().zip(&truth) {
-                        let e = (m.fragment.depth - n.fragment.depth).abs();
-                        out.depth_error = out.depth_error.max(e);
+                out.digest = band_digest(b, &out.entries, &out.counts);
+                // The band's inserts, each pixel's run sorted in the wire's order (the truth is in
+                // the entries' order, which differs where depths tie).
+                let (mut t, mut at) = (0, 0);
+                let (touched, counts, list) = (&out.touched, &out.insert_counts, &out.inserts);
+                let gathered = GatheredPixels::gather(band_pixels, &mut inserted_wire, |p, run| {
+                    if touched.get(t) == Some(&(p as u32)) {
+                        let n = counts[t] as usize;
+                        run.extend_from_slice(&list[at..at + n]);
+                        (t, at) = (t + 1, at + n);
                     }
-                } else {
-                    out.entries.truncate(start);
-                    removed.clear();
-                    removed.extend(0..held.len() as u32);
-                    inserts.clear();
-                    inserted_wire.clear();
-                    for (n, f) in &truth {
-                        inserts.push(*n);
-                        inserted_wire.push(*f);
-                    }
-                    merge_pixel(held, &removed, &inserts, &mut out.entries);
-                }
-                out.counts.push((out.entries.len() - start) as u32);
-                if !removed.is_empty() || !inserts.is_empty() {
-                    out.touched.push(p as u32);
-                    out.removed_counts.push(removed.len() as u32);
-                    out.removed.extend_from_slice(&removed);
-                    out.insert_counts.push(inserted_wire.len() as u32);
-                    out.inserts.extend_from_slice(&inserted_wire);
-                }
-            }
-            out.digest = band_digest(b, &out.entries, &out.counts);
-            // The band's inserts, each pixel's run sorted in the wire's order (the truth is in
-            // the entries' order, which differs where depths tie).
-            let (mut t, mut at) = (0, 0);
-            let (touched, counts, list) = (&out.touched, &out.insert_counts, &out.inserts);
-            let gathered = GatheredPixels::gather(band_pixels, &mut inserted_wire, |p, run| {
-                if touched.get(t) == Some(&(p as u32)) {
-                    let n = counts[t] as usize;
-                    run.extend_from_slice(&list[at..at + n]);
-                    (t, at) = (t + 1, at + n);
-                }
+                });
+                // Rendered fragments are in range: gathering them cannot fail.
+                out.gathered = gathered.unwrap_or_default();
             });
-            // Rendered fragments are in range: gathering them cannot fail.
-            out.gathered = gathered.unwrap_or_default();
         });
 
         // Assemble the new state (in the old state's buffers), the mask, the removals and the
         // inserts, band by band.
         let pixels = w * height as usize;
-        let mut held = old.unwrap_or_else(|| Held::empty(0, 0));
+        let mut held = old;
         held.assemble(view, &self.bands, |o| {
             (o.entries.as_slice(), o.counts.as_slice())
         });

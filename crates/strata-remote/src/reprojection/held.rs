@@ -80,7 +80,42 @@ impl Held {
     /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (once they have grown
     /// to the scene's needs, a call allocates only a few vectors per band, none per entry).
     ///
-    /// Three parallel passes and a small serial one, none over the whole list on one thread:
+    /// [`Held::move_to`], then each destination band sorted in parallel
+    /// ([`Moved::sort_band_into`]) straight into its share of `out`.
+    pub fn reproject_into(&self, view: &View, out: &mut Held, scratch: &mut Scratch) {
+        let moved = self.move_to(view, scratch);
+        let (width, height) = view.size();
+        let (new_w, new_h) = (width as usize, height as usize);
+        let pixels = new_w * new_h;
+        let total = moved.band_starts[moved.band_count()];
+        // Every entry and offset is written below: no need to clear what the last frame left.
+        out.offsets.resize(pixels + 1, 0);
+        out.offsets[pixels] = total as u32;
+        out.entries.resize(total, Entry::default());
+        let mut jobs = Vec::with_capacity(moved.band_count());
+        let (mut offs_rest, mut entries_rest) =
+            (&mut out.offsets[..pixels], out.entries.as_mut_slice());
+        for d in 0..moved.band_count() {
+            let (offs, o_tail) =
+                std::mem::take(&mut offs_rest).split_at_mut(moved.band_pixels(d).len());
+            let (entries, e_tail) =
+                std::mem::take(&mut entries_rest).split_at_mut(moved.band_len(d));
+            jobs.push((d, offs, entries));
+            (offs_rest, entries_rest) = (o_tail, e_tail);
+        }
+        jobs.into_par_iter().for_each(|(d, offs, entries)| {
+            moved.sort_band_into(d, moved.band_starts[d] as u32, offs, entries);
+        });
+        out.width = width;
+        out.height = height;
+        out.view = Some(view.clone());
+    }
+
+    /// Every held entry moved to `view` and bucketed by the band of [`BAND_ROWS`] rows it lands
+    /// in, in `scratch`'s buffers; the bands are then sorted one by one, by whoever consumes
+    /// them ([`Moved::sort_band`]), so the sorted runs need not pass through memory as a whole
+    /// list. Three parallel passes and a small serial one, none over the whole list on one
+    /// thread:
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
     ///    (`View::project_batch`, a batch of one object's consecutive entries at a time), and
@@ -89,15 +124,14 @@ impl Held {
     ///    starts in the bucket list;
     /// 3. per source band: the indices of its entries that stay in view, appended to their
     ///    destination band's bucket in source order;
-    /// 4. per destination band: a counting sort of its bucket by pixel straight into the band's
-    ///    share of `out` (its offsets serve as the cursors), then each run sorted front to back.
+    /// 4. (per destination band, by [`Moved::sort_band_into`]) a counting sort of its bucket by
+    ///    pixel, then each run sorted front to back.
     ///
     /// Buckets keep source order and the counting sort is stable, so the result is the stable
     /// sort of the whole list by pixel, then by fragment order, whatever the thread count.
-    pub fn reproject_into(&self, view: &View, out: &mut Held, scratch: &mut Scratch) {
+    pub(super) fn move_to<'a>(&'a self, view: &View, scratch: &'a mut Scratch) -> Moved<'a> {
         let (width, height) = view.size();
         let (new_w, new_h) = (width as usize, height as usize);
-        let pixels = new_w * new_h;
         let unchanged: Vec<bool> = match &self.view {
             Some(old) => (0..view.object_slots())
                 .map(|o| view.unchanged(old, o))
@@ -110,6 +144,7 @@ impl Held {
             moved,
             bucket,
             shares,
+            sorted,
         } = scratch;
         // Every element is written in pass 1: no need to clear what the last frame left.
         moved.resize(self.entries.len(), (u32::MAX, Fragment::default()));
@@ -197,129 +232,130 @@ impl Held {
                     }
                 });
         }
-
-        // 4. Each destination band: a counting sort of its bucket by pixel into its share of
-        // the entries, then its runs sorted.
-        // Every entry and offset is written below (the counts start from zero): no need to
-        // clear what the last frame left.
-        out.offsets.resize(pixels + 1, 0);
-        out.offsets[pixels] = total as u32;
-        out.entries.resize(total, Entry::default());
-        {
-            let mut jobs = Vec::with_capacity(dst_bands);
-            let (mut offs_rest, mut entries_rest) =
-                (&mut out.offsets[..pixels], out.entries.as_mut_slice());
-            for d in 0..dst_bands {
-                let rows = BAND_ROWS.min(new_h - d * BAND_ROWS);
-                let (offs, o_tail) = std::mem::take(&mut offs_rest).split_at_mut(rows * new_w);
-                let n = band_starts[d + 1] - band_starts[d];
-                let (entries, e_tail) = std::mem::take(&mut entries_rest).split_at_mut(n);
-                jobs.push((d, offs, entries));
-                (offs_rest, entries_rest) = (o_tail, e_tail);
-            }
-            let (bucket, moved) = (&*bucket, &*moved);
-            jobs.into_par_iter().for_each(|(d, offs, entries)| {
-                let base = band_starts[d];
-                let first_pixel = d * BAND_ROWS * new_w;
-                let items = &bucket[base..band_starts[d + 1]];
-                // Counts, then each pixel's end; filling backwards leaves each pixel's start.
-                offs.fill(0);
-                for &i in items {
-                    offs[moved[i as usize].0 as usize - first_pixel] += 1;
-                }
-                let mut end = base as u32;
-                for o in offs.iter_mut() {
-                    end += *o;
-                    *o = end;
-                }
-                for &i in items.iter().rev() {
-                    let (p, f) = moved[i as usize];
-                    let o = &mut offs[p as usize - first_pixel];
-                    *o -= 1;
-                    entries[(*o as usize) - base] = Entry {
-                        fragment: f,
-                        surfel: self.entries[i as usize].surfel,
-                    };
-                }
-                for (k, &start) in offs.iter().enumerate() {
-                    let stop = offs
-                        .get(k + 1)
-                        .map_or(entries.len() + base, |&s| s as usize);
-                    sort_entries(&mut entries[start as usize - base..stop - base]);
-                }
-            });
+        Moved {
+            held: self,
+            moved,
+            bucket,
+            band_starts,
+            sorted,
+            width: new_w,
+            height: new_h,
         }
-        out.width = width;
-        out.height = height;
-        out.view = Some(view.clone());
     }
 
     /// Rebuilds this list for `view` from bands of consecutive pixels, each its entries and its
-    /// pixels' run lengths (`parts` of each of `bands`), in order; keeps the buffers. The bands
-    /// are copied in parallel, each into its own share of the list.
+    /// pixels' run lengths (`parts` of each of `bands`, bands of [`BAND_ROWS`] rows), in order;
+    /// keeps the buffers. The bands are copied in parallel, each into its own share of the list.
     pub(super) fn assemble<B: Sync>(
         &mut self,
         view: &View,
         bands: &[B],
         parts: impl Fn(&B) -> (&[Entry], &[u32]) + Sync,
     ) {
+        let lens: Vec<usize> = bands.iter().map(|b| parts(b).0.len()).collect();
+        let mut state = vec![(); bands.len()];
+        let built = self.build_bands(view, &lens, &mut state, |d, _, dest, counts| {
+            let (entries, c) = parts(&bands[d]);
+            dest.copy_from_slice(entries);
+            counts.copy_from_slice(c);
+        });
+        debug_assert!(
+            built.iter().all(|&(_, fits)| fits),
+            "run lengths do not add up"
+        );
+    }
+
+    /// Rebuilds this list for `view` band by band in parallel, keeping the buffers: band `d`
+    /// (of [`BAND_ROWS`] rows) holds `lens[d]` entries, and `fill(d, &mut state[d], entries,
+    /// counts)` writes them and its pixels' run lengths (one per pixel of the band), each band
+    /// straight into its share of the list. Returns each band's result, and whether its run
+    /// lengths added up to its length: if one did not, the list is not a valid state.
+    ///
+    /// # Panics
+    /// If `lens` or `state` does not have one item per band of the view.
+    pub(super) fn build_bands<S: Send, R: Send>(
+        &mut self,
+        view: &View,
+        lens: &[usize],
+        state: &mut [S],
+        fill: impl Fn(usize, &mut S, &mut [Entry], &mut [u32]) -> R + Sync,
+    ) -> Vec<(R, bool)> {
         (self.width, self.height) = view.size();
         self.view = Some(view.clone());
-        let pixels: usize = bands.iter().map(|b| parts(b).1.len()).sum();
-        let total: usize = bands.iter().map(|b| parts(b).0.len()).sum();
+        let (w, h) = (self.width as usize, self.height as usize);
+        assert_eq!(lens.len(), h.div_ceil(BAND_ROWS), "one length per band");
+        assert_eq!(state.len(), lens.len(), "one state per band");
+        let total: usize = lens.iter().sum();
         // Every element is written below: no need to clear what the last frame left.
-        self.offsets.resize(pixels + 1, 0);
+        self.offsets.resize(w * h + 1, 0);
         self.entries.resize(total, Entry::default());
-        let mut jobs = Vec::with_capacity(bands.len());
+        self.offsets[0] = 0;
+        let mut jobs = Vec::with_capacity(lens.len());
         let (mut offs_rest, mut entries_rest) =
             (&mut self.offsets[1..], self.entries.as_mut_slice());
         let mut start = 0u32;
-        for b in bands {
-            let (entries, counts) = parts(b);
-            let (offs, o_tail) = std::mem::take(&mut offs_rest).split_at_mut(counts.len());
-            let (dest, e_tail) = std::mem::take(&mut entries_rest).split_at_mut(entries.len());
-            jobs.push((b, start, offs, dest));
+        for ((d, &len), s) in lens.iter().enumerate().zip(state) {
+            let rows = BAND_ROWS.min(h - d * BAND_ROWS);
+            let (offs, o_tail) = std::mem::take(&mut offs_rest).split_at_mut(rows * w);
+            let (dest, e_tail) = std::mem::take(&mut entries_rest).split_at_mut(len);
+            jobs.push((d, s, start, offs, dest));
             (offs_rest, entries_rest) = (o_tail, e_tail);
-            start += entries.len() as u32;
+            start += len as u32;
         }
-        jobs.into_par_iter().for_each(|(b, start, offs, dest)| {
-            let (entries, counts) = parts(b);
-            dest.copy_from_slice(entries);
-            let mut end = start;
-            for (o, &c) in offs.iter_mut().zip(counts) {
-                end += c;
-                *o = end;
-            }
-            debug_assert_eq!(end as usize, start as usize + entries.len());
-        });
-        self.offsets[0] = 0;
-    }
-
-    /// Empties this list for a `width` × `height` frame, keeping its buffers.
-    pub(super) fn clear_to(&mut self, width: u32, height: u32) {
-        self.width = width;
-        self.height = height;
-        self.offsets.clear();
-        self.offsets.resize(width as usize * height as usize + 1, 0);
-        self.entries.clear();
-        self.view = None;
+        jobs.into_par_iter()
+            .map(|(d, s, start, offs, dest)| {
+                let r = fill(d, s, dest, offs);
+                // The counts become each pixel's run end.
+                let mut end = u64::from(start);
+                for o in offs.iter_mut() {
+                    end += u64::from(*o);
+                    *o = end as u32;
+                }
+                (r, end == u64::from(start) + dest.len() as u64)
+            })
+            .collect()
     }
 
     /// The colour DeepFrame the display resolves.
     pub fn to_frame(&self) -> DeepFrame {
-        let depth = self.entries.iter().map(|e| e.fragment.depth).collect();
-        let color = self.entries.iter().map(|e| e.fragment.color).collect();
-        let object = self.entries.iter().map(|e| e.fragment.object).collect();
+        self.frame_into(DeepFrame::empty(0, 0))
+    }
+
+    /// [`Held::to_frame`] into `reuse`'s buffers (any frame: its size does not matter), filled
+    /// band by band in parallel. A display converts its held list every frame; reusing the last
+    /// frame's columns spares it 1280×720 offsets and three columns of fresh pages a frame.
+    pub fn frame_into(&self, reuse: DeepFrame) -> DeepFrame {
+        let (width, height) = (self.width, self.height);
+        let (_, _, mut offsets, depth, color, object) = reuse.into_parts();
+        offsets.clear();
+        offsets.extend_from_slice(&self.offsets);
+        let w = width as usize;
+        let bands: Vec<std::ops::Range<usize>> = (0..height as usize)
+            .step_by(BAND_ROWS)
+            .map(|row| row * w..(row + BAND_ROWS).min(height as usize) * w)
+            .collect();
+        let entries = &self.entries;
         // Runs are sorted by the fragment order, so this cannot fail.
-        DeepFrame::from_parts(
-            self.width,
-            self.height,
-            self.offsets.clone(),
-            depth,
-            color,
-            object,
+        DeepFrame::fill_bands(
+            width,
+            height,
+            offsets,
+            &bands,
+            (depth, color, object),
+            |_, band| {
+                let first = band.offsets[band.pixels.start] as usize;
+                let from = &entries[first..first + band.depth.len()];
+                for (((e, d), c), o) in from
+                    .iter()
+                    .zip(band.depth.iter_mut())
+                    .zip(band.color.iter_mut())
+                    .zip(band.object.iter_mut())
+                {
+                    (*d, *c, *o) = (e.fragment.depth, e.fragment.color, e.fragment.object);
+                }
+            },
         )
-        .unwrap_or_else(|_| DeepFrame::empty(self.width, self.height))
+        .unwrap_or_else(|_| DeepFrame::empty(width, height))
     }
 
     /// A 64-bit digest of what is held — run lengths, fragments and surfel positions, in order —
@@ -348,25 +384,43 @@ impl Held {
 /// The digest of band `b` (rows `b · BAND_ROWS` on) of a held list: its pixels' run lengths
 /// `counts` and their `entries`, in order. The ends compute it in their band tasks, while the
 /// band is in cache; [`Held::digest`] computes the same from a whole list.
+///
+/// Seven independent chains, so that their multiplies overlap instead of waiting for one
+/// another (one chain took three dependent multiplies an entry and one a pixel): the run
+/// lengths of pixels `p ≡ k (mod 4)` in chain `k`, and each entry's three words in chains 4, 5
+/// and 6. The chains' values are then hashed in order. Where the entries of a band fall between
+/// its pixels is fixed by the run lengths, so the digest still changes with any run length,
+/// fragment or position, and with their order.
 pub(super) fn band_digest(b: usize, entries: &[Entry], counts: &[u32]) -> u64 {
-    let mut h = Digest::new(b as u64);
-    let mut at = 0;
-    for &n in counts {
-        h.word(u64::from(n));
-        for e in &entries[at..at + n as usize] {
-            // The fragment and the position: two ends that differ anywhere upstream
-            // (matrices, trigonometry) differ here. Normals are left out to keep the
-            // digest cheap; a difference in one shows once it changes a colour.
-            let (f, q) = (&e.fragment, &e.surfel.position);
-            // NaN is hashed as one value: IEEE arithmetic fixes values on every instruction
-            // set, not NaN payloads (a point unprojected at w = 0 is NaN).
-            let bits = |x: f32| u64::from(if x.is_nan() { f32::NAN } else { x }.to_bits());
-            h.word(bits(f.depth) << 32 | u64::from(f.color.to_bits()));
-            h.word(u64::from(f.object.0) << 32 | bits(q[0]));
-            h.word(bits(q[1]) << 32 | bits(q[2]));
+    let seed = (b as u64) << 3;
+    let mut runs = [0, 1, 2, 3].map(|k| Digest::new(seed | k));
+    let mut blocks = counts.chunks_exact(4);
+    for block in &mut blocks {
+        for (h, &n) in runs.iter_mut().zip(block) {
+            h.word(u64::from(n));
         }
-        at += n as usize;
     }
+    for (h, &n) in runs.iter_mut().zip(blocks.remainder()) {
+        h.word(u64::from(n));
+    }
+    let [mut first, mut second, mut third] = [4, 5, 6].map(|k| Digest::new(seed | k));
+    for e in entries {
+        // The fragment and the position: two ends that differ anywhere upstream (matrices,
+        // trigonometry) differ here. Normals are left out to keep the digest cheap; a
+        // difference in one shows once it changes a colour.
+        let (f, q) = (&e.fragment, &e.surfel.position);
+        // NaN is hashed as one value: IEEE arithmetic fixes values on every instruction set,
+        // not NaN payloads (a point unprojected at w = 0 is NaN).
+        let bits = |x: f32| u64::from(if x.is_nan() { f32::NAN } else { x }.to_bits());
+        first.word(bits(f.depth) << 32 | u64::from(f.color.to_bits()));
+        second.word(u64::from(f.object.0) << 32 | bits(q[0]));
+        third.word(bits(q[1]) << 32 | bits(q[2]));
+    }
+    let mut h = Digest::new(b as u64);
+    for chain in runs.iter().chain([&first, &second, &third]) {
+        h.word(chain.0);
+    }
+    h.word(entries.len() as u64);
     h.finish()
 }
 
@@ -410,6 +464,137 @@ pub struct Scratch {
     bucket: Vec<u32>,
     /// Per source band, how many of its entries land in each destination band.
     shares: Vec<Vec<u32>>,
+    /// Sorted bands' buffers, lent to band tasks ([`Moved::sort_band`]).
+    sorted: BandPool,
+}
+
+/// Buffers for sorted bands, one taken by each band task while it runs and given back after,
+/// so a frame's band tasks reuse as many as there are threads, warm in their caches.
+#[derive(Debug, Default)]
+struct BandPool(std::sync::Mutex<Vec<SortedBand>>);
+
+impl Clone for BandPool {
+    /// A fresh pool: the buffers are only capacity.
+    fn clone(&self) -> Self {
+        BandPool::default()
+    }
+}
+
+/// One destination band's runs, sorted: `offsets[k]..offsets[k + 1]` indexes `entries` for the
+/// band's `k`-th pixel.
+#[derive(Clone, Debug, Default)]
+pub(super) struct SortedBand {
+    first_pixel: usize,
+    offsets: Vec<u32>,
+    entries: Vec<Entry>,
+}
+
+impl SortedBand {
+    /// Pixel `p`'s run (`p` indexes the whole frame and lies in the band).
+    #[inline]
+    pub(super) fn run(&self, p: usize) -> &[Entry] {
+        let k = p - self.first_pixel;
+        &self.entries[self.offsets[k] as usize..self.offsets[k + 1] as usize]
+    }
+
+    /// The runs of the band's consecutive pixels `pixels` (indexing the whole frame): their
+    /// entries, and the offsets of their runs (`pixels.len() + 1`, into the band's entries).
+    #[inline]
+    pub(super) fn span(&self, pixels: std::ops::Range<usize>) -> (&[Entry], &[u32]) {
+        let (a, b) = (
+            pixels.start - self.first_pixel,
+            pixels.end - self.first_pixel,
+        );
+        let offsets = &self.offsets[a..b + 1];
+        (
+            &self.entries[offsets[0] as usize..offsets[b - a] as usize],
+            offsets,
+        )
+    }
+}
+
+/// A held list moved to a new view and bucketed by destination band ([`Held::move_to`]), each
+/// band still to be sorted.
+pub(super) struct Moved<'a> {
+    held: &'a Held,
+    moved: &'a [(u32, Fragment)],
+    bucket: &'a [u32],
+    /// `band_starts[d]..band_starts[d + 1]` indexes `bucket` for destination band `d`.
+    band_starts: Vec<usize>,
+    sorted: &'a BandPool,
+    width: usize,
+    height: usize,
+}
+
+impl Moved<'_> {
+    /// Destination bands.
+    pub(super) fn band_count(&self) -> usize {
+        self.band_starts.len() - 1
+    }
+
+    /// Fragments landing in band `d`.
+    pub(super) fn band_len(&self, d: usize) -> usize {
+        self.band_starts[d + 1] - self.band_starts[d]
+    }
+
+    /// Band `d`'s pixels, row-major indices into the new view.
+    pub(super) fn band_pixels(&self, d: usize) -> std::ops::Range<usize> {
+        let rows = d * BAND_ROWS..((d + 1) * BAND_ROWS).min(self.height);
+        rows.start * self.width..rows.end * self.width
+    }
+
+    /// Band `d` sorted into a buffer lent from the pool for the duration of `f`.
+    pub(super) fn sort_band<R>(&self, d: usize, f: impl FnOnce(&SortedBand) -> R) -> R {
+        let lock = || self.sorted.0.lock().unwrap_or_else(|e| e.into_inner());
+        let mut band = lock().pop().unwrap_or_default();
+        let pixels = self.band_pixels(d);
+        band.first_pixel = pixels.start;
+        // Every entry and offset is written below.
+        band.offsets.resize(pixels.len() + 1, 0);
+        band.offsets[pixels.len()] = self.band_len(d) as u32;
+        band.entries.resize(self.band_len(d), Entry::default());
+        let SortedBand {
+            offsets, entries, ..
+        } = &mut band;
+        self.sort_band_into(d, 0, &mut offsets[..pixels.len()], entries);
+        let r = f(&band);
+        lock().push(band);
+        r
+    }
+
+    /// Band `d`'s entries into `entries` (`band_len(d)` of them) and each pixel's first
+    /// entry, plus `base`, into `offs` (one per pixel of the band): a counting sort of its
+    /// bucket by pixel, then each run sorted front to back.
+    fn sort_band_into(&self, d: usize, base: u32, offs: &mut [u32], entries: &mut [Entry]) {
+        let first_pixel = self.band_pixels(d).start;
+        let items = &self.bucket[self.band_starts[d]..self.band_starts[d + 1]];
+        let (moved, held) = (self.moved, self.held);
+        // Counts, then each pixel's end; filling backwards leaves each pixel's start.
+        offs.fill(0);
+        for &i in items {
+            offs[moved[i as usize].0 as usize - first_pixel] += 1;
+        }
+        let mut end = base;
+        for o in offs.iter_mut() {
+            end += *o;
+            *o = end;
+        }
+        for &i in items.iter().rev() {
+            let (p, f) = moved[i as usize];
+            let o = &mut offs[p as usize - first_pixel];
+            *o -= 1;
+            entries[(*o - base) as usize] = Entry {
+                fragment: f,
+                surfel: held.entries[i as usize].surfel,
+            };
+        }
+        for (k, &start) in offs.iter().enumerate() {
+            let stop = offs
+                .get(k + 1)
+                .map_or(entries.len(), |&s| (s - base) as usize);
+            sort_entries(&mut entries[(start - base) as usize..stop]);
+        }
+    }
 }
 
 /// Up to [`LANES`] consecutive entries of one object waiting to be moved together.

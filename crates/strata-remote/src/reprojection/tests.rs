@@ -543,6 +543,7 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
     ];
     let mut out = Held::empty(0, 0);
     let mut scratch = Scratch::default();
+    let mut reuse = DeepFrame::empty(0, 0);
     for threads in [1, 3] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -559,6 +560,67 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
                 let want: Vec<_> = r.iter().map(entry_bits).collect();
                 assert_eq!(got, want, "pixel {p} of {w}x{h}, {threads} threads");
             }
+            // The display's frame of it, in the last view's buffers, has the same runs.
+            let reused = std::mem::replace(&mut reuse, DeepFrame::empty(0, 0));
+            let frame = pool.install(|| out.frame_into(reused));
+            assert_eq!((frame.width(), frame.height()), (w, h));
+            assert_eq!(frame.fragment_count(), out.len());
+            for p in 0..(w * h) as usize {
+                let got: Vec<_> = frame.run(p).iter().collect();
+                let want: Vec<_> = out.run(p).iter().map(|e| e.fragment).collect();
+                assert_eq!(got, want, "frame pixel {p} of {w}x{h}, {threads} threads");
+            }
+            reuse = frame;
         }
     }
+}
+
+#[test]
+fn the_band_digest_changes_with_any_run_length_fragment_position_or_order() {
+    let entry = |i: u32| Entry {
+        fragment: Fragment {
+            depth: 0.1 * i as f32,
+            color: Rgba8([i as u8, 2, 3, 128]),
+            object: ObjectId(i % 3),
+        },
+        surfel: Surfel {
+            position: [i as f32, 0.5, -1.0],
+            normal: [0.0, 0.0, 1.0],
+        },
+    };
+    let entries: Vec<Entry> = (0..9).map(entry).collect();
+    let counts = [2, 0, 3, 1, 0, 3];
+    let digest = super::held::band_digest;
+    let base = digest(4, &entries, &counts);
+    assert_eq!(base, digest(4, &entries, &counts), "deterministic");
+    assert_ne!(base, digest(5, &entries, &counts), "the band number");
+    // The same entries split differently between pixels.
+    assert_ne!(base, digest(4, &entries, &[3, 0, 2, 1, 0, 3]));
+    assert_ne!(base, digest(4, &entries, &[2, 0, 3, 1, 3, 0]));
+    // Two entries swapped.
+    let mut swapped = entries.clone();
+    swapped.swap(3, 4);
+    assert_ne!(base, digest(4, &swapped, &counts));
+    // One word of one entry changed: depth, colour, object, each position coordinate.
+    let edits: [fn(&mut Entry); 6] = [
+        |e| e.fragment.depth = f32::from_bits(e.fragment.depth.to_bits() ^ 1),
+        |e| e.fragment.color.0[1] ^= 1,
+        |e| e.fragment.object.0 ^= 1,
+        |e| e.surfel.position[0] = f32::from_bits(e.surfel.position[0].to_bits() ^ 1),
+        |e| e.surfel.position[1] = f32::from_bits(e.surfel.position[1].to_bits() ^ 1),
+        |e| e.surfel.position[2] = f32::from_bits(e.surfel.position[2].to_bits() ^ 1),
+    ];
+    for (k, edit) in edits.iter().enumerate() {
+        for i in [0, 4, 8] {
+            let mut changed = entries.clone();
+            edit(&mut changed[i]);
+            assert_ne!(base, digest(4, &changed, &counts), "edit {k} of entry {i}");
+        }
+    }
+    // Every NaN is one value.
+    let mut a = entries.clone();
+    let mut b = entries.clone();
+    a[2].surfel.position[1] = f32::NAN;
+    b[2].surfel.position[1] = f32::from_bits(0x7fc0_1234);
+    assert_eq!(digest(4, &a, &counts), digest(4, &b, &counts));
 }
