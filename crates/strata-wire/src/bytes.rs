@@ -88,6 +88,19 @@ impl<'a> Reader<'a> {
     /// An unsigned LEB128 varint of at most 32 bits.
     #[inline]
     pub(crate) fn varint(&mut self, field: &'static str) -> Result<u32, WireError> {
+        // Most varints on the wire are one byte (removal gaps, small counts): that case is
+        // inlined at the caller, the rest takes the loop.
+        if let Some(&b) = self.bytes.get(self.pos)
+            && b < 0x80
+        {
+            self.pos += 1;
+            return Ok(u32::from(b));
+        }
+        self.varint_long(field)
+    }
+
+    #[inline(never)]
+    fn varint_long(&mut self, field: &'static str) -> Result<u32, WireError> {
         let start = self.offset();
         let mut value: u32 = 0;
         for i in 0..5 {

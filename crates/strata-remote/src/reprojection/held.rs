@@ -592,7 +592,10 @@ impl Moved<'_> {
             let stop = offs
                 .get(k + 1)
                 .map_or(entries.len(), |&s| (s - base) as usize);
-            sort_entries(&mut entries[(start - base) as usize..stop]);
+            // Most pixels hold one fragment or none: nothing to sort.
+            if stop > (start - base) as usize + 1 {
+                sort_entries(&mut entries[(start - base) as usize..stop]);
+            }
         }
     }
 }
