@@ -80,8 +80,11 @@ impl Held {
     /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (once they have grown
     /// to the scene's needs, a call allocates only a few vectors per band, none per entry).
     ///
-    /// [`Held::move_to`], then each destination band sorted in parallel
-    /// ([`Moved::sort_band_into`]) straight into its share of `out`.
+    /// The list is moved and bucketed by destination band in parallel passes (`Held::move_to`),
+    /// then each band is sorted in parallel straight into its share of `out`: a counting sort
+    /// by pixel, then each run front to back. Buckets keep the list's order and the counting
+    /// sort is stable, so the result is the stable sort of the whole list by pixel, then by
+    /// fragment order, whatever the thread count.
     pub fn reproject_into(&self, view: &View, out: &mut Held, scratch: &mut Scratch) {
         let moved = self.move_to(view, scratch);
         let (width, height) = view.size();
