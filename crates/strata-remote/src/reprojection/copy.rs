@@ -111,6 +111,11 @@ impl ReprojCopy {
                 (n + ins).max(0) as usize
             })
             .collect();
+        if lens.iter().sum::<usize>() > u32::MAX as usize {
+            return Err(ApplyError::Mismatch(
+                "the next state would hold more than 2^32 fragments".into(),
+            ));
+        }
         self.bands.resize_with(bands, BandRuns::default);
         let built = self
             .spare

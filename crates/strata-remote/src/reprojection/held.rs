@@ -78,7 +78,9 @@ impl Held {
     }
 
     /// [`Held::reproject`] into `out`, reusing its buffers and `scratch`'s (once they have grown
-    /// to the scene's needs, a call allocates only a few vectors per band, none per entry).
+    /// to the scene's needs, a call allocates only a few vectors per band, none per entry). The
+    /// node and the display do not build this whole list: each sorts a band at a time in the
+    /// task that consumes it, with the same passes, so their runs are this list's.
     ///
     /// The list is moved and bucketed by destination band in parallel passes (`Held::move_to`),
     /// then each band is sorted in parallel straight into its share of `out`: a counting sort
@@ -275,7 +277,8 @@ impl Held {
     /// lengths added up to its length: if one did not, the list is not a valid state.
     ///
     /// # Panics
-    /// If `lens` or `state` does not have one item per band of the view.
+    /// If `lens` or `state` does not have one item per band of the view, or the lengths add up
+    /// to more than `u32::MAX` (callers that take lengths from the wire check that first).
     pub(super) fn build_bands<S: Send, R: Send>(
         &mut self,
         view: &View,
@@ -296,6 +299,10 @@ impl Held {
         let mut jobs = Vec::with_capacity(lens.len());
         let (mut offs_rest, mut entries_rest) =
             (&mut self.offsets[1..], self.entries.as_mut_slice());
+        assert!(
+            u32::try_from(total).is_ok(),
+            "a held list indexes its entries in 32 bits"
+        );
         let mut start = 0u32;
         for ((d, &len), s) in lens.iter().enumerate().zip(state) {
             let rows = BAND_ROWS.min(h - d * BAND_ROWS);
@@ -358,7 +365,12 @@ impl Held {
                 }
             },
         )
-        .unwrap_or_else(|_| DeepFrame::empty(width, height))
+        .unwrap_or_else(|e| {
+            if cfg!(debug_assertions) {
+                panic!("a held list is always a valid frame: {e}");
+            }
+            DeepFrame::empty(width, height)
+        })
     }
 
     /// A 64-bit digest of what is held — run lengths, fragments and surfel positions, in order —
@@ -458,7 +470,8 @@ fn split_bands<'a, T>(
     bands
 }
 
-/// Buffers [`Held::reproject_into`] reuses from frame to frame.
+/// Buffers the reprojection reuses from frame to frame: [`Held::reproject_into`], and the two
+/// ends, which move the list (`Held::move_to`) and sort it band by band in their band tasks.
 #[derive(Clone, Debug, Default)]
 pub struct Scratch {
     /// Per held entry, its pixel and fragment in the new view (`u32::MAX`: out of view).

@@ -22,11 +22,15 @@
 //! # One frame
 //!
 //! ```text
-//! both ends:  held(t-1) ──reproject (eq. 5.9, P, viewport; shade; bucket; sort)──► projected(t)
+//! both ends:  held(t-1) ──move (eq. 5.9, P, viewport; shade), bucket by band──► moved(t)
+//!             per band of 16 rows, in parallel: sort the band's moved entries ──► projected(t)
 //! node:       render normal fragments(t) ──► entries(t)   ─┐
 //!             projected(t) ──match per pixel─────────────────┴─► removals + inserts (+ digest)
 //! both ends:  projected(t) ── merge_pixel(removals, inserts) ──► held(t) ──► colour DeepFrame
 //! ```
+//!
+//! `projected(t)` never exists as a whole list: each band is sorted into a small buffer by the
+//! task that then matches it (node) or merges it straight into its share of `held(t)` (display).
 //!
 //! **Matching** (node, per pixel): the rendered run, converted to entries exactly as the display
 //! will convert them, is walked in order; a projected entry survives as the next rendered
@@ -52,7 +56,8 @@
 //! - `lanes`: eq. 5.9 and 5.10 with their shading for eight fragments of one object at a time,
 //!   the same bits as `view`'s one-fragment forms (what both ends run);
 //! - `held`: the per-pixel runs both ends hold, reprojection (in parallel: move and count per
-//!   source band, bucket by destination band, counting sort per destination band), the digest;
+//!   source band, bucket by destination band, counting sort per destination band in the task
+//!   that consumes it), the digest;
 //! - `encoder`: the node's side — matching, removals and inserts;
 //! - `copy`: the display's side — applying a frame, and which pixels need a fixup.
 

@@ -149,6 +149,31 @@ fn a_removal_beyond_a_run_or_a_wrong_digest_is_an_error_and_keeps_the_copy() {
         Err(ApplyError::Mismatch(m)) if m.contains("outside the touched pixels")
     ));
     assert_eq!(copy.held(), &before);
+    // The same, with the stray insert in a band (16 rows) that no touched pixel is in.
+    let far = ((p / W + 16) % H * W) as usize;
+    assert_ne!(far / (16 * W as usize), p as usize / (16 * W as usize));
+    let stray = DeepFrame::build(W, H, &vec_with_one(far), |_, out| out.push(f)).unwrap();
+    assert!(matches!(
+        copy.apply(&v, &touched, &r, &stray),
+        Err(ApplyError::Mismatch(m)) if m.contains("outside the touched pixels")
+    ));
+    assert_eq!(copy.held(), &before);
+    // A band told to lose more fragments than it holds in all (its next length would be
+    // negative): the error names the pixel whose run is too short.
+    let band_rows = 16;
+    let q = W / 2;
+    let band_total: usize = (0..band_rows * W)
+        .map(|x| before.run(x as usize).len())
+        .sum();
+    let held_at_q = before.run(q as usize).len();
+    let touched = PixelMask::from_fn(W * H, |x| x == q);
+    let mut r = Removals::new(0);
+    r.push_pixel(0..=band_total as u32);
+    assert!(matches!(
+        copy.apply(&v, &touched, &r, &DeepFrame::empty(W, H)),
+        Err(ApplyError::Mismatch(m)) if m.contains(&format!("pixel {q} holds {held_at_q} fragments"))
+    ));
+    assert_eq!(copy.held(), &before);
 }
 
 /// Per-pixel counts of a frame with one fragment at pixel `p`.
