@@ -107,6 +107,14 @@ impl Removals {
         &self.positions[self.offsets[k] as usize..self.offsets[k + 1] as usize]
     }
 
+    /// Positions removed over the touched pixels `pixels` (indices in mask order).
+    ///
+    /// # Panics
+    /// If `pixels` reaches past the last touched pixel.
+    pub fn count_in(&self, pixels: std::ops::Range<usize>) -> usize {
+        (self.offsets[pixels.end] - self.offsets[pixels.start]) as usize
+    }
+
     /// Positions removed over all pixels.
     pub fn total(&self) -> usize {
         self.positions.len()

@@ -38,7 +38,6 @@ pub struct ReprojCopy {
     /// Buffers reused from frame to frame: the next state, bands.
     spare: Held,
     scratch: Scratch,
-    slot: Vec<u32>,
     bands: Vec<BandRuns>,
 }
 
@@ -49,7 +48,6 @@ impl ReprojCopy {
             held: Held::empty(width, height),
             spare: Held::empty(0, 0),
             scratch: Scratch::default(),
-            slot: Vec::new(),
             bands: Vec::new(),
         }
     }
@@ -84,31 +82,20 @@ impl ReprojCopy {
         // The held list moved to the view; each band task sorts its band of it and merges it
         // with the node's removals and inserts straight into its share of the next state.
         let moved = self.held.move_to(view, &mut self.scratch);
-        let pixels = width as usize * height as usize;
-        let w = width as usize;
         let bands = moved.band_count();
-        let band_of = |p: usize| p / w / BAND_ROWS;
-        // Which removal entry each touched pixel owns, and how many positions each band loses.
-        let slot = &mut self.slot;
-        slot.clear();
-        slot.resize(pixels, u32::MAX);
-        let mut lens: Vec<i64> = (0..bands).map(|d| moved.band_len(d) as i64).collect();
-        for (k, p) in touched.iter().enumerate() {
-            slot[p as usize] = k as u32;
-            lens[band_of(p as usize)] -= removals.pixel(k).len() as i64;
-        }
-        let slot = &*slot;
+        // The touched pixels as the mask's runs, each with the removal entry of its first
+        // pixel: each band finds its own with a binary search.
+        let touch = Touched::new(touched);
         // Each band's next length: what it holds, less its removals, plus its inserts. The
         // merge checks every removal against its run (a band that would lose more than it
         // holds fails there, with the pixel named), and the band's length against this.
         let offsets = inserts.offsets();
-        let lens: Vec<usize> = lens
-            .into_iter()
-            .enumerate()
-            .map(|(d, n)| {
+        let lens: Vec<usize> = (0..bands)
+            .map(|d| {
                 let band = moved.band_pixels(d);
-                let ins = i64::from(offsets[band.end] - offsets[band.start]);
-                (n + ins).max(0) as usize
+                let removed = removals.count_in(touch.before(band.start)..touch.before(band.end));
+                let ins = (offsets[band.end] - offsets[band.start]) as usize;
+                (moved.band_len(d) + ins).saturating_sub(removed)
             })
             .collect();
         if lens.iter().sum::<usize>() > u32::MAX as usize {
@@ -122,7 +109,9 @@ impl ReprojCopy {
             .build_bands(view, &lens, &mut self.bands, |b, runs, dest, out| {
                 let (entries, counts, digest) = runs;
                 let taken = moved.sort_band(b, |projected| {
-                    merge_band(b, view, projected, slot, removals, inserts, entries, counts)
+                    merge_band(
+                        b, view, projected, &touch, removals, inserts, entries, counts,
+                    )
                 })?;
                 if entries.len() != dest.len() {
                     // Inserts outside the touched pixels (counted in the length, not taken),
@@ -165,6 +154,44 @@ impl ReprojCopy {
     }
 }
 
+/// The touched pixels of a frame: the mask's runs, and for each the index (in mask order) of
+/// its first pixel, which is also its first entry in the removals.
+struct Touched<'m> {
+    runs: &'m [(u32, u32)],
+    first: Vec<usize>,
+}
+
+impl<'m> Touched<'m> {
+    fn new(mask: &'m PixelMask) -> Self {
+        let runs = mask.runs();
+        let mut first = Vec::with_capacity(runs.len());
+        let mut k = 0;
+        for &(_, len) in runs {
+            first.push(k);
+            k += len as usize;
+        }
+        Touched { runs, first }
+    }
+
+    /// The first run that ends after pixel `p`.
+    fn run_after(&self, p: usize) -> usize {
+        self.runs
+            .partition_point(|&(s, l)| (s as usize + l as usize) <= p)
+    }
+
+    /// Touched pixels before pixel `p`.
+    fn before(&self, p: usize) -> usize {
+        let r = self.run_after(p);
+        match self.runs.get(r) {
+            Some(&(s, _)) => self.first[r] + p.saturating_sub(s as usize),
+            None => self
+                .first
+                .last()
+                .map_or(0, |&k| k + self.runs.last().map_or(0, |&(_, l)| l as usize)),
+        }
+    }
+}
+
 /// Band `b`'s next runs into `entries` and `counts`: the `projected` runs where no pixel is
 /// touched, and elsewhere each touched pixel's run less its removals, merged with its inserts.
 /// Returns how many inserts the band took.
@@ -173,7 +200,7 @@ fn merge_band(
     b: usize,
     view: &View,
     projected: &SortedBand,
-    slot: &[u32],
+    touched: &Touched<'_>,
     removals: &Removals,
     inserts: &DeepFrame,
     entries: &mut Vec<Entry>,
@@ -189,6 +216,8 @@ fn merge_band(
     let (mut row_entries, mut known) = (Vec::new(), Vec::new());
     let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
     let offsets = inserts.offsets();
+    // The run holding or following the pixel the walk is at.
+    let mut r = touched.run_after(rows.start * w);
     for row in rows {
         let first = row * w;
         // Each row's inserted entries are made first (in lanes).
@@ -196,21 +225,26 @@ fn merge_band(
         let row_first = offsets[first] as usize;
         let (mut p, end) = (first, first + w);
         while p < end {
+            while touched
+                .runs
+                .get(r)
+                .is_some_and(|&(s, l)| s as usize + l as usize <= p)
+            {
+                r += 1;
+            }
             // A stretch of untouched pixels keeps its runs: one copy for all.
-            let stop = slot[p..end]
-                .iter()
-                .position(|&k| k != u32::MAX)
-                .map_or(end, |n| p + n);
+            let stop = touched
+                .runs
+                .get(r)
+                .map_or(end, |&(s, _)| (s as usize).clamp(p, end));
             if stop > p {
                 let (held, offs) = projected.span(p..stop);
                 entries.extend_from_slice(held);
                 counts.extend(offs.windows(2).map(|o| o[1] - o[0]));
                 p = stop;
-                if p == end {
-                    break;
-                }
+                continue;
             }
-            let k = slot[p] as usize;
+            let k = touched.first[r] + (p - touched.runs[r].0 as usize);
             let start = entries.len();
             let held = projected.run(p);
             let removed = removals.pixel(k);
@@ -304,4 +338,37 @@ pub fn ambiguous(
             b.finish()
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn touched_pixels_before_a_pixel_and_their_removals_count_like_a_walk_of_the_mask() {
+        let pixels = 200u32;
+        for (m, set) in [
+            |_: u32| false,
+            |_: u32| true,
+            |p: u32| p % 7 < 3,
+            |p: u32| (40..90).contains(&p) || p == 150 || p == 199,
+            |p: u32| p == 0,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let mask = PixelMask::from_fn(pixels, set);
+            let touch = Touched::new(&mask);
+            let mut removals = Removals::new(0);
+            for (k, _) in mask.iter().enumerate() {
+                removals.push_pixel(0..(k % 4) as u32);
+            }
+            for p in 0..=pixels as usize {
+                let want = mask.iter().filter(|&q| (q as usize) < p).count();
+                assert_eq!(touch.before(p), want, "mask {m}, pixel {p}");
+                let positions: usize = (0..want).map(|k| removals.pixel(k).len()).sum();
+                assert_eq!(removals.count_in(0..touch.before(p)), positions);
+            }
+        }
+    }
 }
