@@ -585,6 +585,28 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
                 let want: Vec<_> = r.iter().map(entry_bits).collect();
                 assert_eq!(got, want, "pixel {p} of {w}x{h}, {threads} threads");
             }
+            // The ends sort band by band from `move_to` in their own band tasks (pooled
+            // buffers, offsets from zero): every band's runs are the list's.
+            let mut band_scratch = Scratch::default();
+            let moved = held.move_to(v, &mut band_scratch);
+            assert_eq!(moved.band_count(), (h as usize).div_ceil(BAND_ROWS));
+            let bands: Vec<usize> = (0..moved.band_count()).collect();
+            pool.install(|| {
+                rayon::iter::ParallelIterator::for_each(
+                    rayon::iter::IntoParallelRefIterator::par_iter(&bands),
+                    |&d| {
+                        moved.sort_band(d, |band| {
+                            for p in moved.band_pixels(d) {
+                                let got: Vec<_> = band.run(p).iter().map(entry_bits).collect();
+                                let want: Vec<_> = out.run(p).iter().map(entry_bits).collect();
+                                assert_eq!(got, want, "band {d}, pixel {p} of {w}x{h}");
+                            }
+                            let (all, offs) = band.span(moved.band_pixels(d));
+                            assert_eq!((all.len(), offs[0]), (moved.band_len(d), 0));
+                        })
+                    },
+                )
+            });
             // The display's frame of it, in the last view's buffers, has the same runs.
             let reused = std::mem::replace(&mut reuse, DeepFrame::empty(0, 0));
             let frame = pool.install(|| out.frame_into(reused));
