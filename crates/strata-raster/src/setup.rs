@@ -208,7 +208,7 @@ pub fn setup_chunk(
     attrs: &[Attrs],
     cx: &SetupContext<'_>,
 ) {
-    // Compiled once per instruction set (AVX2 where the CPU has it, else SSE2; NEON) and chosen
+    // Compiled once per instruction set (AVX-512 or AVX2 where the CPU has it, else SSE2; NEON) and chosen
     // at run time, so the batch's lane loops run in the widest registers there are. Integer
     // lanes and the fragments' float arithmetic (no fused multiply-adds) give the same bits on
     // every set.

@@ -178,7 +178,7 @@ impl LearnedModel {
             counts,
             frame,
         };
-        // The instruction set (AVX2 where the CPU has it, else SSE2; NEON) the lane loops are compiled for, found
+        // The instruction set (AVX-512 or AVX2 where the CPU has it, else SSE2; NEON) the lane loops are compiled for, found
         // at run time; every set computes the same bits (no fused multiply-adds).
         let arch = pulp::Arch::new();
         importance
