@@ -33,8 +33,11 @@
 //!    and in each chunk replays the micro-triangle records and scans the binned triangles,
 //!    interleaved by the cursors — so every pixel receives its fragments in primitive order, from
 //!    one thread, whatever the thread count. Large triangles are scanned row by row over exact
-//!    spans; depth is affine in screen space; normals and eye positions are interpolated
-//!    perspective-correctly for the headlight.
+//!    spans, their samples shaded eight at a time in lanes ([`shade_lanes::SpanShader`]); depth
+//!    is affine in screen space; normals and eye positions are interpolated
+//!    perspective-correctly for the headlight. Setup and the scan are compiled once per
+//!    instruction set and chosen at run time (AVX-512, AVX2 or SSE2 on x86-64), with the same
+//!    bits on every one (no fused multiply-adds).
 //!
 //! # Why strips
 //!

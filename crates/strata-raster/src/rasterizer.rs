@@ -9,6 +9,7 @@ use crate::frame::{FragmentOutput, FrameInput};
 use crate::scan::{Shade, scan_triangle};
 pub use crate::setup::SetupStats;
 use crate::setup::{BinnedTriangle, Chunk, PixelFragment, SetupContext, setup_chunk};
+use crate::shade_lanes::SpanShader;
 use crate::sink::{CaptureTarget, FragmentSink, StripLayout};
 use crate::vertex::{Attrs, MAX_SIDE, ObjectTransform, ScreenPos, Viewport, transform_vertices};
 
@@ -295,8 +296,19 @@ impl Prepared<'_, '_> {
     }
 
     /// Scans strip `s`: every chunk's micro-triangle fragments and binned triangles for the strip,
-    /// in primitive order.
+    /// in primitive order. Compiled once per instruction set and chosen at run time, like setup,
+    /// so the larger triangles' lanes ([`SpanShader`]) run in the widest registers there are.
     fn scan_strip<S: FragmentSink>(&self, s: usize, sink: &mut S) -> u64 {
+        pulp::Arch::new().dispatch(StripScan {
+            prepared: self,
+            strip: s,
+            sink,
+        })
+    }
+
+    #[inline(always)]
+    fn scan_strip_impl<S: FragmentSink>(&self, s: usize, sink: &mut S) -> u64 {
+        let mut lanes = SpanShader::default();
         let rows = self.layout.rows(s);
         let rows = (rows.start as i32, rows.end as i32 - 1);
         let (w, h) = (self.layout.width as i32, self.layout.height as i32);
@@ -317,12 +329,28 @@ impl Prepared<'_, '_> {
                 shade,
             };
             n += if *lit {
-                job.run::<S, true>(sink)
+                job.run::<S, true>(&mut lanes, sink)
             } else {
-                job.run::<S, false>(sink)
+                job.run::<S, false>(&mut lanes, sink)
             };
         }
         n
+    }
+}
+
+/// [`Prepared::scan_strip`]'s arguments, for [`pulp::Arch::dispatch`].
+struct StripScan<'p, 'r, 'a, S> {
+    prepared: &'p Prepared<'r, 'a>,
+    strip: usize,
+    sink: &'p mut S,
+}
+
+impl<S: FragmentSink> pulp::WithSimd for StripScan<'_, '_, '_, S> {
+    type Output = u64;
+
+    #[inline(always)]
+    fn with_simd<Simd: pulp::Simd>(self, _: Simd) -> u64 {
+        self.prepared.scan_strip_impl(self.strip, self.sink)
     }
 }
 
@@ -347,8 +375,8 @@ struct BinScan<'a> {
 
 impl BinScan<'_> {
     /// Replays micro-triangle records and scans binned triangles, in primitive order.
-    #[inline(never)]
-    fn run<S: FragmentSink, const LIT: bool>(&self, sink: &mut S) -> u64 {
+    #[inline(always)]
+    fn run<S: FragmentSink, const LIT: bool>(&self, lanes: &mut SpanShader, sink: &mut S) -> u64 {
         let (w, h) = self.size;
         let mut n = 0u64;
         let mut next = 0;
@@ -359,7 +387,7 @@ impl BinScan<'_> {
             let t = &self.binned[r as usize];
             let attrs = [&t.attrs[0], &t.attrs[1], &t.attrs[2]];
             n += u64::from(scan_triangle::<S, LIT>(
-                t.pos, attrs, self.rows, w, h, self.shade, sink,
+                t.pos, attrs, self.rows, w, h, self.shade, lanes, sink,
             ));
         }
         n + replay(&self.frags[next..], self.shade.id, sink)

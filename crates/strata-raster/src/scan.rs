@@ -12,13 +12,15 @@
 //! Attributes are loaded only once a triangle is known to cover something. Small triangles are
 //! shaded by [`shade_small`] (which the scan calls for small clipped pieces, and which setup's
 //! lanes in [`crate::shade_lanes`] are tested against); larger ones are scanned span by span by
-//! [`scan_triangle`].
+//! [`scan_triangle`], their samples shaded eight at a time by [`crate::shade_lanes::SpanShader`]
+//! with the same arithmetic (tested against one at a time).
 
 use glam::Vec3A;
 use strata_core::material::headlight_rgba;
 use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
 use crate::coverage::{Edges, Micro, SMALL, Triangle};
+use crate::shade_lanes::SpanShader;
 use crate::sink::FragmentSink;
 use crate::vertex::{Attrs, ScreenPos};
 
@@ -143,7 +145,9 @@ pub fn shade_small<const LIT: bool>(
 }
 
 /// Rasterises one triangle into the rows `rows.0 ..= rows.1` of a `width` × `height` image,
-/// pushing each covered sample into `sink`. Returns the number of fragments pushed.
+/// pushing each covered sample into `sink`. Returns the number of fragments pushed. A larger
+/// triangle's samples are shaded eight at a time in `lanes` (see [`SpanShader`]); a micro-sized
+/// one (a clipped piece) one at a time.
 #[inline(always)]
 #[allow(
     clippy::too_many_arguments,
@@ -156,6 +160,7 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
     width: i32,
     height: i32,
     shade: &Shade,
+    lanes: &mut SpanShader,
     sink: &mut S,
 ) -> u32 {
     let mut count = 0u32;
@@ -191,15 +196,53 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
         return 0;
     }
 
-    // Large box: compute each row's covered span exactly, then emit without tests.
+    // Large box: compute each row's covered span exactly, then shade its samples in lanes.
     let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
-    let interp = Interp::new::<LIT>(attrs, t.area as f32);
+    lanes.begin::<LIT>(attrs, t.area as f32);
     let edges = &t.edges;
     let last_x = x1 - x0;
     let mut row = edges.at(0, y0 - by0);
     let mut row_first = y0 as u32 * width as u32 + x0 as u32;
     for _ in y0..=y1 {
         if let Some((lo, hi)) = edges.span(row, last_x) {
+            let mut e = Edges::step(row, edges.dx, i64::from(lo));
+            for i in lo..=hi {
+                count += lanes.add::<S, LIT>(row_first + i as u32, edges.weights(e), shade, sink);
+                e = Edges::step(e, edges.dx, 1);
+            }
+        }
+        row = Edges::step(row, edges.dy, 1);
+        row_first += width as u32;
+    }
+    count + lanes.flush::<S, LIT>(shade, sink)
+}
+
+/// [`scan_triangle`]'s larger triangles shaded one sample at a time, through the scalar
+/// arithmetic micro-triangles are tested against: the definition the lanes must equal.
+#[cfg(test)]
+#[allow(clippy::too_many_arguments, reason = "scan_triangle's arguments")]
+pub(crate) fn scan_large_one_at_a_time<S: FragmentSink, const LIT: bool>(
+    pos: [ScreenPos; 3],
+    attrs: [&Attrs; 3],
+    rows: (i32, i32),
+    width: i32,
+    height: i32,
+    shade: &Shade,
+    sink: &mut S,
+) -> u32 {
+    let Some(Triangle::Large(t)) = Triangle::new(pos, width, height) else {
+        return 0;
+    };
+    let [x0, x1, by0, by1] = t.bounds;
+    let (y0, y1) = (by0.max(rows.0), by1.min(rows.1));
+    let mut count = 0;
+    let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
+    let interp = Interp::new::<LIT>(attrs, t.area as f32);
+    let edges = &t.edges;
+    let mut row = edges.at(0, y0 - by0);
+    let mut row_first = y0 as u32 * width as u32 + x0 as u32;
+    for _ in y0..=y1 {
+        if let Some((lo, hi)) = edges.span(row, x1 - x0) {
             let mut e = Edges::step(row, edges.dx, i64::from(lo));
             for i in lo..=hi {
                 if let Some(f) = interp.fragment::<LIT>(edges.weights(e), shade) {
@@ -253,7 +296,16 @@ mod tests {
         let mut counts = vec![0u32; (w * h) as usize];
         for t in tris {
             let mut sink = Collect(Vec::new());
-            scan_triangle::<_, false>(*t, [&ATTRS; 3], (0, h - 1), w, h, &SHADE, &mut sink);
+            scan_triangle::<_, false>(
+                *t,
+                [&ATTRS; 3],
+                (0, h - 1),
+                w,
+                h,
+                &SHADE,
+                &mut SpanShader::default(),
+                &mut sink,
+            );
             for (p, _) in sink.0 {
                 counts[p as usize] += 1;
             }
@@ -337,7 +389,16 @@ mod tests {
     fn rows_outside_the_strip_are_skipped() {
         let (a, b, c) = (vtx(0.0, 0.0), vtx(8.0, 0.0), vtx(0.0, 8.0));
         let mut sink = Collect(Vec::new());
-        scan_triangle::<_, false>([a, b, c], [&ATTRS; 3], (2, 3), 8, 8, &SHADE, &mut sink);
+        scan_triangle::<_, false>(
+            [a, b, c],
+            [&ATTRS; 3],
+            (2, 3),
+            8,
+            8,
+            &SHADE,
+            &mut SpanShader::default(),
+            &mut sink,
+        );
         assert!(sink.0.iter().all(|(p, _)| (16..32).contains(p)));
         assert_eq!(sink.0.len(), 5 + 4); // x + y < 8 at centres, hypotenuse (a right edge) excluded
     }
@@ -366,7 +427,16 @@ mod tests {
     fn headlight_shades_facing_surfaces_fully() {
         let (a, b, c) = (vtx(0.0, 0.0), vtx(4.0, 0.0), vtx(0.0, 4.0));
         let mut sink = Collect(Vec::new());
-        scan_triangle::<_, true>([a, b, c], [&ATTRS; 3], (0, 3), 4, 4, &SHADE, &mut sink);
+        scan_triangle::<_, true>(
+            [a, b, c],
+            [&ATTRS; 3],
+            (0, 3),
+            4,
+            4,
+            &SHADE,
+            &mut SpanShader::default(),
+            &mut sink,
+        );
         assert!(!sink.0.is_empty());
         for (_, f) in sink.0 {
             assert_eq!(f.color, Rgba8([255, 0, 0, 128]));
