@@ -19,7 +19,7 @@ use glam::Vec3A;
 use strata_core::material::headlight_rgba;
 use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
-use crate::coverage::{Edges, Micro, SMALL, Triangle};
+use crate::coverage::{Edges, Micro, SMALL, Setup, Triangle};
 use crate::shade_lanes::SpanShader;
 use crate::sink::FragmentSink;
 use crate::vertex::{Attrs, ScreenPos};
@@ -190,15 +190,25 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
         }
         Some(Triangle::Large(t)) => t,
     };
+    // Large box: each row's covered span exactly, its samples shaded in lanes.
+    let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
+    lanes.begin::<LIT>(attrs, t.area as f32);
+    for_each_sample(&t, rows, width, |pixel, e| {
+        count += lanes.add::<S, LIT>(pixel, e, shade, sink);
+    });
+    count + lanes.flush::<S, LIT>(shade, sink)
+}
+
+/// Calls `sample(pixel, E)` with the barycentric numerators `E` of every covered sample of the
+/// large triangle `t` in the rows `rows.0 ..= rows.1`, in row-major order: each row's covered
+/// span is computed exactly, then stepped through without tests.
+#[inline(always)]
+fn for_each_sample(t: &Setup, rows: (i32, i32), width: i32, mut sample: impl FnMut(u32, [f32; 3])) {
     let [x0, x1, by0, by1] = t.bounds;
     let (y0, y1) = (by0.max(rows.0), by1.min(rows.1));
     if y0 > y1 {
-        return 0;
+        return;
     }
-
-    // Large box: compute each row's covered span exactly, then shade its samples in lanes.
-    let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
-    lanes.begin::<LIT>(attrs, t.area as f32);
     let edges = &t.edges;
     let last_x = x1 - x0;
     let mut row = edges.at(0, y0 - by0);
@@ -207,14 +217,13 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
         if let Some((lo, hi)) = edges.span(row, last_x) {
             let mut e = Edges::step(row, edges.dx, i64::from(lo));
             for i in lo..=hi {
-                count += lanes.add::<S, LIT>(row_first + i as u32, edges.weights(e), shade, sink);
+                sample(row_first + i as u32, edges.weights(e));
                 e = Edges::step(e, edges.dx, 1);
             }
         }
         row = Edges::step(row, edges.dy, 1);
         row_first += width as u32;
     }
-    count + lanes.flush::<S, LIT>(shade, sink)
 }
 
 /// [`scan_triangle`]'s larger triangles shaded one sample at a time, through the scalar
@@ -233,28 +242,15 @@ pub(crate) fn scan_large_one_at_a_time<S: FragmentSink, const LIT: bool>(
     let Some(Triangle::Large(t)) = Triangle::new(pos, width, height) else {
         return 0;
     };
-    let [x0, x1, by0, by1] = t.bounds;
-    let (y0, y1) = (by0.max(rows.0), by1.min(rows.1));
-    let mut count = 0;
     let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
     let interp = Interp::new::<LIT>(attrs, t.area as f32);
-    let edges = &t.edges;
-    let mut row = edges.at(0, y0 - by0);
-    let mut row_first = y0 as u32 * width as u32 + x0 as u32;
-    for _ in y0..=y1 {
-        if let Some((lo, hi)) = edges.span(row, x1 - x0) {
-            let mut e = Edges::step(row, edges.dx, i64::from(lo));
-            for i in lo..=hi {
-                if let Some(f) = interp.fragment::<LIT>(edges.weights(e), shade) {
-                    sink.push(row_first + i as u32, f);
-                    count += 1;
-                }
-                e = Edges::step(e, edges.dx, 1);
-            }
+    let mut count = 0;
+    for_each_sample(&t, rows, width, |pixel, e| {
+        if let Some(f) = interp.fragment::<LIT>(e, shade) {
+            sink.push(pixel, f);
+            count += 1;
         }
-        row = Edges::step(row, edges.dy, 1);
-        row_first += width as u32;
-    }
+    });
     count
 }
 
@@ -268,6 +264,15 @@ mod tests {
         fn push(&mut self, pixel: u32, fragment: Fragment) {
             self.0.push((pixel, fragment));
         }
+    }
+
+    /// The fragments `scan_triangle` pushes for `tri` (uniform [`ATTRS`] and [`SHADE`]) in the
+    /// rows `rows` of a `w` × `h` image.
+    fn scan<const LIT: bool>(tri: [ScreenPos; 3], rows: (i32, i32), w: i32, h: i32) -> Collect {
+        let mut sink = Collect(Vec::new());
+        let lanes = &mut SpanShader::default();
+        scan_triangle::<_, LIT>(tri, [&ATTRS; 3], rows, w, h, &SHADE, lanes, &mut sink);
+        sink
     }
 
     fn vtx(x: f32, y: f32) -> ScreenPos {
@@ -295,17 +300,7 @@ mod tests {
     fn cover(tris: &[[ScreenPos; 3]], w: i32, h: i32) -> Vec<u32> {
         let mut counts = vec![0u32; (w * h) as usize];
         for t in tris {
-            let mut sink = Collect(Vec::new());
-            scan_triangle::<_, false>(
-                *t,
-                [&ATTRS; 3],
-                (0, h - 1),
-                w,
-                h,
-                &SHADE,
-                &mut SpanShader::default(),
-                &mut sink,
-            );
+            let sink = scan::<false>(*t, (0, h - 1), w, h);
             for (p, _) in sink.0 {
                 counts[p as usize] += 1;
             }
@@ -388,17 +383,7 @@ mod tests {
     #[test]
     fn rows_outside_the_strip_are_skipped() {
         let (a, b, c) = (vtx(0.0, 0.0), vtx(8.0, 0.0), vtx(0.0, 8.0));
-        let mut sink = Collect(Vec::new());
-        scan_triangle::<_, false>(
-            [a, b, c],
-            [&ATTRS; 3],
-            (2, 3),
-            8,
-            8,
-            &SHADE,
-            &mut SpanShader::default(),
-            &mut sink,
-        );
+        let sink = scan::<false>([a, b, c], (2, 3), 8, 8);
         assert!(sink.0.iter().all(|(p, _)| (16..32).contains(p)));
         assert_eq!(sink.0.len(), 5 + 4); // x + y < 8 at centres, hypotenuse (a right edge) excluded
     }
@@ -426,17 +411,7 @@ mod tests {
     #[test]
     fn headlight_shades_facing_surfaces_fully() {
         let (a, b, c) = (vtx(0.0, 0.0), vtx(4.0, 0.0), vtx(0.0, 4.0));
-        let mut sink = Collect(Vec::new());
-        scan_triangle::<_, true>(
-            [a, b, c],
-            [&ATTRS; 3],
-            (0, 3),
-            4,
-            4,
-            &SHADE,
-            &mut SpanShader::default(),
-            &mut sink,
-        );
+        let sink = scan::<true>([a, b, c], (0, 3), 4, 4);
         assert!(!sink.0.is_empty());
         for (_, f) in sink.0 {
             assert_eq!(f.color, Rgba8([255, 0, 0, 128]));
