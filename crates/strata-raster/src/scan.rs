@@ -9,7 +9,8 @@
 //!   normal and eye position up to the common factor `1 / Σ λ_i/w_i`, which cancels in
 //!   `|N·L| = |n'·p'| / (|n'| |p'|)`.
 //!
-//! Attributes are loaded only once a triangle is known to cover something. Small triangles are
+//! A micro-triangle's attributes are loaded only once it is known to cover something (a larger
+//! triangle's are broadcast to the lanes before its spans are found). Small triangles are
 //! shaded by [`shade_small`] (which the scan calls for small clipped pieces, and which setup's
 //! lanes in [`crate::shade_lanes`] are tested against); larger ones are scanned span by span by
 //! [`scan_triangle`], their samples shaded eight at a time by [`crate::shade_lanes::SpanShader`]
@@ -203,7 +204,12 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
 /// large triangle `t` in the rows `rows.0 ..= rows.1`, in row-major order: each row's covered
 /// span is computed exactly, then stepped through without tests.
 #[inline(always)]
-fn for_each_sample(t: &Setup, rows: (i32, i32), width: i32, mut sample: impl FnMut(u32, [f32; 3])) {
+pub(crate) fn for_each_sample(
+    t: &Setup,
+    rows: (i32, i32),
+    width: i32,
+    mut sample: impl FnMut(u32, [f32; 3]),
+) {
     let [x0, x1, by0, by1] = t.bounds;
     let (y0, y1) = (by0.max(rows.0), by1.min(rows.1));
     if y0 > y1 {
