@@ -84,6 +84,11 @@ fn reference_figures(scene: &str, size: (u32, u32), method: &str) -> &'static [R
             cpu: "Intel Xeon, 2 cores",
             ms: 347.0,
         },
+        ReferenceFigure {
+            what: WHAT,
+            cpu: "AMD EPYC with AVX-512, 2 cores (median of five rounds, 170-222 ms)",
+            ms: 184.0,
+        },
     ];
     match (scene, size, method) {
         ("dragon", (1280, 720), "abuffer") => DRAGON,
@@ -252,6 +257,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
             outln!("  {:.0} ms on {}", f.ms, f.cpu)?;
         }
         outln!("  strata, this run: {best:.2} ms with {n} thread(s) on {cpu}")?;
+        outln!(
+            "  (machines of one kind differ; scripts/raster-anchor measures the anchor and strata \
+             alternately on this machine and prints the ratio)"
+        )?;
     }
     if let Some(path) = &args.json {
         let doc = json!({
