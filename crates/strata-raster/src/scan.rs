@@ -232,26 +232,21 @@ pub(crate) fn for_each_sample(
     }
 }
 
-/// [`scan_triangle`]'s larger triangles shaded one sample at a time, through the scalar
-/// arithmetic micro-triangles are tested against: the definition the lanes must equal.
+/// The larger triangle `t` shaded one sample at a time, in the rows `rows.0 ..= rows.1`,
+/// through the scalar arithmetic micro-triangles are tested against: what [`scan_triangle`]'s
+/// lanes must equal. `attrs` are its vertices in input order.
 #[cfg(test)]
-#[allow(clippy::too_many_arguments, reason = "scan_triangle's arguments")]
-pub(crate) fn scan_large_one_at_a_time<S: FragmentSink, const LIT: bool>(
-    pos: [ScreenPos; 3],
+pub(crate) fn shade_large_one_at_a_time<S: FragmentSink, const LIT: bool>(
+    t: &Setup,
     attrs: [&Attrs; 3],
-    rows: (i32, i32),
-    width: i32,
-    height: i32,
+    (rows, width): ((i32, i32), i32),
     shade: &Shade,
     sink: &mut S,
 ) -> u32 {
-    let Some(Triangle::Large(t)) = Triangle::new(pos, width, height) else {
-        return 0;
-    };
     let attrs = [attrs[t.order[0]], attrs[t.order[1]], attrs[t.order[2]]];
     let interp = Interp::new::<LIT>(attrs, t.area as f32);
     let mut count = 0;
-    for_each_sample(&t, rows, width, |pixel, e| {
+    for_each_sample(t, rows, width, |pixel, e| {
         if let Some(f) = interp.fragment::<LIT>(e, shade) {
             sink.push(pixel, f);
             count += 1;

@@ -578,7 +578,7 @@ mod tests {
     /// of samples a triangle leaves pending in the lanes.
     #[test]
     fn span_lanes_shade_exactly_like_one_sample_at_a_time() {
-        use crate::scan::scan_large_one_at_a_time;
+        use crate::scan::shade_large_one_at_a_time;
         let mut rand = Rand(0x2545_f491_4f6c_dd1d);
         let (w, h) = (61, 47);
         // One shader reused across triangles, as a strip's scan does.
@@ -607,6 +607,15 @@ mod tests {
             let vref = [&verts[0], &verts[1], &verts[2]];
             let first = rand.below(h as u32);
             let rows = (first, first + rand.below(h as u32));
+            // Only larger triangles are this test's subject; the samples their rows cover,
+            // before the far plane drops any.
+            let Some(crate::coverage::Triangle::Large(t)) =
+                crate::coverage::Triangle::new(pos, w, h)
+            else {
+                continue;
+            };
+            let mut samples = 0usize;
+            crate::scan::for_each_sample(&t, rows, w, |_, _| samples += 1);
             let mut got = Collect(Vec::new());
             let n = pulp::Arch::new().dispatch(SpanJob {
                 pos,
@@ -620,19 +629,10 @@ mod tests {
             });
             let mut want = Collect(Vec::new());
             let m = if lit {
-                scan_large_one_at_a_time::<_, true>(pos, vref, rows, w, h, &shade, &mut want)
+                shade_large_one_at_a_time::<_, true>(&t, vref, (rows, w), &shade, &mut want)
             } else {
-                scan_large_one_at_a_time::<_, false>(pos, vref, rows, w, h, &shade, &mut want)
+                shade_large_one_at_a_time::<_, false>(&t, vref, (rows, w), &shade, &mut want)
             };
-            // Only larger triangles are this test's subject (the reference shades no other);
-            // the samples their rows cover, before the far plane drops any.
-            let Some(crate::coverage::Triangle::Large(t)) =
-                crate::coverage::Triangle::new(pos, w, h)
-            else {
-                continue;
-            };
-            let mut samples = 0usize;
-            crate::scan::for_each_sample(&t, rows, w, |_, _| samples += 1);
             let bits = |v: &[(u32, strata_core::Fragment)]| -> Vec<(u32, u32, u32, u32)> {
                 v.iter()
                     .map(|(p, f)| (*p, f.depth.to_bits(), f.color.to_bits(), f.object.0))
