@@ -15,12 +15,11 @@ pub(crate) fn ms(d: std::time::Duration) -> f64 {
 
 /// Bytes a stored fragment costs: the memory holding this frame's data (per-pixel buffers
 /// included) over the fragments stored. Allocated but unused capacity is reported apart.
-pub(crate) fn bytes_per_fragment(r: &FrameResult) -> f64 {
-    let stored = r.capture.fragments_stored;
-    if stored == 0 {
+pub(crate) fn bytes_per_fragment(used_memory_bytes: u64, fragments_stored: u64) -> f64 {
+    if fragments_stored == 0 {
         0.0
     } else {
-        r.used_memory_bytes as f64 / stored as f64
+        used_memory_bytes as f64 / fragments_stored as f64
     }
 }
 
@@ -63,7 +62,7 @@ pub(crate) fn stats_json(
         "dropped_fragments": r.capture.dropped,
         "memory_bytes": r.memory_bytes,
         "used_memory_bytes": r.used_memory_bytes,
-        "bytes_per_fragment": bytes_per_fragment(r),
+        "bytes_per_fragment": bytes_per_fragment(r.used_memory_bytes, r.capture.fragments_stored),
         "pool_regrows": r.capture.regrows,
         "setup": {
             "triangles": s.triangles,
@@ -108,7 +107,7 @@ pub(crate) fn summary_line(scene: &Scene, r: &FrameResult) -> String {
         "; memory {:.1} MiB used of {:.1} MiB allocated ({:.1} B/fragment)",
         r.used_memory_bytes as f64 / (1 << 20) as f64,
         r.memory_bytes as f64 / (1 << 20) as f64,
-        bytes_per_fragment(r)
+        bytes_per_fragment(r.used_memory_bytes, r.capture.fragments_stored)
     ));
     if r.capture.dropped > 0 {
         line.push_str(&format!(

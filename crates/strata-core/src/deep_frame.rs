@@ -332,19 +332,39 @@ impl DeepFrame {
                 found: found as u64,
             });
         }
-        let counts = bands.iter().flat_map(|g| g.counts.iter().copied());
-        let offsets = offsets_of(counts, pixels)?;
-        let (mut depth, mut color, mut object) = columns(offsets[pixels] as usize);
-        // Each run's columns go to the disjoint slices its pixels own.
-        let lens: Vec<usize> = bands.iter().map(|g| g.depth.len()).collect();
-        let slices = split_columns((&mut depth, &mut color, &mut object), lens.into_iter());
+        // Each run's first offset, from the runs' totals; the offsets within a run are then
+        // summed by the task that copies its columns.
+        let mut bases = Vec::with_capacity(bands.len());
+        let mut total = 0u64;
+        for g in &bands {
+            bases.push(total as u32);
+            total += g.depth.len() as u64;
+            u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
+        }
+        let mut offsets = vec![0u32; pixels + 1];
+        let (mut depth, mut color, mut object) = columns(total as usize);
+        // Each run's offsets and columns go to the disjoint slices its pixels own.
+        let offset_slices = split_lens(&mut offsets[1..], bands.iter().map(|g| g.counts.len()));
+        let lens = bands.iter().map(|g| g.depth.len());
+        let slices = split_columns((&mut depth, &mut color, &mut object), lens);
         // Consumed, so each run's columns are freed as soon as they are in place.
-        let places: Vec<_> = bands.into_iter().zip(slices).collect();
-        places.into_par_iter().for_each(|(g, (d, c, o))| {
-            d.copy_from_slice(&g.depth);
-            c.copy_from_slice(&g.color);
-            o.copy_from_slice(&g.object);
-        });
+        let places: Vec<_> = bands
+            .into_iter()
+            .zip(bases)
+            .zip(offset_slices.into_iter().zip(slices))
+            .collect();
+        places
+            .into_par_iter()
+            .for_each(|((g, base), (offsets, (d, c, o)))| {
+                let mut end = base;
+                for (o, &n) in offsets.iter_mut().zip(&g.counts) {
+                    end += n;
+                    *o = end;
+                }
+                d.copy_from_slice(&g.depth);
+                c.copy_from_slice(&g.color);
+                o.copy_from_slice(&g.object);
+            });
         Ok(DeepFrame {
             width,
             height,
@@ -865,32 +885,90 @@ impl GatheredPixels {
         mut fill: impl FnMut(usize, &mut Vec<Fragment>),
     ) -> Result<Self, DeepFrameError> {
         // Room for a fragment a pixel; only denser runs grow.
-        let mut g = GatheredPixels {
-            counts: Vec::with_capacity(pixels.len()),
-            depth: Vec::with_capacity(pixels.len()),
-            color: Vec::with_capacity(pixels.len()),
-            object: Vec::with_capacity(pixels.len()),
-        };
+        let mut w = GatherWriter::new(pixels.len(), pixels.len());
         for p in pixels {
             scratch.clear();
             fill(p, scratch);
-            for f in scratch.iter_mut() {
-                normalise_depth(&mut f.depth, p)?;
-            }
-            sort_front_to_back(scratch);
-            let n = u32::try_from(scratch.len())
-                .map_err(|_| DeepFrameError::TooManyFragments(scratch.len() as u64))?;
-            g.counts.push(n);
-            g.depth.extend(scratch.iter().map(|f| f.depth));
-            g.color.extend(scratch.iter().map(|f| f.color));
-            g.object.extend(scratch.iter().map(|f| f.object));
+            w.push_run(p, scratch)?;
         }
-        Ok(g)
+        Ok(w.finish())
     }
 
     /// Pixels gathered.
     pub fn pixels(&self) -> usize {
         self.counts.len()
+    }
+}
+
+/// Fills a [`GatheredPixels`] run by run, pixel after pixel: a store that knows how many
+/// fragments it holds sizes the columns with it, so they never grow while it gathers.
+#[derive(Debug)]
+pub struct GatherWriter(GatheredPixels);
+
+impl GatherWriter {
+    /// Room for `pixels` pixels and `fragments` fragments (more still fit; the columns then
+    /// grow).
+    pub fn new(pixels: usize, fragments: usize) -> Self {
+        GatherWriter(GatheredPixels {
+            counts: Vec::with_capacity(pixels),
+            depth: Vec::with_capacity(fragments),
+            color: Vec::with_capacity(fragments),
+            object: Vec::with_capacity(fragments),
+        })
+    }
+
+    /// Appends `n` pixels without fragments.
+    #[inline]
+    pub fn push_empty(&mut self, n: usize) {
+        let counts = &mut self.0.counts;
+        counts.resize(counts.len() + n, 0);
+    }
+
+    /// Appends the frame pixel `pixel`'s fragments `run`, in any order: checked and sorted as
+    /// [`DeepFrame::build`] does (−0 depths become +0; a depth outside `[0, 1]` or NaN is an
+    /// error naming `pixel`).
+    #[inline(always)]
+    pub fn push_run(&mut self, pixel: usize, run: &mut [Fragment]) -> Result<(), DeepFrameError> {
+        // −0 + 0 is +0 and every other depth, NaN included, stays what it was: the depths are
+        // normalised and checked with one branch for the run.
+        let mut valid = true;
+        for f in run.iter_mut() {
+            f.depth += 0.0;
+            valid &= (0.0..=1.0).contains(&f.depth);
+        }
+        if !valid {
+            let bad = run
+                .iter()
+                .find(|f| !valid_depth(f.depth))
+                .map_or(0.0, |f| f.depth);
+            return Err(DeepFrameError::BadDepth {
+                index: pixel,
+                depth: bad,
+            });
+        }
+        // Two fragments, the commonest run in a closed mesh's frame, take one comparison.
+        if let [a, b] = run {
+            if b.order_key() < a.order_key() {
+                std::mem::swap(a, b);
+            }
+        } else {
+            sort_front_to_back(run);
+        }
+        let n = u32::try_from(run.len())
+            .map_err(|_| DeepFrameError::TooManyFragments(run.len() as u64))?;
+        let g = &mut self.0;
+        g.counts.push(n);
+        for f in run.iter() {
+            g.depth.push(f.depth);
+            g.color.push(f.color);
+            g.object.push(f.object);
+        }
+        Ok(())
+    }
+
+    /// The pixels and fragments pushed.
+    pub fn finish(self) -> GatheredPixels {
+        self.0
     }
 }
 
@@ -922,6 +1000,17 @@ fn columns(n: usize) -> (Vec<f32>, Vec<Rgba8>, Vec<ObjectId>) {
         vec![Rgba8::default(); n],
         vec![ObjectId::default(); n],
     )
+}
+
+/// Cuts `buf` into consecutive disjoint pieces of `lens` items each.
+fn split_lens<T>(buf: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+    let mut rest = buf;
+    lens.map(|len| {
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
+        rest = tail;
+        head
+    })
+    .collect()
 }
 
 /// Mutable column slices to fill in parallel: consecutive pieces of `lens` fragments each.

@@ -40,7 +40,7 @@ pub mod rgba_image;
 pub mod stats;
 pub mod timings;
 
-pub use deep_frame::{DeepFrame, DeepFrameError, FillBand, GatheredPixels, Run};
+pub use deep_frame::{DeepFrame, DeepFrameError, FillBand, GatherWriter, GatheredPixels, Run};
 pub use fragment::{Fragment, ObjectId, Rgba8};
 pub use image::{ImageError, Rgb8Image};
 pub use material::{Material, Shading};

@@ -25,10 +25,10 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use strata_core::{DeepFrame, DeepFrameError, ObjectId, PassTimings};
+use strata_core::{DeepFrame, ObjectId, PassTimings};
 use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
-use strata_stores::{Method, MethodOptions, StoreError};
+use strata_stores::{ExportError, Method, MethodOptions, export_frame};
 use strata_wire::{
     DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
     TransferMethod, WireError, encode_delta_into, encode_error_into, encode_frame_into,
@@ -500,21 +500,15 @@ enum RenderError {
     /// The frame number cannot pose the scene.
     #[error(transparent)]
     Frame(#[from] FrameOutOfRange),
-    /// The store failed.
+    /// The store failed, or its fragments form no DeepFrame.
     #[error(transparent)]
-    Store(#[from] StoreError),
+    Export(#[from] ExportError),
     /// Reprojection: the store lost fragments.
     #[error(
         "the store dropped {0} fragments; the reprojection transfer needs every one (use a \
          growing pool: --pool auto)"
     )]
     Dropped(u64),
-    /// The store's fragments do not form a DeepFrame.
-    #[error(transparent)]
-    DeepFrame(#[from] DeepFrameError),
-    /// The store keeps no fragment lists.
-    #[error("method '{0}' exports no DeepFrame")]
-    NoDeepFrame(String),
 }
 
 /// Renders each requested frame with the node's store and hands it to the encode thread.
@@ -570,18 +564,14 @@ fn render(
     if request.transfer == TransferMethod::Reprojection {
         input.output = FragmentOutput::PackedNormal;
     }
-    method.clear(input.width, input.height)?;
     // Captured and exported in one call: the linked list gathers each strip's fragments as its
     // scan ends, while they are in the cache.
-    let (report, frame) = method.capture_and_export(raster, &input, &mut PassTimings::new())?;
+    let exported = export_frame(method, raster, &input)?;
     // Reprojection: the display must be able to hold exactly what was rendered.
-    if request.transfer == TransferMethod::Reprojection && report.dropped > 0 {
-        return Err(RenderError::Dropped(report.dropped));
+    if request.transfer == TransferMethod::Reprojection && exported.capture.dropped > 0 {
+        return Err(RenderError::Dropped(exported.capture.dropped));
     }
-    match frame {
-        Some(f) => Ok(f?),
-        None => Err(RenderError::NoDeepFrame(config.method.clone())),
-    }
+    Ok(exported.frame)
 }
 
 fn header_for(request: &Request, fixup: bool) -> FrameHeader {

@@ -40,7 +40,10 @@ mod resolve;
 pub mod tfss;
 pub mod wf;
 
-pub use method::{CaptureReport, FrameResult, Method, PixelMap, StoreError, render_frame};
+pub use method::{
+    CaptureReport, ExportError, ExportResult, FrameResult, Method, PixelMap, StoreError,
+    export_frame, render_frame,
+};
 pub use options::{
     BadValue, Budget, ImportanceParams, KFrom, MethodOptions, OptionError, PoolCapacity,
 };

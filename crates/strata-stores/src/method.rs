@@ -207,6 +207,62 @@ pub struct FrameResult {
     pub used_memory_bytes: u64,
 }
 
+/// Everything one exported frame produced: what a render node renders and then encodes.
+#[derive(Clone, Debug)]
+pub struct ExportResult {
+    /// The captured fragments, sorted front to back per pixel.
+    pub frame: DeepFrame,
+    /// `clear` and `capture` (capture and export together, with their `capture.*` stages).
+    pub timings: PassTimings,
+    /// What capture did.
+    pub capture: CaptureReport,
+    /// Bytes of the method's buffers.
+    pub memory_bytes: u64,
+    /// Bytes of them holding this frame's data.
+    pub used_memory_bytes: u64,
+}
+
+/// Why a frame could not be exported.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The store's fragments do not form a DeepFrame.
+    #[error(transparent)]
+    DeepFrame(#[from] DeepFrameError),
+    /// The store keeps no fragment lists.
+    #[error("method '{0}' exports no DeepFrame")]
+    NoDeepFrame(&'static str),
+}
+
+/// Runs clear → capture → export ([`Method::capture_and_export`]) and times the passes: a render
+/// node's frame. Runs on the current rayon pool, as [`render_frame`] does.
+pub fn export_frame(
+    method: &mut dyn Method,
+    raster: &mut Rasterizer,
+    input: &FrameInput<'_>,
+) -> Result<ExportResult, ExportError> {
+    let mut timings = PassTimings::new();
+    let start = Instant::now();
+    method.clear(input.width, input.height)?;
+    timings.add("clear", start.elapsed());
+
+    let start = Instant::now();
+    let mut stages = PassTimings::new();
+    let (capture, frame) = method.capture_and_export(raster, input, &mut stages)?;
+    timings.add("capture", start.elapsed());
+    timings.extend(&stages);
+    let frame = frame.ok_or(ExportError::NoDeepFrame(method.name()))??;
+    Ok(ExportResult {
+        frame,
+        timings,
+        capture,
+        memory_bytes: method.memory_bytes(),
+        used_memory_bytes: method.used_memory_bytes(),
+    })
+}
+
 /// Runs clear → capture → resolve ([`Method::capture_and_resolve`]) and times each pass.
 ///
 /// Runs on the current rayon pool; wrap it in `ThreadPool::install` to choose the thread count.

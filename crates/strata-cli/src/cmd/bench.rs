@@ -7,8 +7,9 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use strata_core::stats::median;
+use strata_core::{DepthStats, PassTimings};
 use strata_raster::{FrameInput, Rasterizer};
-use strata_stores::{FrameResult, render_frame};
+use strata_stores::{CaptureReport, Method, export_frame, render_frame};
 
 use crate::options::{
     MethodParams, check_output, default_threads, open_scene, search_path, thread_pool,
@@ -22,7 +23,8 @@ use crate::report::{bytes_per_fragment, cpu_model};
 /// wall-clock on a possibly shared machine, measured on the CPU named in the output: compare
 /// medians from one invocation. Where a figure measured elsewhere exists for the scene and method
 /// (the full dragon with abuffer), it is printed after the results as a reference, with the
-/// machine it comes from.
+/// machine it comes from. With `--export` a run is a render node's frame instead: clear, capture
+/// and export the DeepFrame that `strata node` then encodes.
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
@@ -34,6 +36,11 @@ pub(crate) struct Args {
 
     #[command(flatten)]
     pub(crate) params: MethodParams,
+
+    /// Time what a render node renders (`strata node`): clear, capture and export the DeepFrame
+    /// (every pixel's fragments sorted front to back), instead of clear, capture and resolve.
+    #[arg(long)]
+    pub(crate) export: bool,
 
     /// Timed runs per thread count.
     #[arg(long, default_value_t = 15)]
@@ -104,14 +111,53 @@ struct Samples {
 }
 
 impl Samples {
-    fn add(&mut self, r: &FrameResult) {
-        for (n, d) in r.timings.iter() {
+    fn add(&mut self, timings: &PassTimings) {
+        for (n, d) in timings.iter() {
             if !self.by_name.contains_key(n) {
                 self.order.push(n);
             }
             self.by_name.entry(n).or_default().push(d);
         }
-        self.totals.push(r.timings.total());
+        self.totals.push(timings.total());
+    }
+}
+
+/// What one timed run leaves behind for the report.
+struct Run {
+    timings: PassTimings,
+    capture: CaptureReport,
+    depth: DepthStats,
+    memory_bytes: u64,
+    used_memory_bytes: u64,
+}
+
+/// One timed frame: resolved ([`render_frame`]), or exported as a render node does
+/// ([`export_frame`]; the depth statistics then come from the exported frame).
+fn one_run(
+    method: &mut dyn Method,
+    raster: &mut Rasterizer,
+    input: &FrameInput<'_>,
+    background: [f32; 3],
+    export: bool,
+) -> Result<Run> {
+    if export {
+        let r = export_frame(method, raster, input)?;
+        Ok(Run {
+            depth: r.frame.depth_stats(),
+            timings: r.timings,
+            capture: r.capture,
+            memory_bytes: r.memory_bytes,
+            used_memory_bytes: r.used_memory_bytes,
+        })
+    } else {
+        let r = render_frame(method, raster, input, background)?;
+        Ok(Run {
+            depth: r.depth.unwrap_or_default(),
+            timings: r.timings,
+            capture: r.capture,
+            memory_bytes: r.memory_bytes,
+            used_memory_bytes: r.used_memory_bytes,
+        })
     }
 }
 
@@ -166,15 +212,22 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let mut samples = Samples::default();
         let mut last = None;
         for run in 0..args.warmup + args.runs {
-            let r = pool
-                .install(|| render_frame(method.as_mut(), &mut raster, &input, scene.background))?;
+            let r = pool.install(|| {
+                one_run(
+                    method.as_mut(),
+                    &mut raster,
+                    &input,
+                    scene.background,
+                    args.export,
+                )
+            })?;
             if run >= args.warmup {
-                samples.add(&r);
+                samples.add(&r.timings);
             }
             last = Some(r);
         }
         let last = last.context("no run")?;
-        let depth = last.depth.clone().unwrap_or_default();
+        let depth = last.depth.clone();
         let fragments = last.capture.fragments_stored;
         let (total_med, total_min, total_max) = stats(&samples.totals);
         outln!()?;
@@ -185,7 +238,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             depth.mean_depth_complexity(),
             last.used_memory_bytes as f64 / (1 << 20) as f64,
             last.memory_bytes as f64 / (1 << 20) as f64,
-            bytes_per_fragment(&last),
+            bytes_per_fragment(last.used_memory_bytes, fragments),
             if last.capture.dropped > 0 {
                 format!(", {} DROPPED", last.capture.dropped)
             } else {
@@ -230,7 +283,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "fragments_per_second": fps,
             "memory_bytes": last.memory_bytes,
             "used_memory_bytes": last.used_memory_bytes,
-            "bytes_per_fragment": bytes_per_fragment(&last),
+            "bytes_per_fragment": bytes_per_fragment(last.used_memory_bytes, fragments),
             "dropped_fragments": last.capture.dropped,
             "max_depth_complexity": depth.max_depth_complexity(),
             "covered_pixels": depth.covered_pixels(),

@@ -29,12 +29,14 @@
 //!   `LOCAL` fragments), sort it front to back (insertion sort for short lists, as Jähne 2014
 //!   Alg. A.1 does with bubble sort), composite with OVER onto the background with early exit at
 //!   full opacity. Walking a list is a chain of dependent loads, so lists are gathered over
-//!   batches of [`GATHER_BATCH`] pixels: the first node of every list in the batch in one round,
-//!   whose loads are independent, so the memory system serves them in parallel; then each
-//!   pixel's remaining nodes. (Rounds over the whole batch until its longest list ended cost 6 %
-//!   more instructions for no measurable gain; sixteen walkers that each take a new pixel when
-//!   their list ends, keeping 16 loads in flight, measured no faster either. On the full dragon,
-//!   a closed surface, 87 % of covered pixels hold 2 fragments and none holds 1.)
+//!   batches of [`GATHER_BATCH`] pixels (`ListFronts`): the first node of every list in the
+//!   batch in one round, whose loads are independent, so the memory system serves them in
+//!   parallel; the second node of every list that has one in a second round; then each pixel's
+//!   remaining nodes. (On the full dragon, a closed surface, 87 % of covered pixels hold 2
+//!   fragments and none holds 1, so the second round takes most lists to their end. Rounds over
+//!   the whole batch until its longest list ended cost 6 % more instructions for no measurable
+//!   gain; sixteen walkers that each take a new pixel when their list ends, keeping 16 loads in
+//!   flight, measured no faster either.)
 //!
 //!   **Fused with the capture** when a frame is captured and resolved in one call
 //!   ([`Method::capture_and_resolve`], what `render_frame` runs): each strip's sink resolves the
@@ -44,8 +46,9 @@
 //!   the resolve's time in `perf` on the dragon. A frame captured in several calls is resolved by
 //!   [`Method::resolve`], rows in parallel, with the same per-pixel code (`resolve_pixels`).
 //!   A render node's export is fused the same way ([`Method::capture_and_export`]): each strip
-//!   gathers its rows' sorted fragments into columns of its own
-//!   ([`strata_core::GatheredPixels`]) as its scan ends, and the frame is assembled from them.
+//!   walks its rows' lists in the same batches and writes their sorted fragments into columns
+//!   of its own ([`strata_core::GatherWriter`], sized by the fragments the strip stored, so they
+//!   never grow) as its scan ends, and the frame is assembled from them.
 //!
 //! # Overflow
 //!
@@ -68,8 +71,8 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 use strata_core::fragment::sort_front_to_back;
 use strata_core::{
-    DeepFrame, DeepFrameError, DepthStats, Fragment, GatheredPixels, ObjectId, PassTimings,
-    PixelRect, Rgb8Image, Rgba8, composite,
+    DeepFrame, DeepFrameError, DepthStats, Fragment, GatherWriter, GatheredPixels, ObjectId,
+    PassTimings, PixelRect, Rgb8Image, Rgba8, composite,
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Prepared, Rasterizer, StripLayout};
 
@@ -375,12 +378,12 @@ impl FragmentSink for LinkedListSink<'_> {
                 };
             }
             Some(StripWork::Export(slot)) => {
-                let (heads, nodes) = (&*self.heads, self.nodes);
                 let first = self.first_pixel as usize;
-                *slot = Some(GatheredPixels::gather(
-                    first..first + heads.len(),
-                    &mut Vec::new(),
-                    |p, out| out.extend(walk(heads[p - first], nodes)),
+                *slot = Some(gather_strip(
+                    self.heads,
+                    self.nodes,
+                    first,
+                    self.n_stored as usize,
                 ));
             }
         }
@@ -536,6 +539,114 @@ impl LinkedListABuffer {
     }
 }
 
+/// The first two nodes of each list of a batch of [`GATHER_BATCH`] consecutive pixels, loaded
+/// in two rounds over the batch (see the module docs): every first node, whose loads are
+/// independent, then every second node, likewise, so a pixel's chain of dependent loads is
+/// walked one pixel at a time only beyond its second fragment.
+#[derive(Clone, Copy)]
+struct ListFronts {
+    /// Each pixel's first fragment and the node after it; `(Fragment::default(), EMPTY)` for a
+    /// pixel without a list.
+    first: [(Fragment, u32); GATHER_BATCH],
+    /// Each pixel's second fragment and the node after it; `(Fragment::default(), EMPTY)` for a
+    /// list shorter than two.
+    second: [(Fragment, u32); GATHER_BATCH],
+}
+
+impl Default for ListFronts {
+    fn default() -> Self {
+        let none = [(Fragment::default(), EMPTY); GATHER_BATCH];
+        ListFronts {
+            first: none,
+            second: none,
+        }
+    }
+}
+
+impl ListFronts {
+    /// Loads the fronts of the lists whose heads are `heads` (at most [`GATHER_BATCH`]).
+    #[inline]
+    fn load(heads: &[u32], nodes: &[Node]) -> Self {
+        debug_assert!(heads.len() <= GATHER_BATCH);
+        let mut b = ListFronts::default();
+        for (f, &head) in b.first.iter_mut().zip(heads) {
+            if head != EMPTY {
+                *f = nodes[head as usize].load();
+            }
+        }
+        for (s, &(_, next)) in b.second.iter_mut().zip(&b.first) {
+            if next != EMPTY {
+                *s = nodes[next as usize].load();
+            }
+        }
+        b
+    }
+}
+
+impl ListFronts {
+    /// Walks the list of the batch's pixel `i`, which must have one, into `local` (the first
+    /// [`LOCAL`] fragments) and on into `long` (reused, so no allocation once it has grown) if
+    /// it is longer; returns the run, in list order.
+    #[inline]
+    fn walk_into<'a>(
+        &self,
+        i: usize,
+        nodes: &[Node],
+        local: &'a mut [Fragment; LOCAL],
+        long: &'a mut Vec<Fragment>,
+    ) -> &'a mut [Fragment] {
+        let (f, second) = self.first[i];
+        local[0] = f;
+        if second == EMPTY {
+            return &mut local[..1];
+        }
+        let mut next;
+        (local[1], next) = self.second[i];
+        let mut n = 2;
+        while next != EMPTY && n < LOCAL {
+            (local[n], next) = nodes[next as usize].load();
+            n += 1;
+        }
+        if next == EMPTY {
+            return &mut local[..n];
+        }
+        long.clear();
+        long.extend_from_slice(&local[..]);
+        long.extend(walk(next, nodes));
+        &mut long[..]
+    }
+}
+
+/// Gathers a strip's lists (`heads` of the frame pixels from `first_pixel` on) into columns,
+/// each run sorted front to back, in batches of [`GATHER_BATCH`] pixels as the resolve walks
+/// them; `fragments` (what the strip stored) sizes the columns.
+fn gather_strip(
+    heads: &[u32],
+    nodes: &[Node],
+    first_pixel: usize,
+    fragments: usize,
+) -> Result<GatheredPixels, DeepFrameError> {
+    let mut g = GatherWriter::new(heads.len(), fragments);
+    let mut local = [Fragment::default(); LOCAL];
+    let mut long = Vec::new();
+    for (b, heads) in heads.chunks(GATHER_BATCH).enumerate() {
+        if heads.iter().all(|&h| h == EMPTY) {
+            g.push_empty(heads.len());
+            continue;
+        }
+        let fronts = ListFronts::load(heads, nodes);
+        for (i, &head) in heads.iter().enumerate() {
+            if head == EMPTY {
+                g.push_empty(1);
+            } else {
+                let run = fronts.walk_into(i, nodes, &mut local, &mut long);
+                g.push_run(first_pixel + b * GATHER_BATCH + i, run)?;
+            }
+        }
+    }
+    Ok(g.finish())
+}
+
 /// The list starting at node `head`, newest first.
 #[inline]
 fn walk(head: u32, nodes: &[Node]) -> impl Iterator<Item = Fragment> + '_ {
@@ -583,41 +694,18 @@ fn resolve_pixels(
             counts[0] += heads.len() as u64;
             continue;
         }
-        let mut first = [(Fragment::default(), EMPTY); GATHER_BATCH];
-        for (f, &head) in first.iter_mut().zip(heads) {
-            if head != EMPTY {
-                *f = nodes[head as usize].load();
-            }
-        }
+        let fronts = ListFronts::load(heads, nodes);
         for (i, px) in batch.chunks_exact_mut(3).enumerate() {
-            let (f, mut next) = first[i];
             let rgb = if heads[i] == EMPTY {
                 counts[0] += 1;
                 bg
-            } else if next == EMPTY {
-                counts[1] += 1;
-                resolver.resolve([f.color])
             } else {
-                local[0] = f;
-                let mut n = 1;
-                while next != EMPTY && n < LOCAL {
-                    (local[n], next) = nodes[next as usize].load();
-                    n += 1;
-                }
-                let run = if next == EMPTY {
-                    counts[n] += 1;
-                    &mut local[..n]
+                let run = fronts.walk_into(i, nodes, &mut local, list);
+                if run.len() <= LOCAL {
+                    counts[run.len()] += 1;
                 } else {
-                    list.clear();
-                    list.extend_from_slice(&local);
-                    while next != EMPTY {
-                        let (g, after) = nodes[next as usize].load();
-                        list.push(g);
-                        next = after;
-                    }
-                    stats.record(list.len() as u32);
-                    &mut list[..]
-                };
+                    stats.record(run.len() as u32);
+                }
                 sort_front_to_back(run);
                 resolver.resolve(run.iter().map(|f| f.color))
             };
@@ -834,7 +922,7 @@ mod tests {
 
     /// Lists of every length from 0 to past the resolve's stack array (`LOCAL`), each with
     /// translucent fragments pushed in no depth order, resolve as their DeepFrame does, one
-    /// pixel and one depth count each; the fused pass gives the same.
+    /// pixel and one depth count each; the fused passes (resolve and export) give the same.
     #[test]
     fn lists_longer_than_the_stack_array_resolve_like_short_ones() {
         let lengths: Vec<usize> = (0..=LOCAL + 3).chain([2 * LOCAL + 1]).collect();
@@ -892,6 +980,23 @@ mod tests {
         }
         assert_eq!(image, img);
         assert_eq!(reports[0].depth, stats);
+
+        // And gathered strip by strip, as the fused export does (its batches of lists' fronts
+        // end mid-strip and hold an empty pixel).
+        let mut slots = vec![None];
+        let mut fused = Fused::Export(&mut slots);
+        let mut target = FusedTarget {
+            store: &mut ab,
+            fused: &mut fused,
+        };
+        for mut s in target.sinks(&layout) {
+            s.finish();
+        }
+        let strips: Vec<GatheredPixels> = slots
+            .into_iter()
+            .map(|s| s.expect("the strip finished").expect("valid depths"))
+            .collect();
+        assert_eq!(DeepFrame::from_gathered(width, 1, strips).unwrap(), want);
     }
 
     #[test]
