@@ -322,6 +322,19 @@ impl DeepFrame {
         height: u32,
         bands: Vec<GatheredPixels>,
     ) -> Result<Self, DeepFrameError> {
+        Self::from_gathered_reusing(width, height, bands, None)
+    }
+
+    /// [`DeepFrame::from_gathered`] into the buffers of `reuse`, a frame no longer needed, when
+    /// there is one: a stream of frames is then assembled in memory it already has, with no
+    /// fresh pages for the kernel to fault in and zero, and nothing zeroed here but what the
+    /// new frame holds beyond the old one's lengths.
+    pub fn from_gathered_reusing(
+        width: u32,
+        height: u32,
+        bands: Vec<GatheredPixels>,
+        reuse: Option<DeepFrame>,
+    ) -> Result<Self, DeepFrameError> {
         let pixels = pixel_count(width, height);
         let found: usize = bands.iter().map(|g| g.counts.len()).sum();
         if found != pixels {
@@ -341,8 +354,25 @@ impl DeepFrame {
             total += g.depth.len() as u64;
             u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
         }
-        let mut offsets = vec![0u32; pixels + 1];
-        let (mut depth, mut color, mut object) = columns(total as usize);
+        // Every entry is written below: the offsets past the first by their runs' tasks, the
+        // columns by the copies.
+        let (mut offsets, mut depth, mut color, mut object) = match reuse {
+            Some(f) => {
+                let (mut offsets, mut depth, mut color, mut object) =
+                    (f.offsets, f.depth, f.color, f.object);
+                offsets.resize(pixels + 1, 0);
+                offsets[0] = 0;
+                let n = total as usize;
+                depth.resize(n, 0.0);
+                color.resize(n, Rgba8::default());
+                object.resize(n, ObjectId::default());
+                (offsets, depth, color, object)
+            }
+            None => {
+                let (depth, color, object) = columns(total as usize);
+                (vec![0u32; pixels + 1], depth, color, object)
+            }
+        };
         // Each run's offsets and columns go to the disjoint slices its pixels own.
         let offset_slices = split_lens(&mut offsets[1..], bands.iter().map(|g| g.counts.len()));
         let lens = bands.iter().map(|g| g.depth.len());
@@ -1107,6 +1137,21 @@ mod tests {
         let strips = runs(&[0, 0, 1, 4_800, 9_000, n]);
         assert_eq!(strips.iter().map(GatheredPixels::pixels).sum::<usize>(), n);
         assert_eq!(DeepFrame::from_gathered(w, h, strips).unwrap(), built);
+        // In the buffers of a frame no longer needed, larger (every entry overwritten) or
+        // smaller (grown) than the new one, or of another size: the same frame.
+        let larger = DeepFrame::gather(w, h, |p, out| {
+            out.extend_from_slice(&lists[p]);
+            out.extend_from_slice(&lists[p]);
+        })
+        .unwrap();
+        let smaller =
+            DeepFrame::gather(w, h / 2, |p, out| out.extend_from_slice(&lists[p])).unwrap();
+        assert!(larger.fragment_count() > built.fragment_count());
+        for old in [larger, smaller, DeepFrame::empty(3, 2)] {
+            let strips = runs(&[0, 4_800, 9_000, n]);
+            let reused = DeepFrame::from_gathered_reusing(w, h, strips, Some(old)).unwrap();
+            assert_eq!(reused, built);
+        }
         for cuts in [&[0, 4_800, n - 1][..], &[0, n, n + 1]] {
             let short = DeepFrame::from_gathered(w, h, runs(cuts));
             assert!(

@@ -340,11 +340,11 @@ impl Dataset {
             })
             .fragments;
         buf.regions.with_capacities(w, h, buf.counts.counts())?;
-        prepared.rasterize(&mut RegionCapture {
-            regions: &mut buf.regions,
-            policy: Policy::Append,
-            evicted: None,
-        });
+        prepared.rasterize(&mut RegionCapture::new(
+            &mut buf.regions,
+            Policy::Append,
+            None,
+        ));
         buf.regions.sort_runs();
         for b in self.spec.budgets.clone() {
             let budget = (total as f64 * b).floor() as u64;

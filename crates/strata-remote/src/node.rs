@@ -330,6 +330,9 @@ pub async fn serve_connection(
     let (render_tx, render_rx) = mpsc::channel::<RenderJob>(2);
     let (encode_tx, encode_rx) = mpsc::channel::<EncodeJob>(2);
     let recent: Recent = Arc::new(Mutex::new(VecDeque::new()));
+    // Frames that left the ring of recent frames and that nothing else holds go back to the
+    // render thread, whose exports reuse their buffers.
+    let (recycle_tx, recycle_rx) = std::sync::mpsc::sync_channel::<DeepFrame>(2);
 
     let spawn = |stage: &'static str, f: Box<dyn FnOnce() + Send>| {
         std::thread::Builder::new()
@@ -342,14 +345,14 @@ pub async fn serve_connection(
         let (config, out) = (config.clone(), out_tx.clone());
         spawn(
             "render",
-            Box::new(move || render_thread(config, render_rx, encode_tx, out)),
+            Box::new(move || render_thread(config, render_rx, encode_tx, out, recycle_rx)),
         )?
     };
     let encode = {
         let (config, out, recent) = (config.clone(), out_tx.clone(), recent.clone());
         spawn(
             "encode",
-            Box::new(move || encode_thread(config, encode_rx, out, recent)),
+            Box::new(move || encode_thread(config, encode_rx, out, recent, recycle_tx)),
         )?
     };
     let writer_task = tokio::spawn(write_messages(writer, out_rx));
@@ -517,6 +520,7 @@ fn render_thread(
     mut jobs: mpsc::Receiver<RenderJob>,
     encode: mpsc::Sender<EncodeJob>,
     out: mpsc::Sender<Vec<u8>>,
+    recycled: std::sync::mpsc::Receiver<DeepFrame>,
 ) {
     let mut method = match config.store() {
         Ok(m) => m,
@@ -528,7 +532,9 @@ fn render_thread(
         let rendered = animation_frame(request.frame_number)
             .map_err(RenderError::from)
             .and_then(|pose| {
-                render(&config, method.as_mut(), &mut raster, &request, pose).map(|f| (pose, f))
+                let reuse = recycled.try_recv().ok();
+                render(&config, method.as_mut(), &mut raster, &request, pose, reuse)
+                    .map(|f| (pose, f))
             });
         let (pose, frame) = match rendered {
             Ok(r) => r,
@@ -547,13 +553,15 @@ fn render_thread(
 }
 
 /// Renders the node's objects posed at `pose` with the request's camera and size: clear,
-/// capture and export the DeepFrame.
+/// capture and export the DeepFrame (into the buffers of `reuse`, a frame no longer needed,
+/// where the store can).
 fn render(
     config: &NodeConfig,
     method: &mut dyn Method,
     raster: &mut Rasterizer,
     request: &Request,
     pose: u32,
+    reuse: Option<DeepFrame>,
 ) -> Result<DeepFrame, RenderError> {
     let mut input = FrameInput::from_scene(&config.scene, pose);
     input.objects.retain(|o| config.objects.contains(&o.id));
@@ -566,7 +574,7 @@ fn render(
     }
     // Captured and exported in one call: the linked list gathers each strip's fragments as its
     // scan ends, while they are in the cache.
-    let exported = export_frame(method, raster, &input)?;
+    let exported = export_frame(method, raster, &input, reuse)?;
     // Reprojection: the display must be able to hold exactly what was rendered.
     if request.transfer == TransferMethod::Reprojection && exported.capture.dropped > 0 {
         return Err(RenderError::Dropped(exported.capture.dropped));
@@ -701,6 +709,7 @@ fn encode_thread(
     mut jobs: mpsc::Receiver<EncodeJob>,
     out: mpsc::Sender<Vec<u8>>,
     recent: Recent,
+    recycle: std::sync::mpsc::SyncSender<DeepFrame>,
 ) {
     let background = config.scene.background;
     let mut enc = Encoders {
@@ -748,20 +757,33 @@ fn encode_thread(
         {
             return send_error(&out, &e.to_string());
         }
-        keep_recent(&recent, request.frame_number, frame);
+        if let Some(old) = keep_recent(&recent, request.frame_number, frame)
+            && let Ok(old) = Arc::try_unwrap(old)
+        {
+            // A full channel or a render thread that has stopped: the frame is freed here.
+            let _ = recycle.try_send(old);
+        }
         if out.blocking_send(bytes).is_err() {
             return;
         }
     }
 }
 
-/// Keeps `frame` among the recent frames fixup requests are answered from.
-fn keep_recent(recent: &Recent, frame_number: u64, frame: Arc<DeepFrame>) {
+/// Keeps `frame` among the recent frames fixup requests are answered from; returns the frame
+/// that leaves the ring to make room, if one does.
+fn keep_recent(
+    recent: &Recent,
+    frame_number: u64,
+    frame: Arc<DeepFrame>,
+) -> Option<Arc<DeepFrame>> {
     let mut r = recent.lock().unwrap_or_else(|e| e.into_inner());
-    if r.len() == RECENT_FRAMES {
-        r.pop_front();
-    }
+    let old = if r.len() == RECENT_FRAMES {
+        r.pop_front().map(|(_, f)| f)
+    } else {
+        None
+    };
     r.push_back((frame_number, frame));
+    old
 }
 
 fn append_stats(bytes: &mut Vec<u8>, stats: &NodeStats) {

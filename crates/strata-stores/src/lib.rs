@@ -37,6 +37,7 @@ pub mod options;
 pub mod regions;
 pub mod registry;
 mod resolve;
+mod strip_export;
 pub mod tfss;
 pub mod wf;
 

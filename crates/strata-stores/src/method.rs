@@ -144,16 +144,20 @@ pub trait Method: Send {
 
     /// Captures `input` and exports what the store then holds as a DeepFrame: what
     /// [`Method::capture`] followed by [`Method::deep_frame`] does (a render node's frame).
-    /// Records the capture's stages in `timings`.
+    /// Records the capture's stages in `timings`. `reuse`, a frame no longer needed, may lend
+    /// its buffers to the export (a stream of frames then needs no fresh memory).
     ///
-    /// The default runs the two one after the other; the linked list fuses them as it fuses
-    /// [`Method::capture_and_resolve`], each strip gathering its rows' fragments as its scan ends.
+    /// The default runs the two one after the other (and lets `reuse` go); the linked list and
+    /// the k-buffer fuse them as the linked list fuses [`Method::capture_and_resolve`], each
+    /// strip gathering its rows' fragments as its scan ends ([`crate::strip_export`]).
     fn capture_and_export(
         &mut self,
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
+        reuse: Option<DeepFrame>,
     ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
+        drop(reuse);
         let report = self.capture(raster, input, timings)?;
         Ok((report, self.deep_frame()))
     }
@@ -237,11 +241,13 @@ pub enum ExportError {
 }
 
 /// Runs clear → capture → export ([`Method::capture_and_export`]) and times the passes: a render
-/// node's frame. Runs on the current rayon pool, as [`render_frame`] does.
+/// node's frame, in the buffers of `reuse` (a frame no longer needed) where the store can. Runs
+/// on the current rayon pool, as [`render_frame`] does.
 pub fn export_frame(
     method: &mut dyn Method,
     raster: &mut Rasterizer,
     input: &FrameInput<'_>,
+    reuse: Option<DeepFrame>,
 ) -> Result<ExportResult, ExportError> {
     let mut timings = PassTimings::new();
     let start = Instant::now();
@@ -250,7 +256,7 @@ pub fn export_frame(
 
     let start = Instant::now();
     let mut stages = PassTimings::new();
-    let (capture, frame) = method.capture_and_export(raster, input, &mut stages)?;
+    let (capture, frame) = method.capture_and_export(raster, input, &mut stages, reuse)?;
     timings.add("capture", start.elapsed());
     timings.extend(&stages);
     let frame = frame.ok_or(ExportError::NoDeepFrame(method.name()))??;

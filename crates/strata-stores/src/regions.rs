@@ -33,10 +33,14 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 use rayon::prelude::*;
 use strata_core::fragment::sort_front_to_back;
-use strata_core::{DeepFrame, DeepFrameError, DepthStats, Fragment, Rgb8Image, composite};
+use strata_core::{
+    DeepFrame, DeepFrameError, DepthStats, Fragment, GatherWriter, GatheredPixels, Rgb8Image,
+    composite,
+};
 use strata_raster::{CaptureTarget, FragmentSink, StripLayout};
 
 use crate::method::{StoreError, try_alloc};
+use crate::strip_export::StripSlot;
 
 /// What a full region does with one more fragment.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -221,6 +225,22 @@ impl Regions {
         policy: Policy,
         evicted: Option<&'a dyn Evicted>,
     ) -> Vec<RegionSink<'a>> {
+        self.strips_exporting(layout, policy, evicted, None)
+    }
+
+    /// [`Regions::strips`], each sink gathering its strip's regions into its slot of `export`
+    /// (one a strip) as it finishes, when there is one ([`crate::strip_export`]).
+    pub(crate) fn strips_exporting<'a>(
+        &'a mut self,
+        layout: &StripLayout,
+        policy: Policy,
+        evicted: Option<&'a dyn Evicted>,
+        export: Option<&'a mut [StripSlot]>,
+    ) -> Vec<RegionSink<'a>> {
+        let mut export = export.map(|e| {
+            assert_eq!(e.len(), layout.count(), "one export slot a strip");
+            e.iter_mut()
+        });
         assert_eq!(
             (layout.width, layout.height),
             (self.width, self.height),
@@ -248,6 +268,7 @@ impl Regions {
                 evicted,
                 lost: 0,
                 lost_total,
+                export: export.as_mut().and_then(|e| e.next()),
             });
             consumed = end;
         }
@@ -383,6 +404,27 @@ pub struct RegionCapture<'a> {
     pub policy: Policy,
     /// Where evicted fragments go, if anywhere.
     pub evicted: Option<&'a dyn Evicted>,
+    /// One slot a strip to gather the strip's regions into as it finishes (a fused export), if
+    /// any.
+    pub(crate) export: Option<&'a mut [StripSlot]>,
+}
+
+impl<'a> RegionCapture<'a> {
+    /// Capture into `regions` with `policy`, evicted fragments to `evicted` if anywhere.
+    pub fn new(regions: &'a mut Regions, policy: Policy, evicted: Option<&'a dyn Evicted>) -> Self {
+        RegionCapture {
+            regions,
+            policy,
+            evicted,
+            export: None,
+        }
+    }
+
+    /// Each strip also gathers its regions into its slot of `export` as it finishes.
+    pub(crate) fn exporting(mut self, export: &'a mut [StripSlot]) -> Self {
+        self.export = Some(export);
+        self
+    }
 }
 
 impl CaptureTarget for RegionCapture<'_> {
@@ -392,7 +434,12 @@ impl CaptureTarget for RegionCapture<'_> {
         Self: 's;
 
     fn sinks(&mut self, layout: &StripLayout) -> Vec<RegionSink<'_>> {
-        self.regions.strips(layout, self.policy, self.evicted)
+        self.regions.strips_exporting(
+            layout,
+            self.policy,
+            self.evicted,
+            self.export.as_deref_mut(),
+        )
     }
 }
 
@@ -408,6 +455,8 @@ pub struct RegionSink<'a> {
     evicted: Option<&'a dyn Evicted>,
     lost: u64,
     lost_total: &'a AtomicU64,
+    /// Where `finish` gathers the strip's regions, if anywhere.
+    export: Option<&'a mut StripSlot>,
 }
 
 impl std::fmt::Debug for RegionSink<'_> {
@@ -483,6 +532,28 @@ impl FragmentSink for RegionSink<'_> {
 
     fn finish(&mut self) {
         self.lost_total.fetch_add(self.lost, Relaxed);
+        if let Some(slot) = self.export.take() {
+            *slot = Some(self.gather());
+        }
+    }
+}
+
+impl RegionSink<'_> {
+    /// The strip's regions, each sorted front to back in place (a no-op for
+    /// [`Policy::KeepNearest`] regions, kept sorted) and gathered into columns.
+    fn gather(&mut self) -> Result<GatheredPixels, DeepFrameError> {
+        let stored = self.fill.iter().map(|&n| n as usize).sum();
+        let mut w = GatherWriter::new(self.fill.len(), stored);
+        for (local, &n) in self.fill.iter().enumerate() {
+            if n == 0 {
+                w.push_empty(1);
+                continue;
+            }
+            let p = self.first_pixel + local;
+            let start = self.offsets[p] as usize - self.base;
+            w.push_run(p, &mut self.slots[start..start + n as usize])?;
+        }
+        Ok(w.finish())
     }
 }
 

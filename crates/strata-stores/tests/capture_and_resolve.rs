@@ -78,7 +78,7 @@ fn run(
             }
             Mode::Export => {
                 let (report, frame) = method
-                    .capture_and_export(&mut raster, last, &mut timings)
+                    .capture_and_export(&mut raster, last, &mut timings, None)
                     .expect("capture and export");
                 let frame = frame.map(|f| f.expect("valid DeepFrame"));
                 (
@@ -113,18 +113,28 @@ fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
         // 40 rows: two full strips of 16 and a short one.
         let s = scene(scene_name, 72, 40);
         let input = FrameInput::from_scene(&s, 5);
-        for info in strata_stores::METHODS {
+        // Every store with its default options, and the k-buffer's tail blend too (its strips
+        // gather their regions beside the tails).
+        let tail_blend = MethodOptions {
+            tail_blend: true,
+            ..MethodOptions::default()
+        };
+        let stores = strata_stores::METHODS
+            .iter()
+            .map(|info| (info.name, MethodOptions::default()))
+            .chain([("kbuffer", tail_blend)]);
+        for (name, options) in stores {
             for threads in [1, 2] {
                 let one = std::slice::from_ref(&input);
-                let mut apart = create(info.name, &MethodOptions::default()).expect("registered");
+                let mut apart = create(name, &options).expect("registered");
                 let (want, _) = run(apart.as_mut(), one, background, threads, Mode::Apart);
                 for mode in [Mode::Resolve, Mode::Export] {
-                    let mut m = create(info.name, &MethodOptions::default()).expect("registered");
+                    let mut m = create(name, &options).expect("registered");
                     let (got, timings) = run(m.as_mut(), one, background, threads, mode);
                     if got != want {
                         failures.push(format!(
-                            "{} on {scene_name}, {threads} thread(s), {mode:?}",
-                            info.name
+                            "{name} (tail blend {}) on {scene_name}, {threads} thread(s), {mode:?}",
+                            options.tail_blend
                         ));
                     }
                     let passes: &[&str] = match mode {
@@ -133,7 +143,7 @@ fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
                     };
                     for pass in passes {
                         if timings.get(pass).is_none() {
-                            failures.push(format!("{}: no '{pass}' recorded", info.name));
+                            failures.push(format!("{name}: no '{pass}' recorded"));
                         }
                     }
                 }
@@ -210,6 +220,42 @@ fn the_linked_lists_fused_pass_matches_under_overflow_regrow_and_chunks() {
                     assert_eq!(apart, fused, "{at}");
                 }
             }
+        }
+    }
+}
+
+/// The k-buffer's fused export after an earlier chunk of the frame was captured on its own: the
+/// strips gather what both chunks kept, with and without the tail blend, on one thread or two.
+#[test]
+fn the_k_buffers_fused_export_gathers_every_chunk() {
+    let background = [0.0, 0.0, 0.0];
+    let s = scene("overlap", 64, 48);
+    let plain = FrameInput::from_scene(&s, 2);
+    // Drawn 4 times over: more layers than k = 4 in the overlaps, so fragments are evicted.
+    let deep_input = FrameInput {
+        objects: (0..4).flat_map(|_| plain.objects.clone()).collect(),
+        ..plain.clone()
+    };
+    let total = deep_input.triangle_count();
+    let halves = [
+        deep_input.triangle_range(0..total / 2),
+        deep_input.triangle_range(total / 2..total),
+    ];
+    for tail_blend in [false, true] {
+        let options = MethodOptions {
+            tail_blend,
+            ..MethodOptions::default()
+        };
+        for threads in [1, 2] {
+            let mut a = create("kbuffer", &options).expect("registered");
+            let (apart, _) = run(a.as_mut(), &halves, background, threads, Mode::Apart);
+            let mut b = create("kbuffer", &options).expect("registered");
+            let (fused, _) = run(b.as_mut(), &halves, background, threads, Mode::Export);
+            let at = format!("tail blend {tail_blend}, {threads} thread(s)");
+            let (_, stored, dropped, _, _) = fused.report;
+            assert!(stored > 0, "{at}: nothing stored");
+            assert!(tail_blend || dropped > 0, "{at}: nothing evicted");
+            assert_eq!(fused, apart, "{at}");
         }
     }
 }

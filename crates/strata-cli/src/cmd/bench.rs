@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use strata_core::stats::median;
-use strata_core::{DepthStats, PassTimings};
+use strata_core::{DeepFrame, DepthStats, PassTimings};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::{CaptureReport, Method, export_frame, render_frame};
 
@@ -129,21 +129,25 @@ struct Run {
     depth: DepthStats,
     memory_bytes: u64,
     used_memory_bytes: u64,
+    /// The exported frame (none when resolved).
+    frame: Option<DeepFrame>,
 }
 
-/// One timed frame: resolved ([`render_frame`]), or exported as a render node does
-/// ([`export_frame`]; the depth statistics then come from the exported frame).
+/// One timed frame: resolved ([`render_frame`]), or, with `export` (holding the frame whose
+/// buffers it may reuse), exported as a render node does ([`export_frame`]; the depth
+/// statistics then come from the exported frame).
 fn one_run(
     method: &mut dyn Method,
     raster: &mut Rasterizer,
     input: &FrameInput<'_>,
     background: [f32; 3],
-    export: bool,
+    export: Option<Option<DeepFrame>>,
 ) -> Result<Run> {
-    if export {
-        let r = export_frame(method, raster, input)?;
+    if let Some(reuse) = export {
+        let r = export_frame(method, raster, input, reuse)?;
         Ok(Run {
             depth: r.frame.depth_stats(),
+            frame: Some(r.frame),
             timings: r.timings,
             capture: r.capture,
             memory_bytes: r.memory_bytes,
@@ -157,6 +161,7 @@ fn one_run(
             capture: r.capture,
             memory_bytes: r.memory_bytes,
             used_memory_bytes: r.used_memory_bytes,
+            frame: None,
         })
     }
 }
@@ -210,15 +215,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let mut method = strata_stores::create(&args.method, &options)?;
         let mut raster = Rasterizer::default();
         let mut samples = Samples::default();
-        let mut last = None;
+        let mut last: Option<Run> = None;
         for run in 0..args.warmup + args.runs {
+            // An exported frame lends its buffers to the next, as a render node's frames do.
+            let reuse = last.as_mut().and_then(|r| r.frame.take());
             let r = pool.install(|| {
                 one_run(
                     method.as_mut(),
                     &mut raster,
                     &input,
                     scene.background,
-                    args.export,
+                    args.export.then_some(reuse),
                 )
             })?;
             if run >= args.warmup {

@@ -105,11 +105,11 @@ impl Method for FixedArrayABuffer {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
         let start = Instant::now();
-        let stats = prepared.rasterize(&mut RegionCapture {
-            regions: &mut self.regions,
-            policy: Policy::Append,
-            evicted: None,
-        });
+        let stats = prepared.rasterize(&mut RegionCapture::new(
+            &mut self.regions,
+            Policy::Append,
+            None,
+        ));
         timings.add("capture.capture", start.elapsed());
         let dropped = self.regions.lost();
         Ok(CaptureReport {
@@ -170,11 +170,7 @@ mod tests {
         let mut ab = FixedArrayABuffer::with_array_size(2);
         ab.clear(2, 2).unwrap();
         {
-            let mut target = RegionCapture {
-                regions: &mut ab.regions,
-                policy: Policy::Append,
-                evicted: None,
-            };
+            let mut target = RegionCapture::new(&mut ab.regions, Policy::Append, None);
             let mut sinks = target.sinks(&layout);
             // Pixel 3: 0.9 then 0.1 then 0.5 arrive; the first two stay.
             for (p, f) in [(3, frag(0.9, 1)), (3, frag(0.1, 2)), (3, frag(0.5, 3))] {

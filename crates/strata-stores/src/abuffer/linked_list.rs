@@ -80,6 +80,7 @@ use crate::alloc::BlockCursor;
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
 use crate::resolve::resolve_chunks;
+use crate::strip_export::{self, StripSlot};
 
 /// The name `--method` selects it by.
 pub const NAME: &str = "abuffer";
@@ -324,7 +325,7 @@ enum StripWork<'a> {
         report: &'a mut StripReport,
     },
     /// Gather the strip's fragments for the frame's DeepFrame.
-    Export(&'a mut Option<Result<GatheredPixels, DeepFrameError>>),
+    Export(&'a mut StripSlot),
 }
 
 /// What resolving one strip found and took.
@@ -409,7 +410,7 @@ enum Fused<'a> {
         reports: &'a mut [StripReport],
     },
     /// Gather each strip's fragments into its slot.
-    Export(&'a mut [Option<Result<GatheredPixels, DeepFrameError>>]),
+    Export(&'a mut [StripSlot]),
 }
 
 /// The linked list as the target of a fused pass: each sink resolves or gathers its strip when
@@ -806,20 +807,16 @@ impl Method for LinkedListABuffer {
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
+        reuse: Option<DeepFrame>,
     ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let mut slots: Vec<Option<Result<GatheredPixels, DeepFrameError>>> =
-            (0..prepared.layout().count()).map(|_| None).collect();
+        let mut slots = strip_export::slots(prepared.layout());
         let (report, scan) =
             self.capture_prepared(&prepared, timings, Some(Fused::Export(&mut slots)))?;
         timings.add("capture.raster", scan);
         let start = Instant::now();
-        let bands: Result<Vec<GatheredPixels>, DeepFrameError> = slots
-            .into_iter()
-            .map(|s| s.expect("every strip finished"))
-            .collect();
-        let frame = bands.and_then(|b| DeepFrame::from_gathered(self.width, self.height, b));
+        let frame = strip_export::assemble(self.width, self.height, slots, reuse);
         timings.add("capture.export", start.elapsed());
         Ok((report, Some(frame)))
     }

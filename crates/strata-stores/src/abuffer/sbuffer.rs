@@ -113,11 +113,11 @@ impl SBuffer {
         self.holding = true;
 
         let start = Instant::now();
-        let captured = prepared.rasterize(&mut RegionCapture {
-            regions: &mut self.regions,
-            policy: Policy::Append,
-            evicted: None,
-        });
+        let captured = prepared.rasterize(&mut RegionCapture::new(
+            &mut self.regions,
+            Policy::Append,
+            None,
+        ));
         timings.add("capture.capture", start.elapsed());
 
         let dropped = self.regions.lost();

@@ -61,6 +61,7 @@ use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
 use crate::regions::{Policy, RegionCapture, RegionSink, Regions};
 use crate::resolve::resolve_pixels;
+use crate::strip_export::{self, StripSlot};
 
 /// The name it is selected by.
 pub const NAME: &str = "kbuffer";
@@ -174,6 +175,55 @@ impl KBuffer {
     }
 }
 
+impl KBuffer {
+    /// Captures `input` into the regions (and tails); with `export`, each strip also gathers
+    /// its regions as it finishes, into the slots returned ([`crate::strip_export`]).
+    fn capture_into(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        timings: &mut PassTimings,
+        export: bool,
+    ) -> (CaptureReport, Option<Vec<StripSlot>>) {
+        let prepared = raster.prepare(input);
+        timings.extend(prepared.timings());
+        let mut slots = export.then(|| strip_export::slots(prepared.layout()));
+        let export = slots.as_deref_mut();
+        let stats = timings.time("capture.capture", || {
+            if self.tail_blend {
+                prepared.rasterize(&mut TailCapture {
+                    regions: &mut self.regions,
+                    tail: &mut self.tail,
+                    neg_ln: &self.neg_ln,
+                    export,
+                })
+            } else {
+                let target = RegionCapture::new(&mut self.regions, Policy::KeepNearest, None);
+                match export {
+                    Some(e) => prepared.rasterize(&mut target.exporting(e)),
+                    None => prepared.rasterize(&mut { target }),
+                }
+            }
+        });
+        let evicted = self.regions.lost();
+        let (dropped, tail_blended) = if self.tail_blend {
+            (0, evicted)
+        } else {
+            (evicted, 0)
+        };
+        let report = CaptureReport {
+            fragments_rasterized: stats.fragments,
+            fragments_stored: self.regions.stored_count(),
+            dropped,
+            tail_blended,
+            raster_passes: 1,
+            setup: prepared.setup_stats(),
+            ..CaptureReport::default()
+        };
+        (report, slots)
+    }
+}
+
 impl Method for KBuffer {
     fn name(&self) -> &'static str {
         NAME
@@ -204,38 +254,24 @@ impl Method for KBuffer {
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
     ) -> Result<CaptureReport, StoreError> {
-        let prepared = raster.prepare(input);
-        timings.extend(prepared.timings());
-        let stats = timings.time("capture.capture", || {
-            if self.tail_blend {
-                prepared.rasterize(&mut TailCapture {
-                    regions: &mut self.regions,
-                    tail: &mut self.tail,
-                    neg_ln: &self.neg_ln,
-                })
-            } else {
-                prepared.rasterize(&mut RegionCapture {
-                    regions: &mut self.regions,
-                    policy: Policy::KeepNearest,
-                    evicted: None,
-                })
-            }
+        Ok(self.capture_into(raster, input, timings, false).0)
+    }
+
+    /// Fused: every strip gathers its regions (kept sorted) as its scan ends, and the frame is
+    /// assembled from the strips ([`crate::strip_export`]).
+    fn capture_and_export(
+        &mut self,
+        raster: &mut Rasterizer,
+        input: &FrameInput<'_>,
+        timings: &mut PassTimings,
+        reuse: Option<DeepFrame>,
+    ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
+        let (report, slots) = self.capture_into(raster, input, timings, true);
+        let (width, height) = (self.regions.width(), self.regions.height());
+        let frame = timings.time("capture.export", || {
+            strip_export::assemble(width, height, slots.unwrap_or_default(), reuse)
         });
-        let evicted = self.regions.lost();
-        let (dropped, tail_blended) = if self.tail_blend {
-            (0, evicted)
-        } else {
-            (evicted, 0)
-        };
-        Ok(CaptureReport {
-            fragments_rasterized: stats.fragments,
-            fragments_stored: self.regions.stored_count(),
-            dropped,
-            tail_blended,
-            raster_passes: 1,
-            setup: prepared.setup_stats(),
-            ..CaptureReport::default()
-        })
+        Ok((report, Some(frame)))
     }
 
     fn resolve(&mut self, background: [f32; 3], _timings: &mut PassTimings) -> Rgb8Image {
@@ -287,6 +323,8 @@ struct TailCapture<'a> {
     regions: &'a mut Regions,
     tail: &'a mut [Tail],
     neg_ln: &'a [u32; 256],
+    /// One slot a strip to gather its regions into as it finishes, if any.
+    export: Option<&'a mut [StripSlot]>,
 }
 
 /// One strip's regions and tails.
@@ -319,7 +357,12 @@ impl CaptureTarget for TailCapture<'_> {
     fn sinks(&mut self, layout: &StripLayout) -> Vec<TailSink<'_>> {
         let neg_ln = self.neg_ln;
         self.regions
-            .strips(layout, Policy::KeepNearest, None)
+            .strips_exporting(
+                layout,
+                Policy::KeepNearest,
+                None,
+                self.export.as_deref_mut(),
+            )
             .into_iter()
             .zip(layout.split_mut(self.tail))
             .enumerate()

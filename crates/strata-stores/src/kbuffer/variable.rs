@@ -339,11 +339,11 @@ impl Method for VariableKBuffer {
                 self.regions.with_capacities(width, height, &self.k)?;
                 timings.add("capture.prefix_sum", start.elapsed());
                 timings.time("capture.capture", || {
-                    prepared.rasterize(&mut RegionCapture {
-                        regions: &mut self.regions,
-                        policy: Policy::KeepNearest,
-                        evicted: None,
-                    })
+                    prepared.rasterize(&mut RegionCapture::new(
+                        &mut self.regions,
+                        Policy::KeepNearest,
+                        None,
+                    ))
                 })
             }
             KFrom::Optimal => {
@@ -352,11 +352,11 @@ impl Method for VariableKBuffer {
                     .with_capacities(width, height, self.counts.counts())?;
                 timings.add("capture.prefix_sum", start.elapsed());
                 let captured = timings.time("capture.capture", || {
-                    prepared.rasterize(&mut RegionCapture {
-                        regions: &mut self.regions,
-                        policy: Policy::Append,
-                        evicted: None,
-                    })
+                    prepared.rasterize(&mut RegionCapture::new(
+                        &mut self.regions,
+                        Policy::Append,
+                        None,
+                    ))
                 });
                 timings.time("capture.sort", || self.regions.sort_runs());
                 let covered = self.counts.counts().iter().filter(|&&c| c > 0).count() as u64;
