@@ -29,14 +29,14 @@
 //!   `LOCAL` fragments), sort it front to back (insertion sort for short lists, as Jähne 2014
 //!   Alg. A.1 does with bubble sort), composite with OVER onto the background with early exit at
 //!   full opacity. Walking a list is a chain of dependent loads, so lists are gathered over
-//!   batches of [`GATHER_BATCH`] pixels (`ListFronts`): the first node of every list in the
+//!   batches of [`GATHER_BATCH`] pixels: the first node of every list in the
 //!   batch in one round, whose loads are independent, so the memory system serves them in
-//!   parallel; the second node of every list that has one in a second round; then each pixel's
-//!   remaining nodes. (On the full dragon, a closed surface, 87 % of covered pixels hold 2
-//!   fragments and none holds 1, so the second round takes most lists to their end. Rounds over
-//!   the whole batch until its longest list ended cost 6 % more instructions for no measurable
-//!   gain; sixteen walkers that each take a new pixel when their list ends, keeping 16 loads in
-//!   flight, measured no faster either.)
+//!   parallel; then each pixel's remaining nodes. (Rounds over the whole batch until its longest
+//!   list ended cost 6 % more instructions for no measurable gain; so did a second round for
+//!   the second nodes alone (+4 % in the resolve, callgrind), though on the full dragon, a closed
+//!   surface, 87 % of covered pixels hold 2 fragments and none holds 1; sixteen walkers that
+//!   each take a new pixel when their list ends, keeping 16 loads in flight, measured no faster
+//!   either.)
 //!
 //!   **Fused with the capture** when a frame is captured and resolved in one call
 //!   ([`Method::capture_and_resolve`], what `render_frame` runs): each strip's sink resolves the
@@ -540,51 +540,26 @@ impl LinkedListABuffer {
     }
 }
 
-/// The first two nodes of each list of a batch of [`GATHER_BATCH`] consecutive pixels, loaded
-/// in two rounds over the batch (see the module docs): every first node, whose loads are
-/// independent, then every second node, likewise, so a pixel's chain of dependent loads is
-/// walked one pixel at a time only beyond its second fragment.
-#[derive(Clone, Copy)]
-struct ListFronts {
-    /// Each pixel's first fragment and the node after it; `(Fragment::default(), EMPTY)` for a
-    /// pixel without a list.
-    first: [(Fragment, u32); GATHER_BATCH],
-    /// Each pixel's second fragment and the node after it; `(Fragment::default(), EMPTY)` for a
-    /// list shorter than two.
-    second: [(Fragment, u32); GATHER_BATCH],
-}
+/// The first node of each list of a batch of [`GATHER_BATCH`] consecutive pixels, loaded in
+/// one round over the batch whose loads are independent (see the module docs); each pixel's
+/// remaining nodes are then walked one pixel at a time.
+struct FirstNodes([(Fragment, u32); GATHER_BATCH]);
 
-impl Default for ListFronts {
-    fn default() -> Self {
-        let none = [(Fragment::default(), EMPTY); GATHER_BATCH];
-        ListFronts {
-            first: none,
-            second: none,
-        }
-    }
-}
-
-impl ListFronts {
-    /// Loads the fronts of the lists whose heads are `heads` (at most [`GATHER_BATCH`]).
+impl FirstNodes {
+    /// Loads the first nodes of the lists whose heads are `heads` (at most [`GATHER_BATCH`]);
+    /// a pixel without a list gets `(Fragment::default(), EMPTY)`.
     #[inline]
     fn load(heads: &[u32], nodes: &[Node]) -> Self {
         debug_assert!(heads.len() <= GATHER_BATCH);
-        let mut b = ListFronts::default();
-        for (f, &head) in b.first.iter_mut().zip(heads) {
+        let mut first = [(Fragment::default(), EMPTY); GATHER_BATCH];
+        for (f, &head) in first.iter_mut().zip(heads) {
             if head != EMPTY {
                 *f = nodes[head as usize].load();
             }
         }
-        for (s, &(_, next)) in b.second.iter_mut().zip(&b.first) {
-            if next != EMPTY {
-                *s = nodes[next as usize].load();
-            }
-        }
-        b
+        FirstNodes(first)
     }
-}
 
-impl ListFronts {
     /// Walks the list of the batch's pixel `i`, which must have one, into `local` (the first
     /// [`LOCAL`] fragments) and on into `long` (reused, so no allocation once it has grown) if
     /// it is longer; returns the run, in list order.
@@ -596,14 +571,9 @@ impl ListFronts {
         local: &'a mut [Fragment; LOCAL],
         long: &'a mut Vec<Fragment>,
     ) -> &'a mut [Fragment] {
-        let (f, second) = self.first[i];
-        local[0] = f;
-        if second == EMPTY {
-            return &mut local[..1];
-        }
         let mut next;
-        (local[1], next) = self.second[i];
-        let mut n = 2;
+        (local[0], next) = self.0[i];
+        let mut n = 1;
         while next != EMPTY && n < LOCAL {
             (local[n], next) = nodes[next as usize].load();
             n += 1;
@@ -635,12 +605,12 @@ fn gather_strip(
             g.push_empty(heads.len());
             continue;
         }
-        let fronts = ListFronts::load(heads, nodes);
+        let first = FirstNodes::load(heads, nodes);
         for (i, &head) in heads.iter().enumerate() {
             if head == EMPTY {
                 g.push_empty(1);
             } else {
-                let run = fronts.walk_into(i, nodes, &mut local, &mut long);
+                let run = first.walk_into(i, nodes, &mut local, &mut long);
                 g.push_run(first_pixel + b * GATHER_BATCH + i, run)?;
             }
         }
@@ -695,18 +665,45 @@ fn resolve_pixels(
             counts[0] += heads.len() as u64;
             continue;
         }
-        let fronts = ListFronts::load(heads, nodes);
+        // The batch's first nodes, loaded here as `FirstNodes::load` does for the export: built
+        // in place, the batch costs 3 % fewer of the resolve's instructions than returned from
+        // a function (callgrind, dragon), and walking it here lets each branch know its run's
+        // length.
+        let mut first = [(Fragment::default(), EMPTY); GATHER_BATCH];
+        for (f, &head) in first.iter_mut().zip(heads) {
+            if head != EMPTY {
+                *f = nodes[head as usize].load();
+            }
+        }
         for (i, px) in batch.chunks_exact_mut(3).enumerate() {
+            let (f, mut next) = first[i];
             let rgb = if heads[i] == EMPTY {
                 counts[0] += 1;
                 bg
+            } else if next == EMPTY {
+                counts[1] += 1;
+                resolver.resolve([f.color])
             } else {
-                let run = fronts.walk_into(i, nodes, &mut local, list);
-                if run.len() <= LOCAL {
-                    counts[run.len()] += 1;
-                } else {
-                    stats.record(run.len() as u32);
+                local[0] = f;
+                let mut n = 1;
+                while next != EMPTY && n < LOCAL {
+                    (local[n], next) = nodes[next as usize].load();
+                    n += 1;
                 }
+                let run = if next == EMPTY {
+                    counts[n] += 1;
+                    &mut local[..n]
+                } else {
+                    list.clear();
+                    list.extend_from_slice(&local);
+                    while next != EMPTY {
+                        let (g, after) = nodes[next as usize].load();
+                        list.push(g);
+                        next = after;
+                    }
+                    stats.record(list.len() as u32);
+                    &mut list[..]
+                };
                 sort_front_to_back(run);
                 resolver.resolve(run.iter().map(|f| f.color))
             };
