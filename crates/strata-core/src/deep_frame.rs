@@ -259,10 +259,7 @@ impl DeepFrame {
                             found: scratch.len(),
                         });
                     }
-                    for f in scratch.iter_mut() {
-                        normalise_depth(&mut f.depth, p)?;
-                    }
-                    sort_front_to_back(scratch);
+                    check_and_sort(scratch, p)?;
                     let start = offsets_ref[p] as usize - base;
                     for (i, f) in scratch.iter().enumerate() {
                         d[start + i] = f.depth;
@@ -959,31 +956,7 @@ impl GatherWriter {
     /// error naming `pixel`).
     #[inline(always)]
     pub fn push_run(&mut self, pixel: usize, run: &mut [Fragment]) -> Result<(), DeepFrameError> {
-        // −0 + 0 is +0 and every other depth, NaN included, stays what it was: the depths are
-        // normalised and checked with one branch for the run.
-        let mut valid = true;
-        for f in run.iter_mut() {
-            f.depth += 0.0;
-            valid &= (0.0..=1.0).contains(&f.depth);
-        }
-        if !valid {
-            let bad = run
-                .iter()
-                .find(|f| !valid_depth(f.depth))
-                .map_or(0.0, |f| f.depth);
-            return Err(DeepFrameError::BadDepth {
-                index: pixel,
-                depth: bad,
-            });
-        }
-        // Two fragments, the commonest run in a closed mesh's frame, take one comparison.
-        if let [a, b] = run {
-            if b.order_key() < a.order_key() {
-                std::mem::swap(a, b);
-            }
-        } else {
-            sort_front_to_back(run);
-        }
+        check_and_sort(run, pixel)?;
         let n = u32::try_from(run.len())
             .map_err(|_| DeepFrameError::TooManyFragments(run.len() as u64))?;
         let g = &mut self.0;
@@ -1062,18 +1035,29 @@ fn split_columns<'a>(
     .collect()
 }
 
-fn normalise_depth(d: &mut f32, pixel: usize) -> Result<(), DeepFrameError> {
-    if *d == 0.0 {
-        *d = 0.0; // -0.0 → +0.0
+/// Checks and sorts the run of frame pixel `pixel` as every frame builder does: −0 depths become
+/// +0, a depth outside `[0, 1]` or NaN is an error naming `pixel`, and the run is sorted front to
+/// back. (−0 + 0 is +0 and every other depth, NaN included, stays what it was, so the depths are
+/// normalised and checked with one branch for the run.)
+#[inline(always)]
+fn check_and_sort(run: &mut [Fragment], pixel: usize) -> Result<(), DeepFrameError> {
+    let mut valid = true;
+    for f in run.iter_mut() {
+        f.depth += 0.0;
+        valid &= (0.0..=1.0).contains(&f.depth);
     }
-    if valid_depth(*d) {
-        Ok(())
-    } else {
-        Err(DeepFrameError::BadDepth {
+    if !valid {
+        let bad = run
+            .iter()
+            .find(|f| !valid_depth(f.depth))
+            .map_or(0.0, |f| f.depth);
+        return Err(DeepFrameError::BadDepth {
             index: pixel,
-            depth: *d,
-        })
+            depth: bad,
+        });
     }
+    sort_front_to_back(run);
+    Ok(())
 }
 
 #[cfg(test)]
@@ -1147,11 +1131,28 @@ mod tests {
         let smaller =
             DeepFrame::gather(w, h / 2, |p, out| out.extend_from_slice(&lists[p])).unwrap();
         assert!(larger.fragment_count() > built.fragment_count());
-        for old in [larger, smaller, DeepFrame::empty(3, 2)] {
+        let taller = DeepFrame::gather(w, 2 * h, |p, out| {
+            out.extend_from_slice(&lists[p % lists.len()]);
+        })
+        .unwrap();
+        let mut lent = 0;
+        for old in [larger, taller, smaller, DeepFrame::empty(3, 2)] {
+            // An old frame at least as large in every buffer lends them as they are.
+            let roomy = old.offsets().len() > built.offsets().len()
+                && old.fragment_count() >= built.fragment_count();
+            let pointers = (old.offsets().as_ptr(), old.depths().as_ptr());
             let strips = runs(&[0, 4_800, 9_000, n]);
             let reused = DeepFrame::from_gathered_reusing(w, h, strips, Some(old)).unwrap();
             assert_eq!(reused, built);
+            if roomy {
+                assert_eq!(
+                    (reused.offsets().as_ptr(), reused.depths().as_ptr()),
+                    pointers
+                );
+                lent += 1;
+            }
         }
+        assert_eq!(lent, 1, "the taller frame lends its buffers");
         for cuts in [&[0, 4_800, n - 1][..], &[0, n, n + 1]] {
             let short = DeepFrame::from_gathered(w, h, runs(cuts));
             assert!(

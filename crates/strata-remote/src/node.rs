@@ -8,7 +8,7 @@
 //! ```text
 //! reader task ──render requests──► render thread ──(request, DeepFrame)──► encode thread ──┐
 //!      │                           clear, capture,                       select, encode,  │
-//!      │                           export DeepFrame                      keep recent      ▼
+//!      │                           export DeepFrame ◄──frames off the ring── keep recent  ▼
 //!      └──fixup requests──► blocking task: restrict a recent frame, encode ──────────► writer task
 //! ```
 //!
@@ -16,7 +16,10 @@
 //! being encoded and *t + 2* rendered: throughput is set by the slowest stage, not their sum. The
 //! render thread owns the fragment store and the rasterizer; the encode thread owns the
 //! difference state, which must see frames in order. Fixups read the ring of recent frames and do
-//! not wait behind renders.
+//! not wait behind renders. A frame that leaves the ring, when nothing else holds it (a fixup
+//! being answered), goes back to the render thread
+//! over a channel of two, and the next export assembles into its buffers
+//! ([`strata_stores::export_frame`]): a stream of frames then needs no fresh memory.
 //!
 //! Whatever goes wrong with a connection (a malformed request, a store error) is sent to the
 //! display as an error message before the connection closes; the node keeps listening.
@@ -572,8 +575,8 @@ fn render(
     if request.transfer == TransferMethod::Reprojection {
         input.output = FragmentOutput::PackedNormal;
     }
-    // Captured and exported in one call: the linked list gathers each strip's fragments as its
-    // scan ends, while they are in the cache.
+    // Captured and exported in one call: the linked list and the k-buffer gather each strip's
+    // fragments as its scan ends, while they are in the cache.
     let exported = export_frame(method, raster, &input, reuse)?;
     // Reprojection: the display must be able to hold exactly what was rendered.
     if request.transfer == TransferMethod::Reprojection && exported.capture.dropped > 0 {

@@ -97,8 +97,10 @@ fn two_nodes_full_transfer_equal_the_exact_render() {
     let s = scene();
     let (a, b) = (Node::start(&s, &[0, 2]), Node::start(&s, &[1, 3, 4]));
     let mut keep = Keep::default();
-    let r = display::run(config(&s, &[&a, &b], Transfer::Full, 4), &mut keep).unwrap();
-    assert_eq!(r.per_frame.len(), 4);
+    // More frames than the node's ring of recent frames holds: the later ones are exported into
+    // the buffers of frames that left it.
+    let r = display::run(config(&s, &[&a, &b], Transfer::Full, 16), &mut keep).unwrap();
+    assert_eq!(r.per_frame.len(), 16);
     assert!(r.incidents.is_empty(), "{:?}", r.incidents);
     assert_exact(&s, &keep);
     for f in &r.per_frame {

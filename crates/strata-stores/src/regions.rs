@@ -539,11 +539,12 @@ impl FragmentSink for RegionSink<'_> {
 }
 
 impl RegionSink<'_> {
-    /// The strip's regions, each sorted front to back in place (a no-op for
-    /// [`Policy::KeepNearest`] regions, kept sorted) and gathered into columns.
-    fn gather(&mut self) -> Result<GatheredPixels, DeepFrameError> {
+    /// The strip's regions gathered into columns, each run checked and sorted front to back in
+    /// a copy ([`GatherWriter::push_run`]), so the regions themselves stay as captured.
+    fn gather(&self) -> Result<GatheredPixels, DeepFrameError> {
         let stored = self.fill.iter().map(|&n| n as usize).sum();
         let mut w = GatherWriter::new(self.fill.len(), stored);
+        let mut run = Vec::new();
         for (local, &n) in self.fill.iter().enumerate() {
             if n == 0 {
                 w.push_empty(1);
@@ -551,7 +552,9 @@ impl RegionSink<'_> {
             }
             let p = self.first_pixel + local;
             let start = self.offsets[p] as usize - self.base;
-            w.push_run(p, &mut self.slots[start..start + n as usize])?;
+            run.clear();
+            run.extend_from_slice(&self.slots[start..start + n as usize]);
+            w.push_run(p, &mut run)?;
         }
         Ok(w.finish())
     }

@@ -1,8 +1,9 @@
 //! Export fused with the capture: each strip of rows gathers its pixels' sorted fragments into
 //! columns of its own ([`GatheredPixels`]) on the thread that scanned it, as its scan ends and
 //! while what it stored is in that core's cache; the frame is then assembled from the strips in
-//! order ([`DeepFrame::from_gathered`]). A render node exports every frame this way
-//! ([`crate::Method::capture_and_export`]).
+//! order ([`DeepFrame::from_gathered`]). The linked list and the k-buffer export this way in
+//! [`crate::Method::capture_and_export`], what a render node runs; the other stores export
+//! after the capture.
 //!
 //! ```text
 //! slots: [StripSlot; strips]   None until strip s finishes, then its gathered pixels (or the

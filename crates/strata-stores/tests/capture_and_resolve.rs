@@ -105,6 +105,20 @@ fn run(
     })
 }
 
+/// `input`'s objects drawn `times` over, and that frame cut into two chunks of triangles.
+fn drawn_over<'a>(input: &FrameInput<'a>, times: usize) -> (FrameInput<'a>, [FrameInput<'a>; 2]) {
+    let deep = FrameInput {
+        objects: (0..times).flat_map(|_| input.objects.clone()).collect(),
+        ..input.clone()
+    };
+    let total = deep.triangle_count();
+    let halves = [
+        deep.triangle_range(0..total / 2),
+        deep.triangle_range(total / 2..total),
+    ];
+    (deep, halves)
+}
+
 #[test]
 fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
     let background = [0.2, 0.5, 0.9];
@@ -163,15 +177,7 @@ fn the_linked_lists_fused_pass_matches_under_overflow_regrow_and_chunks() {
     let plain = FrameInput::from_scene(&s, 2);
     // Drawn 16 times over (about 5 fragments a pixel): deeper than the automatic pool's first
     // size, 2 nodes a pixel.
-    let deep_input = FrameInput {
-        objects: (0..16).flat_map(|_| plain.objects.clone()).collect(),
-        ..plain.clone()
-    };
-    let total = deep_input.triangle_count();
-    let halves = [
-        deep_input.triangle_range(0..total / 2),
-        deep_input.triangle_range(total / 2..total),
-    ];
+    let (deep_input, halves) = drawn_over(&plain, 16);
     let cases: [(&str, PoolCapacity, &[FrameInput<'_>]); 5] = [
         (
             "room",
@@ -232,15 +238,7 @@ fn the_k_buffers_fused_export_gathers_every_chunk() {
     let s = scene("overlap", 64, 48);
     let plain = FrameInput::from_scene(&s, 2);
     // Drawn 4 times over: more layers than k = 4 in the overlaps, so fragments are evicted.
-    let deep_input = FrameInput {
-        objects: (0..4).flat_map(|_| plain.objects.clone()).collect(),
-        ..plain.clone()
-    };
-    let total = deep_input.triangle_count();
-    let halves = [
-        deep_input.triangle_range(0..total / 2),
-        deep_input.triangle_range(total / 2..total),
-    ];
+    let (_, halves) = drawn_over(&plain, 4);
     for tail_blend in [false, true] {
         let options = MethodOptions {
             tail_blend,

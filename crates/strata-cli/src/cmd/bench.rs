@@ -133,17 +133,24 @@ struct Run {
     frame: Option<DeepFrame>,
 }
 
-/// One timed frame: resolved ([`render_frame`]), or, with `export` (holding the frame whose
-/// buffers it may reuse), exported as a render node does ([`export_frame`]; the depth
-/// statistics then come from the exported frame).
+/// What a timed frame ends with.
+enum RunKind {
+    /// The resolve ([`render_frame`]).
+    Resolve,
+    /// A DeepFrame export as a render node runs it ([`export_frame`]), in the buffers of the
+    /// frame held, if any.
+    Export(Option<DeepFrame>),
+}
+
+/// One timed frame (for an export, the depth statistics come from the exported frame).
 fn one_run(
     method: &mut dyn Method,
     raster: &mut Rasterizer,
     input: &FrameInput<'_>,
     background: [f32; 3],
-    export: Option<Option<DeepFrame>>,
+    kind: RunKind,
 ) -> Result<Run> {
-    if let Some(reuse) = export {
+    if let RunKind::Export(reuse) = kind {
         let r = export_frame(method, raster, input, reuse)?;
         Ok(Run {
             depth: r.frame.depth_stats(),
@@ -197,8 +204,13 @@ pub(crate) fn run(args: Args) -> Result<()> {
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
 
+    let what = if args.export {
+        "clear, capture and export a DeepFrame (a render node's frame)"
+    } else {
+        "clear, capture and resolve"
+    };
     outln!(
-        "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up; measured on {cpu}",
+        "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up, each {what}; measured on {cpu}",
         scene.name,
         scene.triangle_count(),
         scene.width,
@@ -217,16 +229,14 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let mut samples = Samples::default();
         let mut last: Option<Run> = None;
         for run in 0..args.warmup + args.runs {
-            // An exported frame lends its buffers to the next, as a render node's frames do.
-            let reuse = last.as_mut().and_then(|r| r.frame.take());
+            let kind = if args.export {
+                // An exported frame lends its buffers to the next, as a render node's frames do.
+                RunKind::Export(last.as_mut().and_then(|r| r.frame.take()))
+            } else {
+                RunKind::Resolve
+            };
             let r = pool.install(|| {
-                one_run(
-                    method.as_mut(),
-                    &mut raster,
-                    &input,
-                    scene.background,
-                    args.export.then_some(reuse),
-                )
+                one_run(method.as_mut(), &mut raster, &input, scene.background, kind)
             })?;
             if run >= args.warmup {
                 samples.add(&r.timings);
@@ -307,7 +317,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
             parts.join(", ")
         )?;
     }
-    let figures = reference_figures(&scene.name, (scene.width, scene.height), &args.method);
+    // The reference figures are of a resolved frame.
+    let figures = if args.export {
+        &[][..]
+    } else {
+        reference_figures(&scene.name, (scene.width, scene.height), &args.method)
+    };
     if let (Some(first), Some(&(n, best))) = (figures.first(), medians.last()) {
         outln!(
             "\nreference figures, measured elsewhere and not by this run: {}:",
@@ -326,6 +341,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let doc = json!({
             "scene": scene.name,
             "method": args.method,
+            "export": args.export,
             "frame": args.frame,
             "width": scene.width,
             "height": scene.height,

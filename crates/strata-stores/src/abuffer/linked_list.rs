@@ -32,11 +32,11 @@
 //!   batches of [`GATHER_BATCH`] pixels: the first node of every list in the
 //!   batch in one round, whose loads are independent, so the memory system serves them in
 //!   parallel; then each pixel's remaining nodes. (Rounds over the whole batch until its longest
-//!   list ended cost 6 % more instructions for no measurable gain; so did a second round for
-//!   the second nodes alone (+4 % in the resolve, callgrind), though on the full dragon, a closed
-//!   surface, 87 % of covered pixels hold 2 fragments and none holds 1; sixteen walkers that
-//!   each take a new pixel when their list ends, keeping 16 loads in flight, measured no faster
-//!   either.)
+//!   list ended cost 6 % more instructions for no measurable gain; a second round for the
+//!   second nodes alone moved the export's stalls without shortening them, though on the full
+//!   dragon, a closed surface, 87 % of covered pixels hold 2 fragments and none holds 1; sixteen
+//!   walkers that each take a new pixel when their list ends, keeping 16 loads in flight,
+//!   measured no faster either.)
 //!
 //!   **Fused with the capture** when a frame is captured and resolved in one call
 //!   ([`Method::capture_and_resolve`], what `render_frame` runs): each strip's sink resolves the
@@ -48,7 +48,8 @@
 //!   A render node's export is fused the same way ([`Method::capture_and_export`]): each strip
 //!   walks its rows' lists in the same batches and writes their sorted fragments into columns
 //!   of its own ([`strata_core::GatherWriter`], sized by the fragments the strip stored, so they
-//!   never grow) as its scan ends, and the frame is assembled from them.
+//!   do not grow when the frame is captured in one call) as its scan ends, and the frame is
+//!   assembled from them.
 //!
 //! # Overflow
 //!
@@ -665,10 +666,10 @@ fn resolve_pixels(
             counts[0] += heads.len() as u64;
             continue;
         }
-        // The batch's first nodes, loaded here as `FirstNodes::load` does for the export: built
-        // in place, the batch costs 3 % fewer of the resolve's instructions than returned from
-        // a function (callgrind, dragon), and walking it here lets each branch know its run's
-        // length.
+        // The batch's first nodes, loaded and walked here rather than through `FirstNodes` as
+        // the export does: this loop is the one callgrind counted at 343.0 M instructions for
+        // four dragon frames, and a walk shared with the export (with a second round of loads)
+        // counted 346-358 M. A shared one-round walk was not measured on its own.
         let mut first = [(Fragment::default(), EMPTY); GATHER_BATCH];
         for (f, &head) in first.iter_mut().zip(heads) {
             if head != EMPTY {

@@ -198,11 +198,11 @@ impl KBuffer {
                     export,
                 })
             } else {
-                let target = RegionCapture::new(&mut self.regions, Policy::KeepNearest, None);
-                match export {
-                    Some(e) => prepared.rasterize(&mut target.exporting(e)),
-                    None => prepared.rasterize(&mut { target }),
+                let mut target = RegionCapture::new(&mut self.regions, Policy::KeepNearest, None);
+                if let Some(e) = export {
+                    target = target.exporting(e);
                 }
+                prepared.rasterize(&mut target)
             }
         });
         let evicted = self.regions.lost();
@@ -269,7 +269,8 @@ impl Method for KBuffer {
         let (report, slots) = self.capture_into(raster, input, timings, true);
         let (width, height) = (self.regions.width(), self.regions.height());
         let frame = timings.time("capture.export", || {
-            strip_export::assemble(width, height, slots.unwrap_or_default(), reuse)
+            let slots = slots.expect("an exporting capture returns its slots");
+            strip_export::assemble(width, height, slots, reuse)
         });
         Ok((report, Some(frame)))
     }
