@@ -149,7 +149,7 @@ pub trait Method: Send {
     ///
     /// The default runs the two one after the other (and lets `reuse` go); the linked list and
     /// the k-buffer fuse them as the linked list fuses [`Method::capture_and_resolve`], each
-    /// strip gathering its rows' fragments as its scan ends ([`crate::strip_export`]).
+    /// strip gathering its rows' fragments as its scan ends (the `strip_export` module).
     fn capture_and_export(
         &mut self,
         raster: &mut Rasterizer,

@@ -258,7 +258,7 @@ impl Method for KBuffer {
     }
 
     /// Fused: every strip gathers its regions (kept sorted) as its scan ends, and the frame is
-    /// assembled from the strips ([`crate::strip_export`]).
+    /// assembled from the strips (the `strip_export` module).
     fn capture_and_export(
         &mut self,
         raster: &mut Rasterizer,
