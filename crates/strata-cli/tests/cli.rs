@@ -1603,3 +1603,35 @@ fn methods_lists_fidelity_and_options() {
         ran.stdout
     );
 }
+
+/// `bench --export` times a render node's frame: it says so, records it in the JSON, prints no
+/// reference figures of a resolved frame, and refuses a store without DeepFrames before
+/// measuring anything.
+#[test]
+fn bench_export_times_a_node_frame_and_refuses_a_store_without_deep_frames() {
+    let dir = TempDir::new().unwrap();
+    let json = dir.path().join("b.json");
+    let ran = run_ok(
+        strata()
+            .args([
+                "bench", "overlap", "--export", "--runs", "2", "--warmup", "1", "-j", "1",
+            ])
+            .arg("--json")
+            .arg(&json),
+    );
+    assert!(ran.stdout.contains("export a DeepFrame"), "{}", ran.stdout);
+    assert!(
+        ran.stdout.contains("export"),
+        "no export stage:\n{}",
+        ran.stdout
+    );
+    assert!(!ran.stdout.contains("reference figures"), "{}", ran.stdout);
+    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(doc["export"], serde_json::Value::Bool(true));
+    let fragments = doc["results"][0]["fragments"].as_u64().unwrap();
+    assert!(fragments > 0, "{doc}");
+
+    let err =
+        run_err(strata().args(["bench", "overlap", "-m", "wboit", "--export", "--runs", "1"]));
+    assert_mentions(&err, &["--export", "wboit", "exports no DeepFrame"]);
+}

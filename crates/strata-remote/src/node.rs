@@ -28,10 +28,10 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use strata_core::{DeepFrame, ObjectId, PassTimings};
+use strata_core::{DeepFrame, ObjectId};
 use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
-use strata_stores::{ExportError, Method, MethodOptions, export_frame};
+use strata_stores::{ExportError, Method, MethodOptions, check_exports, export_frame};
 use strata_wire::{
     DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
     TransferMethod, WireError, encode_delta_into, encode_error_into, encode_frame_into,
@@ -124,27 +124,15 @@ impl NodeConfig {
     /// Checks the method exists and exports DeepFrames (by building and capturing an empty frame).
     pub fn check(&self) -> Result<(), NodeError> {
         let mut m = self.store()?;
-        let input = FrameInput {
-            objects: Vec::new(),
-            ..FrameInput::from_scene(&self.scene, 0)
-        };
         let fail = |e: String| NodeError::Method(format!("method '{}': {e}", self.method));
-        m.clear(1, 1).map_err(|e| fail(e.to_string()))?;
-        let input = FrameInput {
-            width: 1,
-            height: 1,
-            ..input
-        };
-        m.capture(&mut Rasterizer::default(), &input, &mut PassTimings::new())
-            .map_err(|e| fail(e.to_string()))?;
-        match m.deep_frame() {
-            Some(Ok(_)) => Ok(()),
-            Some(Err(e)) => Err(fail(e.to_string())),
-            None => Err(fail(
+        match check_exports(m.as_mut(), &FrameInput::from_scene(&self.scene, 0)) {
+            Ok(()) => Ok(()),
+            Err(ExportError::NoDeepFrame(_)) => Err(fail(
                 "does not keep fragment lists, so it cannot feed a display; use abuffer, \
                  abuffer-array, sbuffer or kbuffer"
                     .into(),
             )),
+            Err(e) => Err(fail(e.to_string())),
         }
     }
 
@@ -846,4 +834,34 @@ fn fixup(recent: &Recent, request: &Request, mask: &PixelMask) -> Result<Vec<u8>
     };
     append_stats(&mut bytes, &stats);
     Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The ring keeps the last [`RECENT_FRAMES`] frames and hands back the one that leaves it,
+    /// which the encode thread recycles only when nothing else holds it.
+    #[test]
+    fn the_ring_hands_back_the_frame_that_leaves_it() {
+        let recent: Recent = Arc::new(Mutex::new(VecDeque::new()));
+        let frames: Vec<Arc<DeepFrame>> = (0..=RECENT_FRAMES as u32)
+            .map(|i| Arc::new(DeepFrame::empty(i + 1, 1)))
+            .collect();
+        for (n, f) in frames.iter().take(RECENT_FRAMES).enumerate() {
+            assert!(keep_recent(&recent, n as u64, f.clone()).is_none());
+        }
+        let last = RECENT_FRAMES as u64;
+        let old = keep_recent(&recent, last, frames[RECENT_FRAMES].clone()).expect("one left");
+        assert!(
+            Arc::ptr_eq(&old, &frames[0]),
+            "the oldest frame leaves first"
+        );
+        let r = recent.lock().unwrap();
+        assert_eq!(r.len(), RECENT_FRAMES);
+        assert_eq!((r[0].0, r[RECENT_FRAMES - 1].0), (1, last));
+        drop(r);
+        // Still held here (as a fixup would hold it): not the encode thread's to recycle.
+        assert!(Arc::try_unwrap(old).is_err());
+    }
 }

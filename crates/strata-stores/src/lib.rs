@@ -43,7 +43,7 @@ pub mod wf;
 
 pub use method::{
     CaptureReport, ExportError, ExportResult, FrameResult, Method, PixelMap, StoreError,
-    export_frame, render_frame,
+    check_exports, export_frame, render_frame,
 };
 pub use options::{
     BadValue, Budget, ImportanceParams, KFrom, MethodOptions, OptionError, PoolCapacity,

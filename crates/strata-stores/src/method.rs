@@ -240,6 +240,24 @@ pub enum ExportError {
     NoDeepFrame(&'static str),
 }
 
+/// Checks that `method` can export DeepFrames, before any real frame is spent on it: clears a
+/// 1×1 frame, captures `input`'s camera with no objects in it, and exports. The error says why
+/// not (a store that keeps no fragment lists, a store that failed).
+pub fn check_exports(method: &mut dyn Method, input: &FrameInput<'_>) -> Result<(), ExportError> {
+    let empty = FrameInput {
+        objects: Vec::new(),
+        width: 1,
+        height: 1,
+        ..input.clone()
+    };
+    method.clear(1, 1)?;
+    method.capture(&mut Rasterizer::default(), &empty, &mut PassTimings::new())?;
+    match method.deep_frame() {
+        Some(frame) => frame.map(drop).map_err(ExportError::from),
+        None => Err(ExportError::NoDeepFrame(method.name())),
+    }
+}
+
 /// Runs clear → capture → export ([`Method::capture_and_export`]) and times the passes: a render
 /// node's frame, in the buffers of `reuse` (a frame no longer needed) where the store can. Runs
 /// on the current rayon pool, as [`render_frame`] does.

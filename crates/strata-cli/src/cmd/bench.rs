@@ -9,7 +9,7 @@ use serde_json::{Value, json};
 use strata_core::stats::median;
 use strata_core::{DeepFrame, DepthStats, PassTimings};
 use strata_raster::{FrameInput, Rasterizer};
-use strata_stores::{CaptureReport, Method, export_frame, render_frame};
+use strata_stores::{CaptureReport, Method, check_exports, export_frame, render_frame};
 
 use crate::options::{
     MethodParams, check_output, default_threads, open_scene, search_path, thread_pool,
@@ -203,6 +203,11 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let scene = open_scene(&args.scene, &search_path(&args.model_dirs))?;
     scene.check_frame(args.frame)?;
     let input = FrameInput::from_scene(&scene, args.frame);
+    if args.export {
+        let mut method = strata_stores::create(&args.method, &options)?;
+        check_exports(method.as_mut(), &input)
+            .with_context(|| format!("--export cannot time method '{}'", args.method))?;
+    }
 
     let what = if args.export {
         "clear, capture and export a DeepFrame (a render node's frame)"
