@@ -294,12 +294,19 @@ fn setup_chunk_impl<const LIT: bool>(
         stats.culled_empty += u64::from(verdict.empty(group.len()).count_ones());
         stats.clipped += u64::from(verdict.clip.count_ones());
         stats.micro_triangles += u64::from(verdict.micro.count_ones());
+        // The lanes with work left, in primitive order.
+        let mut todo = verdict.micro | verdict.large | verdict.clip;
         if verdict.micro != 0 {
             let vertices = |l: usize| group[l].map(|i| &attrs[i as usize]);
             shader.shade::<LIT>(&batch, verdict.micro, vertices, w, cx.shade);
+            // Only micro-triangles: their fragments in one loop, in primitive order.
+            if todo == verdict.micro {
+                shader.for_each_fragment(|row, fragment| {
+                    frags[(row >> shift) as usize].push(fragment);
+                });
+                todo = 0;
+            }
         }
-        // The lanes with work left, in primitive order.
-        let mut todo = verdict.micro | verdict.large | verdict.clip;
         while todo != 0 {
             let l = todo.trailing_zeros() as usize;
             todo &= todo - 1;
