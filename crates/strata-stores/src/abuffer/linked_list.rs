@@ -19,9 +19,10 @@
 //!   of the pixel's list (`next = head; head = node`), so lists are built in reverse.
 //!   On the GPU both steps are atomics. Here the rasterizer hands each strip of rows to one thread,
 //!   so the head update is a plain store into that strip's `chunks_mut` slice of `heads`; and nodes
-//!   are reserved from the shared counter in blocks of up to [`BLOCK`] (`crate::alloc`, shared
-//!   with TFSS; [`block_size`]), so the counter is touched once per block rather than once per
-//!   fragment, and two threads' writes seldom meet.
+//!   are reserved from the shared counter in blocks of up to 1,024 (`crate::alloc`, shared with
+//!   TFSS: `block_size`), so the counter is touched once per block rather than once per
+//!   fragment, and two threads' writes seldom meet (with blocks of 64 they met often enough to
+//!   make the two-thread scan 17 % slower).
 //!   A block is written only by the thread that
 //!   reserved it; nodes are pairs of `AtomicU64` written with `Relaxed` stores (plain moves on
 //!   x86-64 and AArch64), which keeps the pool shareable without `unsafe`. The end of the parallel
@@ -57,7 +58,8 @@
 //! When the counter passes the capacity, Alg. 5's check drops the fragment. Drops are counted and
 //! reported, never silent. A thread may hold up to `block_size − 1` reserved but unused nodes when
 //! its strip ends, so with a fixed capacity a frame can drop fragments while at most
-//! `strips × (block_size − 1)` nodes stay unused, a sixteenth of the pool or `strips × 63`. With [`PoolCapacity::Auto`] (the default) an
+//! `strips × (block_size − 1)` nodes stay unused: a sixteenth of the pool, or `strips × 63` for
+//! a small one. With [`PoolCapacity::Auto`] (the default) an
 //! overflowing frame grows the pool to fit and is captured again, reported as a regrow.
 //!
 //! # Determinism
@@ -78,7 +80,7 @@ use strata_core::{
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Prepared, Rasterizer, StripLayout};
 
-use crate::alloc::BlockCursor;
+use crate::alloc::{BlockCursor, MAX_BLOCK, block_size};
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
 use crate::resolve::resolve_chunks;
@@ -89,26 +91,6 @@ pub const NAME: &str = "abuffer";
 
 /// The end of a list.
 pub const EMPTY: u32 = u32::MAX;
-
-/// The most nodes a strip reserves from the allocation counter at a time (16 KiB of nodes).
-///
-/// Two threads reserving blocks in turn write the pool in interleaved blocks. With blocks of
-/// 64 nodes (1 KiB) the scan of the full dragon took 1.5 times as long on two threads as on one
-/// instead of half as long; with 1,024 it took 17 % less than with 64 (AMD EPYC, 2 cores): the
-/// cores' writes meet at a block boundary sixteen times less often, and each meeting costs
-/// cache lines moving between the cores (the prefetchers run ahead into the neighbouring block).
-pub const BLOCK: u32 = 1024;
-
-/// The fewest nodes a strip reserves at a time, for a pool too small for [`BLOCK`]s.
-pub const MIN_BLOCK: u32 = 64;
-
-/// Nodes a strip reserves at a time from a pool of `capacity` nodes cut into `strips` strips:
-/// [`BLOCK`], or less for a small pool, so that the blocks the strips hold unused when they end
-/// stay within a sixteenth of the pool (at least [`MIN_BLOCK`]).
-pub fn block_size(capacity: usize, strips: usize) -> u32 {
-    let share = capacity / (16 * strips.max(1));
-    share.clamp(MIN_BLOCK as usize, BLOCK as usize) as u32
-}
 
 /// The largest pool: leaves room above the capacity for the counter to overshoot by one block
 /// per strip without wrapping, and keeps every index below [`EMPTY`].
@@ -328,7 +310,7 @@ pub struct LinkedListSink<'a> {
     stored: &'a AtomicU64,
     dropped: &'a AtomicU64,
     block: BlockCursor,
-    /// Nodes reserved at a time ([`block_size`]).
+    /// Nodes reserved at a time (`crate::alloc::block_size`).
     block_size: u32,
     n_stored: u64,
     n_dropped: u64,
@@ -552,7 +534,7 @@ impl LinkedListABuffer {
             // for the next frames, and capture again.
             let start = Instant::now();
             // (The largest block, whatever the grown pool's block size.)
-            let slack = prepared.layout().count() as u64 * u64::from(BLOCK);
+            let slack = prepared.layout().count() as u64 * u64::from(MAX_BLOCK);
             self.roll_back_to(mark);
             self.grow_pool_keeping(
                 (u64::from(mark.0) + stats.fragments + slack) * 5 / 4,
@@ -886,21 +868,6 @@ impl Method for LinkedListABuffer {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Blocks are as large as allowed for a frame's pool, smaller for a small pool, so that the
-    /// strips' unused block tails stay within a sixteenth of it, and never below the minimum.
-    #[test]
-    fn block_size_shrinks_with_the_pool() {
-        // The default pool of a 1280x720 frame (twice the pixels), 45 strips.
-        assert_eq!(block_size(2 * 1280 * 720, 45), BLOCK);
-        assert_eq!(block_size(16 * 45 * 300, 45), 300);
-        assert_eq!(block_size(1000, 45), MIN_BLOCK);
-        assert_eq!(block_size(0, 0), MIN_BLOCK);
-        for (capacity, strips) in [(100_000, 45), (1 << 20, 3), (5000, 1)] {
-            let b = block_size(capacity, strips) as usize;
-            assert!(strips * (b - 1) <= capacity / 16 || b == MIN_BLOCK as usize);
-        }
-    }
 
     fn frag(depth: f32, o: u32) -> Fragment {
         Fragment {

@@ -7,7 +7,7 @@
 //!
 //! Writes are *not* atomic read-modify-writes: [`BitArray::or`] loads a word, ors the field in
 //! and stores it back. That is correct because every word has one writer: TFSS reserves sections
-//! in blocks of a multiple of 64 sections (`SECTION_BLOCK`), so a block spans a whole number of
+//! in blocks of a multiple of 64 sections (`crate::alloc::block_size`), so a block spans a whole number of
 //! words whatever the section's bit size, blocks start on word boundaries, and a block is written
 //! only by the strip thread that reserved it.
 

@@ -39,7 +39,7 @@
 //!   in its chain in arrival order.
 //!   As in the linked list, the rasterizer hands each strip of rows to one thread, so SSA entries
 //!   are plain stores into the strip's `chunks_mut` slice; sections are reserved from the shared
-//!   counter in blocks of [`SECTION_BLOCK`] (`crate::alloc`), and a section — its slots, NSA entry
+//!   counter in blocks of 64 to 1,024 (`crate::alloc::block_size`), and a section — its slots, NSA entry
 //!   and Length entries — is written only by the strip thread that reserved it. T-buffer and NSA
 //!   words are atomics written with `Relaxed` stores, which keeps them shareable without `unsafe`
 //!   (a packed field is or-ed into its word with a load and a store: `bits` says why that is
@@ -118,11 +118,6 @@ pub const NULL: u32 = u32::MAX;
 
 /// Depth bits of an empty plain slot (a NaN; fragments have depths in `[0, 1]`).
 const EMPTY_DEPTH: u32 = u32::MAX;
-
-/// Sections reserved from the allocation counter at a time. A multiple of 64, so that a block of
-/// packed sections spans whole 64-bit words (see `bits`).
-pub const SECTION_BLOCK: u32 = 64;
-const _: () = assert!(SECTION_BLOCK.is_multiple_of(64));
 
 /// The largest pool, in sections (as the linked list's, it leaves the counter room to overshoot).
 pub const MAX_SECTIONS: u64 = 1 << 31;
@@ -610,6 +605,9 @@ pub struct TfssSink<'a> {
     stored: &'a AtomicU64,
     dropped: &'a AtomicU64,
     block: BlockCursor,
+    /// Sections reserved at a time (`crate::alloc::block_size`), the same for every strip of a
+    /// frame, so every block starts at a multiple of it.
+    block_size: u32,
     n_sections: u64,
     n_stored: u64,
     n_dropped: u64,
@@ -619,17 +617,13 @@ impl TfssSink<'_> {
     /// A new empty section, its NSA entry NULL; `None` when the pool is exhausted.
     #[inline]
     fn allocate(&mut self) -> Option<u32> {
-        let s = self
-            .block
-            .next(self.next_free, self.capacity, SECTION_BLOCK)?;
+        let block = self.block_size;
+        let s = self.block.next(self.next_free, self.capacity, block)?;
         let g = self.g;
         if g.packed {
-            if s % SECTION_BLOCK == 0 {
+            if s % block == 0 {
                 // A fresh block: zero its words (they may hold an earlier frame's sections).
-                let (a, b) = (
-                    u64::from(s),
-                    u64::from((s + SECTION_BLOCK).min(self.capacity)),
-                );
+                let (a, b) = (u64::from(s), u64::from((s + block).min(self.capacity)));
                 self.packed.zero_words(a * g.bits, b * g.bits);
                 let lb = g.length_bits();
                 self.lengths.zero_words(a * lb, b * lb);
@@ -764,6 +758,7 @@ impl CaptureTarget for Tfss {
             &self.stored,
             &self.dropped,
         );
+        let block_size = crate::alloc::block_size(capacity as usize, layout.count());
         layout
             .split_mut(&mut self.ssa)
             .enumerate()
@@ -781,6 +776,7 @@ impl CaptureTarget for Tfss {
                 stored,
                 dropped,
                 block: BlockCursor::default(),
+                block_size,
                 n_sections: 0,
                 n_stored: 0,
                 n_dropped: 0,
@@ -825,7 +821,7 @@ impl Method for Tfss {
     ) -> Result<CaptureReport, StoreError> {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let slack = prepared.layout().count() as u64 * u64::from(SECTION_BLOCK);
+        let slack = prepared.layout().count() as u64 * u64::from(crate::alloc::MAX_BLOCK);
         let auto = self.pool == PoolCapacity::Auto;
         let mut regrows = 0;
         let mut passes = 0;
