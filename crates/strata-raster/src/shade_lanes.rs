@@ -11,7 +11,7 @@
 //!   order — every sample of lane 0's triangle, then of lane 1's, … — eight a pass. Each pass
 //!   finds every output's triangle and sample without a branch (the number of lanes whose
 //!   samples end at or before it; its rank within them) and moves each triangle value into the
-//!   output's lane with one `vpermd`/`vpermps` (33 for a lit object). On the full dragon a
+//!   output's lane with one `vpermd`/`vpermps` (35 for a lit object, 17 for an unlit one). On the full dragon a
 //!   batch has 7.6 covered samples on average, 4.4 covering micro-triangles and a most-covered
 //!   lane of 2.5 samples, so a batch takes 1–2 passes where rounds took 2.5, each mostly empty.
 //! - **Rounds** (elsewhere): round `r` takes the `r`-th covered sample of every lane (its lowest
@@ -79,7 +79,7 @@ const ROUNDS: usize = (SMALL * SMALL) as usize;
 // Sample `bit` of the block is pixel offset `(bit & 3, bit >> 2)`.
 const _: () = assert!(SMALL == 4);
 
-/// One round's results, a lane a sample.
+/// One pass's results (a round's or a packed pass's), a lane a sample.
 #[derive(Clone, Copy, Debug, Default)]
 struct Round {
     pixel: [u32; LANES],
@@ -99,7 +99,7 @@ struct Vertices {
     p: [[[f32; LANES]; 3]; 3],
 }
 
-/// What every round of a batch shares, a lane a triangle.
+/// What every pass of a batch shares, a lane a triangle.
 #[derive(Clone, Copy, Debug)]
 struct Constants<'a> {
     lanes: MicroLanes<'a>,
@@ -201,7 +201,8 @@ impl Vertices {
 impl MicroShader {
     /// Shades every covered sample of the micro-triangles in the lanes of `micro` (a subset of
     /// [`crate::coverage::Verdict::micro`]); `vertices(l)` gives lane `l`'s vertex attributes
-    /// in input order. Read the results with [`MicroShader::fragments`].
+    /// in input order. Read the results with [`MicroShader::fragments`] or
+    /// [`MicroShader::for_each_fragment`].
     #[inline(always)]
     pub fn shade<'v, const LIT: bool>(
         &mut self,

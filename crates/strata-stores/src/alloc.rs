@@ -9,31 +9,41 @@
 //!
 //! When the counter passes the capacity the pool is exhausted: [`BlockCursor::next`] returns
 //! `None` and the caller drops (and counts) what it could not store. A strip may hold up to
-//! `block - 1` reserved but unused entries when it ends; [`block_size`] keeps those within a
-//! sixteenth of the pool.
+//! `block - 1` reserved but unused entries when it ends; [`block_size`] keeps all strips' tails
+//! within a sixteenth of the pool, or `strips × 63` for a small one, and [`capacity_for`] sizes a
+//! pool with room for them.
 
 use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 
 /// The most entries a strip reserves at a time.
 ///
 /// Two threads reserving blocks in turn write the pool in interleaved blocks. With blocks of
-/// 64 entries the linked list's scan of the full dragon took 1.5 times as long on two threads
-/// as on one instead of half as long; with 1,024 it took 17 % less than with 64 (AMD EPYC, 2
-/// cores): the cores' writes meet at a block boundary sixteen times less often, and each
-/// meeting costs cache lines moving between the cores (the prefetchers run ahead into the
-/// neighbouring block).
+/// 64 entries the linked list's scan of the full dragon was only 1.5 times as fast on two
+/// threads as on one, not twice; with blocks of 1,024 the two-thread scan took 17 % less time
+/// (AMD EPYC, 2 cores): the cores' writes meet at a block boundary sixteen times less often,
+/// and each meeting costs cache lines moving between the cores (the prefetchers run ahead into
+/// the neighbouring block).
 pub(crate) const MAX_BLOCK: u32 = 1024;
 
 /// The fewest entries a strip reserves at a time, for a pool too small for [`MAX_BLOCK`]s.
 pub(crate) const MIN_BLOCK: u32 = 64;
 
+/// The fewest entries a pool needs so that `need` of them can be handed out whatever the strips
+/// leave unused at the ends of their last blocks. Those tails are at most `strips × (block − 1)`:
+/// with [`MIN_BLOCK`]s, below `strips × 64`; with larger blocks, [`block_size`] makes a block at
+/// most a `16 · strips`-th of the pool, so below a sixteenth of it.
+pub(crate) fn capacity_for(need: u64, strips: usize) -> u64 {
+    let strips = strips.max(1) as u64;
+    (need + strips * u64::from(MIN_BLOCK)).max(need * 16 / 15 + 1)
+}
+
 // TFSS's packed sections need blocks of whole 64-bit words: multiples of 64 sections.
 const _: () = assert!(MIN_BLOCK.is_multiple_of(64) && MAX_BLOCK.is_multiple_of(64));
 
 /// Entries a strip reserves at a time from a pool of `capacity` entries cut into `strips`
-/// strips: [`MAX_BLOCK`], or less for a small pool, so that the blocks the strips hold unused
-/// when they end stay within a sixteenth of the pool; a multiple of [`MIN_BLOCK`] (TFSS's
-/// packed words need blocks of a multiple of 64 sections) and at least [`MIN_BLOCK`].
+/// strips: at most a `16 · strips`-th of the pool, so that the blocks all strips hold unused
+/// when they end stay within a sixteenth of it; at most [`MAX_BLOCK`], at least [`MIN_BLOCK`],
+/// and a multiple of it (TFSS's packed words need blocks of a multiple of 64 sections).
 pub(crate) fn block_size(capacity: usize, strips: usize) -> u32 {
     let share = capacity / (16 * strips.max(1));
     let share = share.clamp(MIN_BLOCK as usize, MAX_BLOCK as usize) as u32;
@@ -96,6 +106,25 @@ mod tests {
             assert_eq!(b % 64, 0, "{capacity} {strips}");
             let b = b as usize;
             assert!(b == MIN_BLOCK as usize || strips * b <= capacity / 16);
+        }
+    }
+
+    /// A pool of `capacity_for(need, strips)` entries hands out `need` entries even when every
+    /// strip leaves its last block all but unused.
+    #[test]
+    fn capacity_for_leaves_room_for_the_block_tails() {
+        for strips in [1usize, 3, 45, 720, 8192] {
+            for need in [0u64, 1, 100, 10_000, 945_834, 5_000_000, 1 << 30] {
+                let n = capacity_for(need, strips);
+                let b = u64::from(block_size(n as usize, strips));
+                let tails = strips as u64 * (b - 1);
+                assert!(
+                    n >= need + tails,
+                    "need {need}, {strips} strips: {n} < {need} + {tails}"
+                );
+                // And not much more than that: a sixteenth, or a block a strip.
+                assert!(n <= (need + strips as u64 * 64).max(need * 16 / 15 + 1));
+            }
         }
     }
 

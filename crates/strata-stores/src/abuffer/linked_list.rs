@@ -22,7 +22,7 @@
 //!   are reserved from the shared counter in blocks of up to 1,024 (`crate::alloc`, shared with
 //!   TFSS: `block_size`), so the counter is touched once per block rather than once per
 //!   fragment, and two threads' writes seldom meet (with blocks of 64 they met often enough to
-//!   make the two-thread scan 17 % slower).
+//!   make the two-thread scan a fifth slower).
 //!   A block is written only by the thread that
 //!   reserved it; nodes are pairs of `AtomicU64` written with `Relaxed` stores (plain moves on
 //!   x86-64 and AArch64), which keeps the pool shareable without `unsafe`. The end of the parallel
@@ -80,7 +80,7 @@ use strata_core::{
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Prepared, Rasterizer, StripLayout};
 
-use crate::alloc::{BlockCursor, MAX_BLOCK, block_size};
+use crate::alloc::{BlockCursor, block_size, capacity_for};
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
 use crate::resolve::resolve_chunks;
@@ -92,8 +92,9 @@ pub const NAME: &str = "abuffer";
 /// The end of a list.
 pub const EMPTY: u32 = u32::MAX;
 
-/// The largest pool: leaves room above the capacity for the counter to overshoot by one block
-/// per strip without wrapping, and keeps every index below [`EMPTY`].
+/// The largest pool: leaves room above the capacity for the counter to overshoot by up to one
+/// block a strip in a capture without wrapping (each capture of a frame starts its blocks at
+/// the capacity again: `capture_prepared`), and keeps every index below [`EMPTY`].
 pub const MAX_CAPACITY: u64 = 1 << 31;
 
 /// Initial pool size for [`PoolCapacity::Auto`], as a multiple of the pixel count.
@@ -506,6 +507,10 @@ impl LinkedListABuffer {
         let mut regrows = 0;
         // What earlier captures of this frame hold (captures accumulate, see `Method`).
         let mark = self.chunk_mark();
+        // An earlier capture that exhausted the pool left the counter past the capacity, by up
+        // to a block a strip; start this one's blocks at the capacity again, so that chunk after
+        // chunk cannot carry the counter round past `u32::MAX`.
+        self.next_free.store(mark.0, Relaxed);
         loop {
             let start = Instant::now();
             let stats = match fused.as_mut() {
@@ -533,11 +538,10 @@ impl LinkedListABuffer {
             // Grow to hold every fragment plus each strip's unused block tail, with headroom
             // for the next frames, and capture again.
             let start = Instant::now();
-            // (The largest block, whatever the grown pool's block size.)
-            let slack = prepared.layout().count() as u64 * u64::from(MAX_BLOCK);
+            let strips = prepared.layout().count();
             self.roll_back_to(mark);
             self.grow_pool_keeping(
-                (u64::from(mark.0) + stats.fragments + slack) * 5 / 4,
+                capacity_for(u64::from(mark.0) + stats.fragments, strips) * 5 / 4,
                 mark.0,
             )?;
             regrows += 1;

@@ -821,7 +821,7 @@ impl Method for Tfss {
     ) -> Result<CaptureReport, StoreError> {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let slack = prepared.layout().count() as u64 * u64::from(crate::alloc::MAX_BLOCK);
+        let strips = prepared.layout().count();
         let auto = self.pool == PoolCapacity::Auto;
         let mut regrows = 0;
         let mut passes = 0;
@@ -840,7 +840,8 @@ impl Method for Tfss {
                     self.stored.load(Relaxed).max(1),
                 );
                 let need = (used as f64 * stats.fragments as f64 / stored as f64).ceil() as u64;
-                let grown = ((need + slack) * 5 / 4).max(u64::from(self.capacity) * 5 / 4 + 1);
+                let grown = (crate::alloc::capacity_for(need, strips) * 5 / 4)
+                    .max(u64::from(self.capacity) * 5 / 4 + 1);
                 self.resize_pool(grown)?;
                 self.reset();
                 regrows += 1;
@@ -859,7 +860,8 @@ impl Method for Tfss {
                 let refit = self.refit();
                 if let Some((b, sections)) = refit {
                     self.rgb_bits = b;
-                    self.resize_pool(((sections + slack) * 5 / 4).max(u64::from(self.capacity)))?;
+                    let fit = crate::alloc::capacity_for(sections, strips) * 5 / 4;
+                    self.resize_pool(fit.max(u64::from(self.capacity)))?;
                     self.reset();
                     regrows += 1;
                     self.refits += 1;
