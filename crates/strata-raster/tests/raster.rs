@@ -179,6 +179,74 @@ fn screen_covering_mesh_of_small_triangles_gives_exactly_one_fragment_per_pixel(
     );
 }
 
+/// Three copies of a screen-covering grid of micro-triangles at three depths, interleaved
+/// triangle by triangle (copy 0, 1, 2 of the first triangle, then of the second, …), seen
+/// through an orthographic camera so that the copies cover exactly the same pixels. The three
+/// fragments a pixel receives then come from consecutive primitives, mostly of one setup batch,
+/// and must arrive in primitive order: nearest copy first. Setup shades a batch's
+/// micro-triangles together and hands their fragments on in one loop; this pins that the loop
+/// keeps primitive order within a batch, which nothing downstream would restore. Whatever the
+/// chunk size, so batches start at every offset.
+#[test]
+fn a_pixel_receives_the_fragments_of_one_batch_in_primitive_order() {
+    let grid = jittered_grid(80, 2.0, 0.0, 0.5);
+    let n = grid.positions().len() as u32;
+    let mut positions = Vec::new();
+    for z in [-1.5f32, -1.6, -1.7] {
+        positions.extend(grid.positions().iter().map(|p| [p[0], p[1], z]));
+    }
+    let triangles: Vec<[u32; 3]> = grid
+        .triangles()
+        .iter()
+        .flat_map(|t| (0..3).map(move |copy| t.map(|i| i + copy * n)))
+        .collect();
+    let layers = mesh(positions, triangles);
+    let (width, height) = (160, 120);
+    let input = FrameInput {
+        width,
+        height,
+        view: Mat4::IDENTITY,
+        // 50 pixels a unit: the grid's triangles span about 2.5 pixels.
+        projection: Mat4::orthographic_rh_gl(-1.6, 1.6, -1.2, 1.2, 0.1, 50.0),
+        background: [1.0; 3],
+        objects: vec![DrawObject {
+            positions: layers.positions(),
+            normals: layers.normals(),
+            triangles: layers.triangles(),
+            model: Mat4::IDENTITY,
+            material: material(Shading::Headlight),
+            id: ObjectId(0),
+        }],
+        output: FragmentOutput::Shaded,
+    };
+    for chunk_triangles in [1, 5, 16 * 1024] {
+        let mut raster = Rasterizer::new(strata_raster::RasterConfig {
+            strip_height: 16,
+            chunk_triangles,
+        });
+        let prepared = raster.prepare(&input);
+        let stats = prepared.setup_stats();
+        // Every fragment is a micro-triangle's (none binned for the scan).
+        assert!(
+            stats.micro_triangles > 10_000 && stats.bin_entries == 0,
+            "micro-triangles only: {stats:?}"
+        );
+        let mut out = FragmentVec::new();
+        prepared.rasterize(&mut out);
+        let per_pixel = out.per_pixel(input.pixel_count());
+        let mut out_of_order = 0;
+        for (p, list) in per_pixel.iter().enumerate() {
+            assert_eq!(list.len(), 3, "pixel {p}: {} fragments", list.len());
+            out_of_order +=
+                usize::from(!(list[0].depth < list[1].depth && list[1].depth < list[2].depth));
+        }
+        assert_eq!(
+            out_of_order, 0,
+            "chunks of {chunk_triangles}: pixels whose fragments are not in primitive order"
+        );
+    }
+}
+
 #[test]
 fn watertight_from_many_viewpoints_and_orientations() {
     let grid = jittered_grid(40, 1.5, 0.0, 0.5);
