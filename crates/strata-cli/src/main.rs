@@ -87,8 +87,10 @@ enum Command {
     /// display's codec and sends them. Several nodes can hold different objects of one scene; the
     /// display merges them per pixel. The first line on stdout is `listening on HOST:PORT`.
     ///
-    /// For the depth-limited transfer, `--method kbuffer -k N` keeps exactly the N nearest
-    /// fragments while capturing, which saves the node the selection pass. The reprojection
+    /// For the depth-limited transfer, the node keeps only what it sends as it exports each frame:
+    /// the abuffer (the default) and the k-buffer cut each pixel's sorted run as they gather it,
+    /// so there is no selection pass. `--method kbuffer -k N` also keeps only the N nearest
+    /// fragments while capturing; on the full dragon it was the slower of the two. The reprojection
     /// transfer renders normal fragments and needs a store that keeps every fragment: abuffer
     /// (with a growing pool) or sbuffer.
     ///

@@ -1638,3 +1638,36 @@ fn bench_export_times_a_node_frame_and_refuses_a_store_without_deep_frames() {
         run_err(strata().args(["bench", "overlap", "-m", "wboit", "--export", "--runs", "1"]));
     assert_mentions(&err, &["--export", "wboit", "exports no DeepFrame"]);
 }
+
+/// `bench --export --export-layers N` times a depth-limited node's frame: no pixel of the
+/// exported frame holds more than N fragments, though the scene has deeper pixels; the option
+/// needs `--export` and at least one layer.
+#[test]
+fn bench_export_layers_cuts_the_exported_runs() {
+    let dir = TempDir::new().unwrap();
+    let depth = |layers: Option<&str>| {
+        let json = dir.path().join("b.json");
+        let mut cmd = strata();
+        cmd.args(["bench", "mixed", "--export", "--runs", "1", "--warmup", "0"]);
+        if let Some(n) = layers {
+            cmd.args(["--export-layers", n]);
+        }
+        let ran = run_ok(cmd.arg("--json").arg(&json));
+        let doc: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+        (
+            ran.stdout,
+            doc["results"][0]["max_depth_complexity"].as_u64(),
+        )
+    };
+    let (_, whole) = depth(None);
+    assert!(whole > Some(2), "the scene is deeper than 2: {whole:?}");
+    let (stdout, cut) = depth(Some("2"));
+    assert_eq!(cut, Some(2), "{stdout}");
+    assert!(stdout.contains("at most 2 fragments a pixel"), "{stdout}");
+
+    let err = run_err(strata().args(["bench", "mixed", "--export-layers", "2"]));
+    assert_mentions(&err, &["--export"]);
+    let err = run_err(strata().args(["bench", "mixed", "--export", "--export-layers", "0"]));
+    assert_mentions(&err, &["--export-layers", "0"]);
+}

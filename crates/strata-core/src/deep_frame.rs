@@ -32,6 +32,7 @@ use rayon::prelude::*;
 use crate::composite;
 use crate::fragment::{Fragment, ObjectId, Rgba8, sort_front_to_back};
 use crate::image::Rgb8Image;
+use crate::run_limit::RunLimit;
 use crate::stats::DepthStats;
 
 /// Why fragments could not form a DeepFrame.
@@ -756,6 +757,34 @@ impl DeepFrame {
             });
     }
 
+    /// Keeps only the prefix of each run that `limit` keeps ([`RunLimit`]), in place: the
+    /// columns keep their allocations, and nothing is sorted or checked again (a prefix of a
+    /// sorted run is sorted). A frame that `limit` does not cut is returned as it is.
+    pub fn limit_runs(mut self, limit: RunLimit) -> DeepFrame {
+        if limit.is_none() {
+            return self;
+        }
+        let mut kept = 0usize;
+        for p in 0..self.offsets.len() - 1 {
+            let (start, end) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
+            let colors = &self.color[start..end];
+            let keep = limit.keep(end - start, |i| colors[i].0[3]);
+            // `kept <= start`: the runs only move towards the front.
+            if kept != start {
+                self.depth.copy_within(start..start + keep, kept);
+                self.color.copy_within(start..start + keep, kept);
+                self.object.copy_within(start..start + keep, kept);
+            }
+            self.offsets[p] = kept as u32;
+            kept += keep;
+        }
+        *self.offsets.last_mut().expect("w·h + 1 offsets") = kept as u32;
+        self.depth.truncate(kept);
+        self.color.truncate(kept);
+        self.object.truncate(kept);
+        self
+    }
+
     /// Takes the frame apart: `(width, height, offsets, depth, color, object)`.
     #[allow(
         clippy::type_complexity,
@@ -930,36 +959,50 @@ impl GatheredPixels {
 /// Fills a [`GatheredPixels`] run by run, pixel after pixel: a store that knows how many
 /// fragments it holds sizes the columns with it, so they never grow while it gathers.
 #[derive(Debug)]
-pub struct GatherWriter(GatheredPixels);
+pub struct GatherWriter {
+    gathered: GatheredPixels,
+    limit: RunLimit,
+}
 
 impl GatherWriter {
     /// Room for `pixels` pixels and `fragments` fragments (more still fit; the columns then
     /// grow).
     pub fn new(pixels: usize, fragments: usize) -> Self {
-        GatherWriter(GatheredPixels {
-            counts: Vec::with_capacity(pixels),
-            depth: Vec::with_capacity(fragments),
-            color: Vec::with_capacity(fragments),
-            object: Vec::with_capacity(fragments),
-        })
+        GatherWriter {
+            gathered: GatheredPixels {
+                counts: Vec::with_capacity(pixels),
+                depth: Vec::with_capacity(fragments),
+                color: Vec::with_capacity(fragments),
+                object: Vec::with_capacity(fragments),
+            },
+            limit: RunLimit::NONE,
+        }
+    }
+
+    /// Keeps only the prefix of each sorted run that `limit` keeps (a render node's
+    /// depth-limited export, [`RunLimit`]); every fragment of the run is still checked.
+    pub fn with_limit(mut self, limit: RunLimit) -> Self {
+        self.limit = limit;
+        self
     }
 
     /// Appends `n` pixels without fragments.
     #[inline]
     pub fn push_empty(&mut self, n: usize) {
-        let counts = &mut self.0.counts;
+        let counts = &mut self.gathered.counts;
         counts.resize(counts.len() + n, 0);
     }
 
     /// Appends the frame pixel `pixel`'s fragments `run`, in any order: checked and sorted as
     /// [`DeepFrame::build`] does (−0 depths become +0; a depth outside `[0, 1]` or NaN is an
-    /// error naming `pixel`).
+    /// error naming `pixel`), then cut to the writer's limit.
     #[inline(always)]
     pub fn push_run(&mut self, pixel: usize, run: &mut [Fragment]) -> Result<(), DeepFrameError> {
         check_and_sort(run, pixel)?;
+        let run = &run[..self.limit.keep(run.len(), |i| run[i].color.0[3])];
         let n = u32::try_from(run.len())
             .map_err(|_| DeepFrameError::TooManyFragments(run.len() as u64))?;
-        let g = &mut self.0;
+        let g = &mut self.gathered;
         g.counts.push(n);
         for f in run.iter() {
             g.depth.push(f.depth);
@@ -971,7 +1014,7 @@ impl GatherWriter {
 
     /// The pixels and fragments pushed.
     pub fn finish(self) -> GatheredPixels {
-        self.0
+        self.gathered
     }
 }
 
@@ -1184,6 +1227,39 @@ mod tests {
                 frag(0.5, [3, 3, 3, 3], 0),
             ],
         ]
+    }
+
+    #[test]
+    fn limited_runs_are_the_sorted_prefixes_the_limit_keeps() {
+        let lists = sample();
+        let frame = DeepFrame::from_pixel_lists(2, 2, &lists).unwrap();
+        assert_eq!(frame.clone().limit_runs(RunLimit::NONE), frame);
+        for limit in [
+            RunLimit::new(1, None),
+            RunLimit::new(2, None),
+            RunLimit::new(5, None),
+            RunLimit::new(3, Some(0.6)),
+            RunLimit::new(3, Some(1.0)),
+            RunLimit::new(0, None),
+        ] {
+            // Each pixel's list sorted, then cut by the rule, then built again.
+            let want: Vec<Vec<Fragment>> = lists
+                .iter()
+                .map(|l| {
+                    let mut l = l.clone();
+                    sort_front_to_back(&mut l);
+                    let keep = limit.keep(l.len(), |i| l[i].color.0[3]);
+                    l[..keep].to_vec()
+                })
+                .collect();
+            let want = DeepFrame::from_pixel_lists(2, 2, &want).unwrap();
+            assert_eq!(frame.clone().limit_runs(limit), want, "{limit:?}");
+        }
+        // The opacity threshold: pixel 1 is two fragments of alpha 128 (≈ 0.50, then 0.75).
+        let cut = frame.clone().limit_runs(RunLimit::new(3, Some(0.6)));
+        assert_eq!(cut.counts().collect::<Vec<_>>(), [0, 2, 1, 3]);
+        let cut = frame.limit_runs(RunLimit::new(3, Some(0.4)));
+        assert_eq!(cut.counts().collect::<Vec<_>>(), [0, 1, 1, 3]);
     }
 
     #[test]

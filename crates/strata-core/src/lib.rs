@@ -37,6 +37,7 @@ pub mod normal;
 pub mod npy;
 pub mod rect;
 pub mod rgba_image;
+pub mod run_limit;
 pub mod stats;
 pub mod timings;
 
@@ -47,5 +48,6 @@ pub use material::{Material, Shading};
 pub use normal::PackedNormal;
 pub use rect::PixelRect;
 pub use rgba_image::{PngAlpha, PngDepth, RgbaF32Image};
+pub use run_limit::RunLimit;
 pub use stats::DepthStats;
 pub use timings::PassTimings;

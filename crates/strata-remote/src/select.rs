@@ -1,20 +1,22 @@
-//! The node's choice of fragments for the `full` and `depth-limited` transfers (Jähne 2014 ch. 3,
-//! Algorithms A.2–A.3), and [`restrict`], which keeps only some pixels' runs.
+//! The node's choice of fragments for the `depth-limited` transfer (Jähne 2014 ch. 3,
+//! Algorithms A.2–A.3) applied to a whole frame, and [`restrict`], which keeps only some pixels'
+//! runs.
 //!
-//! Runs are sorted front to back, so "the N nearest" is a prefix of each run, and so is "until
-//! the accumulated opacity reaches T": a fragment is kept while fewer than N came before it and
-//! the opacity in front of it, `1 − Π(1 − αᵢ)`, is still below T. The first fragment is always
-//! kept; the one that crosses T is kept too (it is what makes the pixel reach T).
+//! The rule is [`RunLimit`]'s: runs are sorted front to back, so "the N nearest" is a prefix of
+//! each run, and so is "until the accumulated opacity reaches T". A render node applies it as
+//! its store exports the frame ([`strata_stores::export_frame`]); [`depth_limit`] applies it to
+//! a frame exported whole.
 //!
-//! Both build the output with `gather`: per pixel, a span of some source frame's columns;
-//! counted in parallel chunks, prefix-summed, then copied in parallel chunks into columns
-//! allocated once — no per-pixel allocation and no re-sorting (spans of sorted runs are sorted).
+//! [`restrict`] builds its output with `gather`: per pixel, a span of some source frame's
+//! columns; counted in parallel chunks, prefix-summed, then copied in parallel chunks into
+//! columns allocated once — no per-pixel allocation and no re-sorting (spans of sorted runs are
+//! sorted).
 
 use std::borrow::Cow;
 use std::ops::Range;
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, ObjectId, Rgba8};
+use strata_core::{DeepFrame, ObjectId, Rgba8, RunLimit};
 use strata_wire::PixelMask;
 
 /// Pixels per parallel task.
@@ -83,34 +85,25 @@ pub(crate) fn run_range(frame: &DeepFrame, p: usize) -> Range<usize> {
 }
 
 /// Keeps at most `layers` nearest fragments of every pixel, stopping early where the opacity
-/// in front reaches `opacity_threshold`; borrows `frame` when that keeps everything.
+/// in front reaches `opacity_threshold` ([`RunLimit`]); borrows `frame` when that keeps
+/// everything.
 pub fn depth_limit(
     frame: &DeepFrame,
     layers: u32,
     opacity_threshold: Option<f32>,
 ) -> Cow<'_, DeepFrame> {
+    let limit = RunLimit::new(layers, opacity_threshold);
     let offsets = frame.offsets();
-    if opacity_threshold.is_none() && offsets.par_windows(2).all(|w| w[1] - w[0] <= layers) {
-        return Cow::Borrowed(frame);
-    }
-    let threshold = opacity_threshold.unwrap_or(f32::INFINITY);
     let colors = frame.colors();
-    Cow::Owned(gather(frame.width(), frame.height(), |p| {
-        let start = offsets[p] as usize;
-        let len = (offsets[p + 1] - offsets[p]) as usize;
-        let mut keep = len.min(layers as usize);
-        if opacity_threshold.is_some() {
-            let mut transparency = 1.0f32;
-            for (i, c) in colors[start..start + keep].iter().enumerate() {
-                if 1.0 - transparency >= threshold {
-                    keep = i;
-                    break;
-                }
-                transparency *= 1.0 - f32::from(c.0[3]) / 255.0;
-            }
-        }
-        (frame, start..start + keep)
-    }))
+    let keeps_all = offsets.par_windows(2).all(|w| {
+        let (start, len) = (w[0] as usize, (w[1] - w[0]) as usize);
+        limit.keep(len, |i| colors[start + i].0[3]) == len
+    });
+    if keeps_all {
+        Cow::Borrowed(frame)
+    } else {
+        Cow::Owned(frame.clone().limit_runs(limit))
+    }
 }
 
 /// The runs of `frame` at the pixels of `mask`; every other pixel is empty.

@@ -12,6 +12,7 @@ use strata_remote::merge::merge_resolve;
 use strata_remote::node::{NodeConfig, serve};
 use strata_remote::reference::{exact_frame, exact_image};
 use strata_remote::report::{FrameStats, NodeIncident, NodeStatus};
+use strata_remote::select::depth_limit;
 use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::MethodOptions;
 use strata_wire::DecodeOptions;
@@ -137,6 +138,42 @@ fn depth_limited_with_enough_layers_is_exact_and_with_few_sends_less() {
             // One layer per node: at most one fragment per pixel.
             assert!(n.fragments_sent <= u64::from(W * H));
         }
+    }
+}
+
+/// The nodes cut each run as they export it (layers, then opacity): the display shows the
+/// merge of each node's exact frame cut by the same rule, and the nodes report what they
+/// rendered before the cut.
+#[test]
+fn depth_limited_nodes_send_each_runs_prefix_up_to_the_opacity_threshold() {
+    let s = scene();
+    let objects: [&[usize]; 2] = [&[0, 1], &[2, 3, 4]];
+    let (a, b) = (Node::start(&s, objects[0]), Node::start(&s, objects[1]));
+    let (layers, opacity) = (4, 0.6);
+    let limited = Transfer::DepthLimited {
+        layers,
+        opacity_threshold: Some(opacity),
+    };
+    let mut keep = Keep::default();
+    let r = display::run(config(&s, &[&a, &b], limited, 3), &mut keep).unwrap();
+    assert!(r.incidents.is_empty(), "{:?}", r.incidents);
+    for ((f, image), stats) in keep.images.iter().zip(&r.per_frame) {
+        let whole: Vec<_> = objects.iter().map(|o| frame_of(&s, o, *f)).collect();
+        let cut: Vec<_> = whole
+            .iter()
+            .map(|w| depth_limit(w, layers, Some(opacity)).into_owned())
+            .collect();
+        let want = merge_resolve(&[&cut[0], &cut[1]], W, H, s.background);
+        assert!(image == &want, "frame {f}: not the merge of the cut frames");
+        let count = |frames: &[strata_core::DeepFrame]| {
+            frames
+                .iter()
+                .map(|f| f.fragment_count() as u64)
+                .sum::<u64>()
+        };
+        assert_eq!(stats.fragments_sent(), count(&cut), "frame {f}");
+        assert_eq!(stats.fragments_rendered(), count(&whole), "frame {f}");
+        assert!(count(&cut) < count(&whole), "frame {f}: nothing was cut");
     }
 }
 

@@ -2,7 +2,7 @@
 
 use std::time::Instant;
 
-use strata_core::{DeepFrame, DeepFrameError, DepthStats, PassTimings, Rgb8Image};
+use strata_core::{DeepFrame, DeepFrameError, DepthStats, PassTimings, Rgb8Image, RunLimit};
 use strata_raster::{FrameInput, Rasterizer, SetupStats};
 
 /// Why a method could not render a frame.
@@ -142,24 +142,29 @@ pub trait Method: Send {
         Ok((capture, image))
     }
 
-    /// Captures `input` and exports what the store then holds as a DeepFrame: what
-    /// [`Method::capture`] followed by [`Method::deep_frame`] does (a render node's frame).
-    /// Records the capture's stages in `timings`. `reuse`, a frame no longer needed, may lend
-    /// its buffers to the export (a stream of frames then needs no fresh memory).
+    /// Captures `input` and exports what the store then holds as a DeepFrame, each run cut to
+    /// `limit`: what [`Method::capture`] followed by [`Method::deep_frame`] and
+    /// [`DeepFrame::limit_runs`] does (a render node's frame; the limit is the depth-limited
+    /// transfer's, [`RunLimit::NONE`] for the others). Records the capture's stages in
+    /// `timings`. `reuse`, a frame no longer needed, may lend its buffers to the export (a
+    /// stream of frames then needs no fresh memory).
     ///
-    /// The default runs the two one after the other (and lets `reuse` go); the linked list and
-    /// the k-buffer fuse them as the linked list fuses [`Method::capture_and_resolve`], each
-    /// strip gathering its rows' fragments as its scan ends (the `strip_export` module).
+    /// The default runs the three one after the other (and lets `reuse` go); the linked list
+    /// and the k-buffer fuse them as the linked list fuses [`Method::capture_and_resolve`], each
+    /// strip gathering its rows' fragments, cut to the limit, as its scan ends (the
+    /// `strip_export` module).
     fn capture_and_export(
         &mut self,
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
+        limit: RunLimit,
         timings: &mut PassTimings,
         reuse: Option<DeepFrame>,
     ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
         drop(reuse);
         let report = self.capture(raster, input, timings)?;
-        Ok((report, self.deep_frame()))
+        let frame = self.deep_frame().map(|f| f.map(|f| f.limit_runs(limit)));
+        Ok((report, frame))
     }
 
     /// Depth complexity of what the store holds, as seen by the last resolve.
@@ -259,12 +264,13 @@ pub fn check_exports(method: &mut dyn Method, input: &FrameInput<'_>) -> Result<
 }
 
 /// Runs clear → capture → export ([`Method::capture_and_export`]) and times the passes: a render
-/// node's frame, in the buffers of `reuse` (a frame no longer needed) where the store can. Runs
-/// on the current rayon pool, as [`render_frame`] does.
+/// node's frame, each run cut to `limit`, in the buffers of `reuse` (a frame no longer needed)
+/// where the store can. Runs on the current rayon pool, as [`render_frame`] does.
 pub fn export_frame(
     method: &mut dyn Method,
     raster: &mut Rasterizer,
     input: &FrameInput<'_>,
+    limit: RunLimit,
     reuse: Option<DeepFrame>,
 ) -> Result<ExportResult, ExportError> {
     let mut timings = PassTimings::new();
@@ -274,7 +280,7 @@ pub fn export_frame(
 
     let start = Instant::now();
     let mut stages = PassTimings::new();
-    let (capture, frame) = method.capture_and_export(raster, input, &mut stages, reuse)?;
+    let (capture, frame) = method.capture_and_export(raster, input, limit, &mut stages, reuse)?;
     timings.add("capture", start.elapsed());
     timings.extend(&stages);
     let frame = frame.ok_or(ExportError::NoDeepFrame(method.name()))??;

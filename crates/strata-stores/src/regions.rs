@@ -34,8 +34,7 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use rayon::prelude::*;
 use strata_core::fragment::sort_front_to_back;
 use strata_core::{
-    DeepFrame, DeepFrameError, DepthStats, Fragment, GatherWriter, GatheredPixels, Rgb8Image,
-    composite,
+    DeepFrame, DeepFrameError, DepthStats, Fragment, GatheredPixels, Rgb8Image, composite,
 };
 use strata_raster::{CaptureTarget, FragmentSink, StripLayout};
 
@@ -533,17 +532,19 @@ impl FragmentSink for RegionSink<'_> {
     fn finish(&mut self) {
         self.lost_total.fetch_add(self.lost, Relaxed);
         if let Some(slot) = self.export.take() {
-            *slot = Some(self.gather());
+            let gathered = self.gather(slot);
+            slot.fill(gathered);
         }
     }
 }
 
 impl RegionSink<'_> {
-    /// The strip's regions gathered into columns, each run checked and sorted front to back in
-    /// a copy ([`GatherWriter::push_run`]), so the regions themselves stay as captured.
-    fn gather(&self) -> Result<GatheredPixels, DeepFrameError> {
+    /// The strip's regions gathered into columns for `slot`, each run checked and sorted front
+    /// to back in a copy ([`GatherWriter::push_run`]), so the regions themselves stay as
+    /// captured, and cut to the slot's limit.
+    fn gather(&self, slot: &StripSlot) -> Result<GatheredPixels, DeepFrameError> {
         let stored = self.fill.iter().map(|&n| n as usize).sum();
-        let mut w = GatherWriter::new(self.fill.len(), stored);
+        let mut w = slot.writer(self.fill.len(), stored);
         let mut run = Vec::new();
         for (local, &n) in self.fill.iter().enumerate() {
             if n == 0 {

@@ -6,19 +6,47 @@
 //! after the capture.
 //!
 //! ```text
-//! slots: [StripSlot; strips]   None until strip s finishes, then its gathered pixels (or the
-//!                              error that stopped them: a depth outside [0, 1])
+//! slots: [StripSlot; strips]   each: the export's RunLimit, and None until strip s finishes,
+//!                              then its gathered pixels (or the error that stopped them: a
+//!                              depth outside [0, 1])
 //! ```
+//!
+//! A depth-limited export ([`RunLimit`]) keeps only each sorted run's prefix as the strip is
+//! gathered, so a render node serving the depth-limited transfer needs no selection pass after
+//! the export, and the strips' columns hold only what is sent.
 
-use strata_core::{DeepFrame, DeepFrameError, GatheredPixels};
+use strata_core::{DeepFrame, DeepFrameError, GatherWriter, GatheredPixels, RunLimit};
 use strata_raster::StripLayout;
 
-/// One strip's gathered pixels, filled by its sink's `finish`.
-pub(crate) type StripSlot = Option<Result<GatheredPixels, DeepFrameError>>;
+/// One strip's export: what to keep of each run, and the gathered pixels its sink's `finish`
+/// leaves.
+#[derive(Debug)]
+pub(crate) struct StripSlot {
+    limit: RunLimit,
+    gathered: Option<Result<GatheredPixels, DeepFrameError>>,
+}
 
-/// One empty slot per strip of `layout`.
-pub(crate) fn slots(layout: &StripLayout) -> Vec<StripSlot> {
-    (0..layout.count()).map(|_| None).collect()
+impl StripSlot {
+    /// A writer for the strip's `pixels` pixels and about `fragments` fragments, with the
+    /// export's limit.
+    pub(crate) fn writer(&self, pixels: usize, fragments: usize) -> GatherWriter {
+        GatherWriter::new(pixels, fragments).with_limit(self.limit)
+    }
+
+    /// The strip's gathered pixels (or why they could not be).
+    pub(crate) fn fill(&mut self, gathered: Result<GatheredPixels, DeepFrameError>) {
+        self.gathered = Some(gathered);
+    }
+}
+
+/// One empty slot per strip of `layout`, each keeping what `limit` keeps of a run.
+pub(crate) fn slots(layout: &StripLayout, limit: RunLimit) -> Vec<StripSlot> {
+    (0..layout.count())
+        .map(|_| StripSlot {
+            limit,
+            gathered: None,
+        })
+        .collect()
 }
 
 /// The frame of `width × height` pixels from the strips' slots, in order, in the buffers of
@@ -34,7 +62,7 @@ pub(crate) fn assemble(
 ) -> Result<DeepFrame, DeepFrameError> {
     let strips: Vec<GatheredPixels> = slots
         .into_iter()
-        .map(|s| s.expect("every strip finished"))
+        .map(|s| s.gathered.expect("every strip finished"))
         .collect::<Result<_, _>>()?;
     DeepFrame::from_gathered_reusing(width, height, strips, reuse)
 }

@@ -1,6 +1,7 @@
 //! [`Method::capture_and_resolve`] does what `capture` then `resolve` does, and
-//! [`Method::capture_and_export`] what `capture` then `deep_frame` does, for every store — the
-//! same image, depth statistics, capture report and DeepFrame — including the linked list's
+//! [`Method::capture_and_export`] what `capture` then `deep_frame` does (then
+//! [`DeepFrame::limit_runs`], for a depth-limited export), for every store — the same image,
+//! depth statistics, capture report and DeepFrame — including the linked list's
 //! fused passes (each strip resolved or gathered as its scan ends): with a pool that overflows
 //! and drops, with an automatic pool that must grow and capture again, after an earlier chunk of
 //! the frame was captured on its own, and on one thread or two.
@@ -8,7 +9,7 @@
 mod common;
 
 use common::{pool, scene};
-use strata_core::{DeepFrame, DepthStats, PassTimings, Rgb8Image};
+use strata_core::{DeepFrame, DepthStats, PassTimings, Rgb8Image, RunLimit};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::{CaptureReport, Method, MethodOptions, PoolCapacity, create};
 
@@ -38,8 +39,9 @@ enum Mode {
     Apart,
     /// `capture_and_resolve`, then `deep_frame`.
     Resolve,
-    /// `capture_and_export` (its frame must equal `deep_frame`'s), then `resolve`.
-    Export,
+    /// `capture_and_export` with a limit (its frame must equal `deep_frame`'s cut to the
+    /// limit), then `resolve`.
+    Export(RunLimit),
 }
 
 /// Renders `chunks` (all but the last captured alone) with `method` on `threads` threads, the
@@ -76,23 +78,24 @@ fn run(
                     .expect("capture");
                 (report, method.resolve(background, &mut timings), None)
             }
-            Mode::Export => {
+            Mode::Export(limit) => {
                 let (report, frame) = method
-                    .capture_and_export(&mut raster, last, &mut timings, None)
+                    .capture_and_export(&mut raster, last, limit, &mut timings, None)
                     .expect("capture and export");
                 let frame = frame.map(|f| f.expect("valid DeepFrame"));
                 (
                     report,
                     method.resolve(background, &mut timings),
-                    Some(frame),
+                    Some((limit, frame)),
                 )
             }
         };
         let deep = method.deep_frame().map(|d| d.expect("valid DeepFrame"));
-        if let Some(exported) = exported {
+        if let Some((limit, exported)) = exported {
+            let want = deep.clone().map(|d| d.limit_runs(limit));
             assert_eq!(
-                exported, deep,
-                "{name}: the exported frame is not deep_frame's"
+                exported, want,
+                "{name}: the exported frame is not deep_frame's cut to {limit:?}"
             );
         }
         let outcome = Outcome {
@@ -121,6 +124,9 @@ fn drawn_over<'a>(input: &FrameInput<'a>, times: usize) -> (FrameInput<'a>, [Fra
 
 #[test]
 fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
+    const LIMITS: [RunLimit; 2] = [RunLimit::new(1, None), RunLimit::new(4, Some(0.6))];
+    // Fragments the linked list's frames keep under each limit, and hold.
+    let mut cuts = [(0, 0); 2];
     let background = [0.2, 0.5, 0.9];
     let mut failures = Vec::new();
     for scene_name in ["mixed", "overlap", "spheres"] {
@@ -142,7 +148,17 @@ fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
                 let one = std::slice::from_ref(&input);
                 let mut apart = create(name, &options).expect("registered");
                 let (want, _) = run(apart.as_mut(), one, background, threads, Mode::Apart);
-                for mode in [Mode::Resolve, Mode::Export] {
+                if name == "abuffer" && threads == 1 {
+                    let deep = want.deep.clone().expect("the linked list exports");
+                    for (limit, cut) in LIMITS.iter().zip(&mut cuts) {
+                        cut.0 += deep.clone().limit_runs(*limit).fragment_count();
+                        cut.1 += deep.fragment_count();
+                    }
+                }
+                let modes = [Mode::Resolve, Mode::Export(RunLimit::NONE)]
+                    .into_iter()
+                    .chain(LIMITS.map(Mode::Export));
+                for mode in modes {
                     let mut m = create(name, &options).expect("registered");
                     let (got, timings) = run(m.as_mut(), one, background, threads, mode);
                     if got != want {
@@ -165,6 +181,10 @@ fn fused_calls_equal_capture_then_resolve_or_export_for_every_store() {
         }
     }
     assert!(failures.is_empty(), "differ:\n{}", failures.join("\n"));
+    // Each limit cut the scenes' runs, but not all of them.
+    for (limit, (kept, of)) in LIMITS.iter().zip(cuts) {
+        assert!(kept > 0 && kept < of, "{limit:?} kept {kept} of {of}");
+    }
 }
 
 /// The linked list's fused pass under its pool's every path: enough room, a fixed pool that
@@ -205,7 +225,11 @@ fn the_linked_lists_fused_pass_matches_under_overflow_regrow_and_chunks() {
         for threads in [1, 2] {
             let mut a = create("abuffer", &options).expect("registered");
             let (apart, _) = run(a.as_mut(), chunks, background, threads, Mode::Apart);
-            for mode in [Mode::Resolve, Mode::Export] {
+            for mode in [
+                Mode::Resolve,
+                Mode::Export(RunLimit::NONE),
+                Mode::Export(RunLimit::new(3, Some(0.9))),
+            ] {
                 let mut b = create("abuffer", &options).expect("registered");
                 let (fused, _) = run(b.as_mut(), chunks, background, threads, mode);
                 let (_, stored, dropped, regrows, _) = fused.report;
@@ -248,7 +272,13 @@ fn the_k_buffers_fused_export_gathers_every_chunk() {
             let mut a = create("kbuffer", &options).expect("registered");
             let (apart, _) = run(a.as_mut(), &halves, background, threads, Mode::Apart);
             let mut b = create("kbuffer", &options).expect("registered");
-            let (fused, _) = run(b.as_mut(), &halves, background, threads, Mode::Export);
+            let (fused, _) = run(
+                b.as_mut(),
+                &halves,
+                background,
+                threads,
+                Mode::Export(RunLimit::NONE),
+            );
             let at = format!("tail blend {tail_blend}, {threads} thread(s)");
             let (_, stored, dropped, _, _) = fused.report;
             assert!(stored > 0, "{at}: nothing stored");

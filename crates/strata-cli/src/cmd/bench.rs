@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use strata_core::stats::median;
-use strata_core::{DeepFrame, DepthStats, PassTimings};
+use strata_core::{DeepFrame, DepthStats, PassTimings, RunLimit};
 use strata_raster::{FrameInput, Rasterizer};
 use strata_stores::{CaptureReport, Method, check_exports, export_frame, render_frame};
 
@@ -41,6 +41,12 @@ pub(crate) struct Args {
     /// (every pixel's fragments sorted front to back), instead of clear, capture and resolve.
     #[arg(long)]
     pub(crate) export: bool,
+
+    /// With `--export`, keep at most N nearest fragments of every pixel, as a render node
+    /// serving the depth-limited transfer does (`strata display --transfer depth-limited
+    /// --layers N`): each run is cut as it is exported.
+    #[arg(long, value_name = "N", requires = "export", value_parser = clap::value_parser!(u32).range(1..))]
+    pub(crate) export_layers: Option<u32>,
 
     /// Timed runs per thread count.
     #[arg(long, default_value_t = 15)]
@@ -137,9 +143,9 @@ struct Run {
 enum RunKind {
     /// The resolve ([`render_frame`]).
     Resolve,
-    /// A DeepFrame export as a render node runs it ([`export_frame`]), in the buffers of the
-    /// frame held, if any.
-    Export(Option<DeepFrame>),
+    /// A DeepFrame export as a render node runs it ([`export_frame`]), each run cut to the
+    /// limit, in the buffers of the frame held, if any.
+    Export(RunLimit, Option<DeepFrame>),
 }
 
 /// One timed frame (for an export, the depth statistics come from the exported frame).
@@ -150,8 +156,8 @@ fn one_run(
     background: [f32; 3],
     kind: RunKind,
 ) -> Result<Run> {
-    if let RunKind::Export(reuse) = kind {
-        let r = export_frame(method, raster, input, reuse)?;
+    if let RunKind::Export(limit, reuse) = kind {
+        let r = export_frame(method, raster, input, limit, reuse)?;
         Ok(Run {
             depth: r.frame.depth_stats(),
             frame: Some(r.frame),
@@ -209,10 +215,15 @@ pub(crate) fn run(args: Args) -> Result<()> {
             .with_context(|| format!("--export cannot time method '{}'", args.method))?;
     }
 
-    let what = if args.export {
-        "clear, capture and export a DeepFrame (a render node's frame)"
-    } else {
-        "clear, capture and resolve"
+    let limit = args
+        .export_layers
+        .map_or(RunLimit::NONE, |n| RunLimit::new(n, None));
+    let what = match args.export_layers {
+        Some(n) if args.export => format!(
+            "clear, capture and export a DeepFrame of at most {n} fragments a pixel (a depth-limited render node's frame)"
+        ),
+        _ if args.export => "clear, capture and export a DeepFrame (a render node's frame)".into(),
+        _ => "clear, capture and resolve".into(),
     };
     outln!(
         "strata bench: {} ({} triangles, {}x{}), method {}, frame {}, {} runs after {} warm-up, each {what}; measured on {cpu}",
@@ -236,7 +247,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
         for run in 0..args.warmup + args.runs {
             let kind = if args.export {
                 // An exported frame lends its buffers to the next, as a render node's frames do.
-                RunKind::Export(last.as_mut().and_then(|r| r.frame.take()))
+                RunKind::Export(limit, last.as_mut().and_then(|r| r.frame.take()))
             } else {
                 RunKind::Resolve
             };
@@ -347,6 +358,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "scene": scene.name,
             "method": args.method,
             "export": args.export,
+            "export_layers": args.export_layers,
             "frame": args.frame,
             "width": scene.width,
             "height": scene.height,

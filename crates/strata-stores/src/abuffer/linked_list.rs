@@ -76,7 +76,7 @@ use rayon::prelude::*;
 use strata_core::fragment::sort_front_to_back;
 use strata_core::{
     DeepFrame, DeepFrameError, DepthStats, Fragment, GatherWriter, GatheredPixels, ObjectId,
-    PassTimings, PixelRect, Rgb8Image, Rgba8, composite,
+    PassTimings, PixelRect, Rgb8Image, Rgba8, RunLimit, composite,
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Prepared, Rasterizer, StripLayout};
 
@@ -384,12 +384,8 @@ impl FragmentSink for LinkedListSink<'_> {
             }
             Some(StripWork::Export(slot)) => {
                 let first = self.first_pixel as usize;
-                *slot = Some(gather_strip(
-                    self.heads,
-                    self.nodes,
-                    first,
-                    self.n_stored as usize,
-                ));
+                let writer = slot.writer(self.heads.len(), self.n_stored as usize);
+                slot.fill(gather_strip(self.heads, self.nodes, first, writer));
             }
         }
         self.stored.fetch_add(self.n_stored, Relaxed);
@@ -598,16 +594,15 @@ impl FirstNodes {
     }
 }
 
-/// Gathers a strip's lists (`heads` of the frame pixels from `first_pixel` on) into columns,
-/// each run sorted front to back, in batches of [`GATHER_BATCH`] pixels as the resolve walks
-/// them; `fragments` (what the strip stored) sizes the columns.
+/// Gathers a strip's lists (`heads` of the frame pixels from `first_pixel` on) into columns
+/// with `g` (sized for what the strip stored, and cutting runs to its export's limit), each
+/// run sorted front to back, in batches of [`GATHER_BATCH`] pixels as the resolve walks them.
 fn gather_strip(
     heads: &[u32],
     nodes: &[Node],
     first_pixel: usize,
-    fragments: usize,
+    mut g: GatherWriter,
 ) -> Result<GatheredPixels, DeepFrameError> {
-    let mut g = GatherWriter::new(heads.len(), fragments);
     let mut local = [Fragment::default(); LOCAL];
     let mut long = Vec::new();
     for (b, heads) in heads.chunks(GATHER_BATCH).enumerate() {
@@ -813,12 +808,13 @@ impl Method for LinkedListABuffer {
         &mut self,
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
+        limit: RunLimit,
         timings: &mut PassTimings,
         reuse: Option<DeepFrame>,
     ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let mut slots = strip_export::slots(prepared.layout());
+        let mut slots = strip_export::slots(prepared.layout(), limit);
         let (report, scan) =
             self.capture_prepared(&prepared, timings, Some(Fused::Export(&mut slots)))?;
         timings.add("capture.raster", scan);
@@ -987,7 +983,7 @@ mod tests {
 
         // And gathered strip by strip, as the fused export does (its batches of lists' fronts
         // end mid-strip and hold an empty pixel).
-        let mut slots = vec![None];
+        let mut slots = strip_export::slots(&layout, RunLimit::NONE);
         let mut fused = Fused::Export(&mut slots);
         let mut target = FusedTarget {
             store: &mut ab,
@@ -996,11 +992,8 @@ mod tests {
         for mut s in target.sinks(&layout) {
             s.finish();
         }
-        let strips: Vec<GatheredPixels> = slots
-            .into_iter()
-            .map(|s| s.expect("the strip finished").expect("valid depths"))
-            .collect();
-        assert_eq!(DeepFrame::from_gathered(width, 1, strips).unwrap(), want);
+        let frame = strip_export::assemble(width, 1, slots, None).expect("valid depths");
+        assert_eq!(frame, want);
     }
 
     #[test]

@@ -53,7 +53,7 @@
 
 use rayon::prelude::*;
 use strata_core::{
-    DeepFrame, DeepFrameError, DepthStats, Fragment, PassTimings, Rgb8Image, composite,
+    DeepFrame, DeepFrameError, DepthStats, Fragment, PassTimings, Rgb8Image, RunLimit, composite,
 };
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Rasterizer, StripLayout};
 
@@ -177,17 +177,18 @@ impl KBuffer {
 
 impl KBuffer {
     /// Captures `input` into the regions (and tails); with `export`, each strip also gathers
-    /// its regions as it finishes, into the slots returned ([`crate::strip_export`]).
+    /// its regions as it finishes, cut to that limit, into the slots returned
+    /// ([`crate::strip_export`]).
     fn capture_into(
         &mut self,
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
-        export: bool,
+        export: Option<RunLimit>,
     ) -> (CaptureReport, Option<Vec<StripSlot>>) {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let mut slots = export.then(|| strip_export::slots(prepared.layout()));
+        let mut slots = export.map(|limit| strip_export::slots(prepared.layout(), limit));
         let export = slots.as_deref_mut();
         let stats = timings.time("capture.capture", || {
             if self.tail_blend {
@@ -254,7 +255,7 @@ impl Method for KBuffer {
         input: &FrameInput<'_>,
         timings: &mut PassTimings,
     ) -> Result<CaptureReport, StoreError> {
-        Ok(self.capture_into(raster, input, timings, false).0)
+        Ok(self.capture_into(raster, input, timings, None).0)
     }
 
     /// Fused: every strip gathers its regions (kept sorted) as its scan ends, and the frame is
@@ -263,10 +264,11 @@ impl Method for KBuffer {
         &mut self,
         raster: &mut Rasterizer,
         input: &FrameInput<'_>,
+        limit: RunLimit,
         timings: &mut PassTimings,
         reuse: Option<DeepFrame>,
     ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
-        let (report, slots) = self.capture_into(raster, input, timings, true);
+        let (report, slots) = self.capture_into(raster, input, timings, Some(limit));
         let (width, height) = (self.regions.width(), self.regions.height());
         let frame = timings.time("capture.export", || {
             let slots = slots.expect("an exporting capture returns its slots");
