@@ -69,7 +69,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
     let names = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd"];
     for name in names {
         let cols = row(&stdout, name);
-        assert!(cols.len() >= 10, "{name}: {cols:?}");
+        assert!(cols.len() >= 12, "{name}: {cols:?}");
     }
     // The deep rows break their bytes down by section.
     for name in ["deep-lz4", "deep-zstd"] {
@@ -135,6 +135,7 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             ("encode_mb_per_s", "encode_ms_median"),
             ("decode_mb_per_s", "decode_ms_median"),
             ("decode_reused_mb_per_s", "decode_reused_ms_median"),
+            ("encode_reused_mb_per_s", "encode_reused_ms_median"),
         ] {
             let expected = if f(&c[ms]) > 0.0 {
                 raw_mb / (f(&c[ms]) / 1e3)

@@ -21,11 +21,13 @@
 //! Channels between stages hold at most two items, so while frame *t* is on the wire, *t + 1* is
 //! being encoded and *t + 2* rendered: throughput is set by the slowest stage, not their sum. The
 //! render thread owns the fragment store and the rasterizer; the encode thread owns the
-//! difference state, which must see frames in order. Fixups read the ring of recent frames and do
-//! not wait behind renders. A frame that leaves the ring, when nothing else holds it (a fixup
-//! being answered), goes back to the render thread
-//! over a channel of two, and the next export assembles into its buffers
-//! ([`strata_stores::export_frame`]): a stream of frames then needs no fresh memory.
+//! difference state, which must see frames in order, and a [`FrameEncoder`] whose section
+//! buffers serve every frame. Fixups read the ring of recent frames and do not wait behind
+//! renders. A frame that leaves the ring, when nothing else holds it (a fixup being answered),
+//! goes back to the render thread over a channel of two, and the next export assembles into its
+//! buffers ([`strata_stores::export_frame`]); a message the writer has sent goes back to the
+//! encode thread the same way, and the next message is encoded into it: a stream of frames then
+//! needs no fresh memory.
 //!
 //! Whatever goes wrong with a connection (a malformed request, a store error) is sent to the
 //! display as an error message before the connection closes; the node keeps listening.
@@ -39,9 +41,9 @@ use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_scene::Scene;
 use strata_stores::{ExportError, Method, MethodOptions, check_exports, export_frame};
 use strata_wire::{
-    DecodeOptions, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request, RequestKind,
-    TransferMethod, WireError, encode_delta_into, encode_error_into, encode_frame_into,
-    encode_reprojection_into, message_type, seed_layout_bytes,
+    DecodeOptions, FrameEncoder, FrameHeader, Hello, MessageType, NodeStats, PixelMask, Request,
+    RequestKind, TransferMethod, WireError, encode_delta_into, encode_error_into, message_type,
+    seed_layout_bytes,
 };
 use tokio::io::AsyncWriteExt;
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
@@ -332,6 +334,9 @@ pub async fn serve_connection(
     // Frames that left the ring of recent frames and that nothing else holds go back to the
     // render thread, whose exports reuse their buffers.
     let (recycle_tx, recycle_rx) = std::sync::mpsc::sync_channel::<DeepFrame>(2);
+    // Messages the writer has sent go back to the encode thread, which encodes the next frames
+    // into their buffers.
+    let (written_tx, written_rx) = std::sync::mpsc::sync_channel::<Vec<u8>>(2);
 
     let spawn = |stage: &'static str, f: Box<dyn FnOnce() + Send>| {
         std::thread::Builder::new()
@@ -351,10 +356,10 @@ pub async fn serve_connection(
         let (config, out, recent) = (config.clone(), out_tx.clone(), recent.clone());
         spawn(
             "encode",
-            Box::new(move || encode_thread(config, encode_rx, out, recent, recycle_tx)),
+            Box::new(move || encode_thread(config, encode_rx, out, recent, recycle_tx, written_rx)),
         )?
     };
-    let writer_task = tokio::spawn(write_messages(writer, out_rx));
+    let writer_task = tokio::spawn(write_messages(writer, out_rx, written_tx));
 
     let result = serve_requests(&mut reader, &config, &render_tx, &out_tx, &recent).await;
     if let Err(e) = &result {
@@ -382,13 +387,19 @@ pub async fn serve_connection(
 }
 
 /// Writes queued messages until every sender is gone, a write fails, or an error message
-/// (after which the node closes the connection) is written.
-async fn write_messages(mut writer: OwnedWriteHalf, mut queue: mpsc::Receiver<Vec<u8>>) {
+/// (after which the node closes the connection) is written. Each written message's buffer goes
+/// back over `written` for another, if there is room.
+async fn write_messages(
+    mut writer: OwnedWriteHalf,
+    mut queue: mpsc::Receiver<Vec<u8>>,
+    written: std::sync::mpsc::SyncSender<Vec<u8>>,
+) {
     while let Some(bytes) = queue.recv().await {
         let is_error = message_type(&bytes) == Some(MessageType::Error);
         if writer.write_all(&bytes).await.is_err() || is_error {
             break;
         }
+        let _ = written.try_send(bytes);
     }
     // The display may already have closed its end; nothing is left to tell it.
     let _ = writer.shutdown().await;
@@ -627,6 +638,8 @@ enum EncodeError {
 /// The encode thread's state across frames: what the difference and reprojection transfers
 /// remember of the frames before.
 struct Encoders {
+    /// The wire encoder, whose buffers serve frame after frame.
+    wire: FrameEncoder,
     background: [f32; 3],
     diff: DiffEncoder,
     reproj: ReprojEncoder,
@@ -661,7 +674,14 @@ fn select_and_encode(
             let d = enc.diff.diff(frame.clone());
             let select_us = micros(select_start);
             let t = Instant::now();
-            encode_delta_into(bytes, &header, &d.changed, &d.stale, &d.runs, request.codec)?;
+            enc.wire.encode_delta_into(
+                bytes,
+                &header,
+                &d.changed,
+                &d.stale,
+                &d.runs,
+                request.codec,
+            )?;
             Ok(Encoded {
                 sent: d.runs.fragment_count() as u64,
                 select_us,
@@ -671,7 +691,8 @@ fn select_and_encode(
         // The export kept only what the transfer sends (`export_limit`): both are sent whole.
         TransferMethod::DepthLimited { .. } | TransferMethod::Full => {
             let t = Instant::now();
-            encode_frame_into(bytes, &header, frame, request.codec)?;
+            enc.wire
+                .encode_frame_into(bytes, &header, frame, request.codec)?;
             Ok(Encoded {
                 sent: frame.fragment_count() as u64,
                 select_us: 0,
@@ -693,7 +714,7 @@ fn select_and_encode(
             let d = enc.reproj.encode(&view, frame)?;
             let select_us = micros(select_start);
             let t = Instant::now();
-            encode_reprojection_into(
+            enc.wire.encode_reprojection_into(
                 bytes,
                 &header,
                 &d.touched,
@@ -717,9 +738,11 @@ fn encode_thread(
     out: mpsc::Sender<Vec<u8>>,
     recent: Recent,
     recycle: std::sync::mpsc::SyncSender<DeepFrame>,
+    written: std::sync::mpsc::Receiver<Vec<u8>>,
 ) {
     let background = config.scene.background;
     let mut enc = Encoders {
+        wire: FrameEncoder::new(),
         background,
         diff: DiffEncoder::new(background, 0),
         reproj: ReprojEncoder::new(0),
@@ -733,7 +756,8 @@ fn encode_thread(
     }) = jobs.blocking_recv()
     {
         let frame = Arc::new(frame);
-        let mut bytes = Vec::new();
+        // A sent message's buffer where there is one: no fresh pages for the next message.
+        let mut bytes = written.try_recv().unwrap_or_default();
         let encoded = match select_and_encode(&mut enc, &config, &request, pose, &frame, &mut bytes)
         {
             Ok(e) => e,

@@ -50,9 +50,9 @@ pub use control::{
 pub use error::WireError;
 pub use mask::{MaskBuilder, PixelMask};
 pub use message::{
-    DecodeOptions, FrameDecoder, FrameHeader, FrameInfo, FrameMessage, MAGIC, Message, MessageType,
-    PREFIX_LEN, Prefix, TYPE_OFFSET, TransferMethod, VERSION, decode, decode_frame,
-    encode_delta_into, encode_frame, encode_frame_into, encode_reprojection_into, inspect_frame,
-    message_type, parse_prefix,
+    DecodeOptions, FrameDecoder, FrameEncoder, FrameHeader, FrameInfo, FrameMessage, MAGIC,
+    Message, MessageType, PREFIX_LEN, Prefix, TYPE_OFFSET, TransferMethod, VERSION, decode,
+    decode_frame, encode_delta_into, encode_frame, encode_frame_into, encode_reprojection_into,
+    inspect_frame, message_type, parse_prefix,
 };
 pub use removals::Removals;

@@ -15,10 +15,10 @@ use strata_raster::{FrameInput, Rasterizer};
 use strata_scene::{Scene, SearchPath, open_scene};
 use strata_stores::{MethodOptions, create, render_frame};
 use strata_wire::{
-    Codec, Compression, DecodeOptions, FrameDecoder, FrameHeader, Message, PREFIX_LEN, PixelMask,
-    Removals, SectionTag, TransferMethod, VERSION, WireError, decode, decode_frame,
-    encode_delta_into, encode_frame, encode_frame_into, encode_reprojection_into, inspect_frame,
-    parse_prefix,
+    Codec, Compression, DecodeOptions, FrameDecoder, FrameEncoder, FrameHeader, Message,
+    PREFIX_LEN, PixelMask, Removals, SectionTag, TransferMethod, VERSION, WireError, decode,
+    decode_frame, encode_delta_into, encode_frame, encode_frame_into, encode_reprojection_into,
+    inspect_frame, parse_prefix,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -625,6 +625,105 @@ fn one_decoder_reusing_its_buffers_decodes_a_stream_like_fresh_decoders() {
             (fresh, reused) => panic!("message {i}: {:?} against {:?}", fresh.err(), reused.err()),
         }
     }
+}
+
+#[test]
+fn one_encoder_reusing_its_buffers_writes_the_bytes_of_fresh_encoders() {
+    // Frames that grow, shrink (their planes then hold the bigger frame's residuals beyond the
+    // smaller one's), change size and codec, with difference and reprojection frames between
+    // (more sections, in other slots) and a refused frame: one encoder must write each message
+    // byte for byte as the free functions do.
+    let search = SearchPath::default();
+    let big = render(&scene("spheres", &search, 96, 54), 3);
+    let small = render(&scene("mixed", &search, 64, 36), 5);
+    let empty = DeepFrame::from_pixel_lists(5, 4, &vec![Vec::new(); 20]).unwrap();
+    let mut encoder = FrameEncoder::new();
+    let (mut fresh, mut reused) = (Vec::new(), vec![0xee; 7]);
+    let mut messages = 0;
+    for codec in codecs() {
+        let (changed, stale) = full_delta(&small.1);
+        let (touched, _) = full_delta(&big.1);
+        let kinds = [
+            (big.0, &big.1),
+            (small.0, &small.1),
+            (
+                FrameHeader {
+                    transfer: TransferMethod::Difference,
+                    ..small.0
+                },
+                &small.1,
+            ),
+            (
+                FrameHeader {
+                    transfer: TransferMethod::Reprojection,
+                    ..big.0
+                },
+                &big.1,
+            ),
+            (big.0, &big.1),
+            (FrameHeader::default(), &empty),
+            (small.0, &small.1),
+        ];
+        for (header, frame) in kinds {
+            match header.transfer {
+                TransferMethod::Difference => {
+                    encode_delta_into(&mut fresh, &header, &changed, &stale, frame, codec).unwrap();
+                    encoder
+                        .encode_delta_into(&mut reused, &header, &changed, &stale, frame, codec)
+                        .unwrap();
+                }
+                TransferMethod::Reprojection => {
+                    let removals = no_removals(frame);
+                    encode_reprojection_into(
+                        &mut fresh, &header, &touched, &removals, frame, codec,
+                    )
+                    .unwrap();
+                    encoder
+                        .encode_reprojection_into(
+                            &mut reused,
+                            &header,
+                            &touched,
+                            &removals,
+                            frame,
+                            codec,
+                        )
+                        .unwrap();
+                }
+                _ => {
+                    encode_frame_into(&mut fresh, &header, frame, codec).unwrap();
+                    encoder
+                        .encode_frame_into(&mut reused, &header, frame, codec)
+                        .unwrap();
+                }
+            }
+            assert!(
+                fresh == reused,
+                "{codec:?}, {:?} frame of {} fragments: the bytes differ at {:?}",
+                header.transfer,
+                frame.fragment_count(),
+                first_difference(&fresh, &reused)
+            );
+            messages += 1;
+        }
+        // A refused frame leaves the encoder as good as before.
+        let fixup = FrameHeader {
+            fixup: true,
+            ..big.0
+        };
+        assert!(
+            encoder
+                .encode_frame_into(&mut reused, &fixup, &big.1, codec)
+                .is_err()
+        );
+    }
+    encoder
+        .encode_frame_into(&mut reused, &big.0, &big.1, Codec::DeepLz4)
+        .unwrap();
+    assert_eq!(
+        reused,
+        encode_frame(&big.0, &big.1, Codec::DeepLz4).unwrap()
+    );
+    assert_eq!(messages, 7 * codecs().len());
 }
 
 #[test]

@@ -19,9 +19,10 @@ use crate::options::{check_output, open_scene, search_path, thread_pool};
 /// with 16 bytes per fragment (a 12-byte fragment node padded to 16) and with the plain fragment
 /// layout under LZ4, the codec the original remote-rendering work used. Times are medians over
 /// frames and runs, wall-clock on a possibly shared machine, on the CPU named in the output.
-/// Each message is decoded twice: by a fresh decoder ("decode"), and by one that keeps its
-/// buffers and gets each decoded frame back, as a consumer of a stream of frames does
-/// ("reused": no fresh memory for the kernel to zero).
+/// Each frame is encoded twice and each message decoded twice: by a fresh encoder or decoder,
+/// and by one that keeps its buffers (the decoder also gets each decoded frame back), as a
+/// producer or consumer of a stream of frames does ("reused", after each fresh column: no fresh
+/// memory for the kernel to zero). The reused encoder must write the fresh one's bytes.
 #[derive(clap::Args, Debug)]
 pub(crate) struct Args {
     /// Scene file (TOML) or built-in scene name.
@@ -58,6 +59,8 @@ struct Tally {
     codec: Codec,
     bytes: Vec<u64>,
     encode: Vec<Duration>,
+    /// Encode times of an encoder that keeps its buffers.
+    encode_reused: Vec<Duration>,
     decode: Vec<Duration>,
     /// Decodes by a decoder that keeps its buffers (one per codec, over every frame and run).
     reused: Vec<Duration>,
@@ -138,6 +141,7 @@ pub(crate) fn run(args: Args) -> Result<()> {
             codec,
             bytes: Vec::new(),
             encode: Vec::new(),
+            encode_reused: Vec::new(),
             decode: Vec::new(),
             reused: Vec::new(),
             sections: Vec::new(),
@@ -146,6 +150,10 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let mut decoders: Vec<strata_wire::FrameDecoder> = codecs
         .iter()
         .map(|_| strata_wire::FrameDecoder::new())
+        .collect();
+    let mut encoders: Vec<strata_wire::FrameEncoder> = codecs
+        .iter()
+        .map(|_| strata_wire::FrameEncoder::new())
         .collect();
     let mut fragments = Vec::new();
     let mut seed_lz4 = Vec::new();
@@ -163,13 +171,22 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let header = header_for(&input, f);
         // The thesis layout under LZ4 is the reference ratio even when not listed.
         seed_lz4.push(strata_wire::encode_frame(&header, &deep, Codec::Lz4)?.len() as u64);
-        let mut buf = Vec::new();
-        for (t, decoder) in tallies.iter_mut().zip(&mut decoders) {
+        let (mut buf, mut again) = (Vec::new(), Vec::new());
+        for ((t, decoder), encoder) in tallies.iter_mut().zip(&mut decoders).zip(&mut encoders) {
             pool.install(|| -> Result<()> {
                 for _ in 0..args.runs {
                     let start = Instant::now();
                     strata_wire::encode_frame_into(&mut buf, &header, &deep, t.codec)?;
                     t.encode.push(start.elapsed());
+                    let start = Instant::now();
+                    encoder.encode_frame_into(&mut again, &header, &deep, t.codec)?;
+                    t.encode_reused.push(start.elapsed());
+                    if again != buf {
+                        bail!(
+                            "codec {}: frame {f} encodes to other bytes through a reused encoder",
+                            t.codec
+                        );
+                    }
                     let start = Instant::now();
                     let back = strata_wire::decode_frame(&buf, &options)?;
                     t.decode.push(start.elapsed());
@@ -204,21 +221,23 @@ pub(crate) fn run(args: Args) -> Result<()> {
     let n = frames.len() as f64;
     let total_lz4: u64 = seed_lz4.iter().sum();
     outln!(
-        "fragments per frame: {:.0} (16·N = {:.0} bytes); every decode round-tripped bit-exactly",
+        "fragments per frame: {:.0} (16·N = {:.0} bytes); every decode round-tripped bit-exactly, every reused encoder wrote the fresh bytes",
         total_fragments as f64 / n,
         16.0 * total_fragments as f64 / n
     )?;
     outln!()?;
     outln!(
-        "{:<12} {:>12} {:>9} {:>9} {:>10} {:>10} {:>10} {:>9} {:>9} {:>11}  sections (bytes per frame)",
+        "{:<12} {:>12} {:>9} {:>9} {:>10} {:>10} {:>10} {:>10} {:>9} {:>11} {:>9} {:>11}  sections (bytes per frame)",
         "codec",
         "bytes/frame",
         "% of 16N",
         "% of lz4",
         "encode ms",
+        "reused ms",
         "decode ms",
         "reused ms",
         "enc MB/s",
+        "reused MB/s",
         "dec MB/s",
         "reused MB/s"
     )?;
@@ -236,8 +255,9 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let total: u64 = t.bytes.iter().sum();
         let of_16n = 100.0 * total as f64 / (16 * total_fragments).max(1) as f64;
         let of_lz4 = 100.0 * total as f64 / total_lz4.max(1) as f64;
-        let (enc, dec, reused) = (
+        let (enc, enc_reused, dec, reused) = (
             median_ms(&t.encode),
+            median_ms(&t.encode_reused),
             median_ms(&t.decode),
             median_ms(&t.reused),
         );
@@ -250,15 +270,17 @@ pub(crate) fn run(args: Args) -> Result<()> {
             Vec::new()
         };
         outln!(
-            "{:<12} {:>12.0} {:>8.1}% {:>8.1}% {:>10.2} {:>10.2} {:>10.2} {:>9.0} {:>9.0} {:>11.0}  {}",
+            "{:<12} {:>12.0} {:>8.1}% {:>8.1}% {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>9.0} {:>11.0} {:>9.0} {:>11.0}  {}",
             t.codec.to_string(),
             total as f64 / n,
             of_16n,
             of_lz4,
             enc,
+            enc_reused,
             dec,
             reused,
             mb_per_s(enc),
+            mb_per_s(enc_reused),
             mb_per_s(dec),
             mb_per_s(reused),
             sections.join(", ")
@@ -272,6 +294,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "encode_ms_median": enc,
             "decode_ms_median": dec,
             "encode_mb_per_s": mb_per_s(enc),
+            "encode_reused_ms_median": enc_reused,
+            "encode_reused_mb_per_s": mb_per_s(enc_reused),
             "decode_mb_per_s": mb_per_s(dec),
             "decode_reused_ms_median": reused,
             "decode_reused_mb_per_s": mb_per_s(reused),

@@ -74,25 +74,61 @@ impl Compression {
     }
 }
 
-/// Compresses `data` with `method` (`level` is zstd's), or stores it when compression would not
-/// make it smaller. Returns the method actually used and the payload.
+/// A compressor's output buffer, kept from section to section and frame to frame, so that a
+/// stream of frames compresses into memory it already has: no fresh pages for the kernel to
+/// zero, and no copy into an exact-size vector.
+#[derive(Debug, Default)]
+pub(crate) struct Packer {
+    /// LZ4's worst-case output for the largest section so far; zstd's last output.
+    out: Vec<u8>,
+}
+
+impl Packer {
+    /// Compresses `data` with `method` (`level` is zstd's), or stores it when compression would
+    /// not make it smaller. Returns the method actually used and the payload: this packer's
+    /// output, or `data` itself when stored. The bytes are those of lz4_flex's and zstd's
+    /// one-shot `compress`.
+    pub(crate) fn pack<'a>(
+        &'a mut self,
+        data: &'a [u8],
+        method: Compression,
+        level: i32,
+    ) -> Result<(Compression, &'a [u8]), WireError> {
+        let packed = match method {
+            Compression::None => None,
+            Compression::Lz4 => {
+                let max = lz4_flex::block::get_maximum_output_size(data.len());
+                if self.out.len() < max {
+                    // Zeroes only the part never used before.
+                    self.out.resize(max, 0);
+                }
+                let n = lz4_flex::block::compress_into(data, &mut self.out)
+                    .map_err(|e| WireError::Encode(format!("lz4: {e}")))?;
+                Some(n)
+            }
+            Compression::Zstd => {
+                self.out = zstd::bulk::compress(data, level)
+                    .map_err(|e| WireError::Encode(format!("zstd level {level}: {e}")))?;
+                Some(self.out.len())
+            }
+        };
+        Ok(match packed {
+            Some(n) if n < data.len() => (method, &self.out[..n]),
+            _ => (Compression::None, data),
+        })
+    }
+}
+
+/// [`Packer::pack`] into a fresh packer, the payload copied out.
+#[cfg(test)]
 pub(crate) fn compress(
     data: &[u8],
     method: Compression,
     level: i32,
 ) -> Result<(Compression, Vec<u8>), WireError> {
-    let packed = match method {
-        Compression::None => None,
-        Compression::Lz4 => Some(lz4_flex::block::compress(data)),
-        Compression::Zstd => Some(
-            zstd::bulk::compress(data, level)
-                .map_err(|e| WireError::Encode(format!("zstd level {level}: {e}")))?,
-        ),
-    };
-    Ok(match packed {
-        Some(p) if p.len() < data.len() => (method, p),
-        _ => (Compression::None, data.to_vec()),
-    })
+    let mut packer = Packer::default();
+    let (used, payload) = packer.pack(data, method, level)?;
+    Ok((used, payload.to_vec()))
 }
 
 /// LZ4 sections that decode to at least this many bytes per payload byte are mostly runs of
@@ -279,6 +315,26 @@ mod tests {
                 assert_eq!(again, fresh, "{method:?}, {wrong}");
             }
         }
+    }
+
+    #[test]
+    fn a_reused_packer_writes_what_the_one_shot_compressors_write() {
+        // Sections that shrink and grow through one packer: its buffer holds longer, older
+        // output past each payload, which must not leak into it.
+        let (big, small) = (noisy(), sample());
+        let mut packer = Packer::default();
+        for data in [&big, &small, &big[..1000].to_vec(), &small, &big] {
+            let (used, payload) = packer.pack(data, Compression::Lz4, 0).unwrap();
+            assert_eq!(used, Compression::Lz4);
+            assert_eq!(payload, lz4_flex::block::compress(data));
+            let (used, payload) = packer.pack(data, Compression::Zstd, 3).unwrap();
+            assert_eq!(used, Compression::Zstd);
+            assert_eq!(payload, zstd::bulk::compress(data, 3).unwrap());
+        }
+        // Stored: the payload is the data itself.
+        let tiny = [1u8, 2, 3];
+        let (used, payload) = packer.pack(&tiny, Compression::Lz4, 0).unwrap();
+        assert_eq!((used, payload), (Compression::None, &tiny[..]));
     }
 
     #[test]

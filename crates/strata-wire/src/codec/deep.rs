@@ -423,24 +423,23 @@ fn predict_object(objects: impl Fn(usize) -> u32, s: Source) -> u32 {
 }
 
 /// Zero-run coder of the object residuals, fed with the non-zero ones in fragment order.
-struct ZeroRuns {
-    out: Vec<u8>,
+struct ZeroRuns<'a> {
+    out: &'a mut Vec<u8>,
     /// The fragment after the last non-zero residual.
     next: u64,
 }
 
-impl ZeroRuns {
+impl ZeroRuns<'_> {
     /// The non-zero residual `value` of fragment `at`, after every earlier one.
     fn nonzero(&mut self, at: u64, value: u32) {
-        put_varint(&mut self.out, (at - self.next) as u32);
-        put_varint(&mut self.out, value);
+        put_varint(self.out, (at - self.next) as u32);
+        put_varint(self.out, value);
         self.next = at + 1;
     }
 
-    /// The stream of `n` fragments' residuals: the final run ends it.
-    fn finish(mut self, n: u64) -> Vec<u8> {
-        put_varint(&mut self.out, (n - self.next) as u32);
-        self.out
+    /// Ends the stream of `n` fragments' residuals with the final run.
+    fn finish(self, n: u64) {
+        put_varint(self.out, (n - self.next) as u32);
     }
 }
 
@@ -452,26 +451,36 @@ struct BandOut<'a> {
     object: Vec<(u32, u32)>,
 }
 
-/// The four uncompressed sections, in wire order. The bands are predicted in parallel, beside
-/// the counts' varints; the bytes are the same for any thread count (tested). The object
-/// stream is written from the bands' few non-zero residuals.
-pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
+/// The layout's sections, in wire order.
+pub(crate) const SECTIONS: [SectionTag; 4] = [
+    SectionTag::Counts,
+    SectionTag::Depth,
+    SectionTag::Color,
+    SectionTag::Object,
+];
+
+/// The four uncompressed sections, in wire order ([`SECTIONS`]), into `counts`, `depth`,
+/// `color` and `object` (emptied by the caller; their capacity is reused, and every byte of the
+/// two planes is written, so a buffer left over from another frame gives the same bytes). The
+/// bands are predicted in parallel, beside the counts' varints; the bytes are the same for any
+/// thread count (tested). The object stream is written from the bands' few non-zero residuals.
+pub(crate) fn encode_into(frame: &DeepFrame, [counts, depth, color, object]: [&mut Vec<u8>; 4]) {
     let offsets = frame.offsets();
     let width = frame.width() as usize;
     let pixels = offsets.len() - 1;
     let n = frame.fragment_count();
 
-    let counts = || {
-        let mut counts = Vec::with_capacity(pixels + pixels / 8);
+    let write_counts = || {
+        counts.reserve(pixels + pixels / 8);
         for c in frame.counts() {
-            put_varint(&mut counts, c);
+            put_varint(counts, c);
         }
-        counts
     };
-    let mut depth = vec![0u8; 4 * n];
-    let mut color = vec![0u8; 4 * n];
+    // Not zeroed where a frame before used them: every byte is a residual written below.
+    depth.resize(4 * n, 0);
+    color.resize(4 * n, 0);
     let residuals = || {
-        let (mut d, mut c) = (planes(&mut depth, n), planes(&mut color, n));
+        let (mut d, mut c) = (planes(depth, n), planes(color, n));
         let tasks: Vec<(Range<usize>, BandOut<'_>)> = bands(pixels, width)
             .into_iter()
             .map(|band| {
@@ -493,7 +502,7 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
             })
             .collect();
         let mut zero_runs = ZeroRuns {
-            out: Vec::new(),
+            out: object,
             next: 0,
         };
         for (first, nonzero) in objects {
@@ -501,15 +510,9 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
                 zero_runs.nonzero(first + u64::from(i), r);
             }
         }
-        zero_runs.finish(n as u64)
+        zero_runs.finish(n as u64);
     };
-    let (counts, object) = rayon::join(counts, residuals);
-    vec![
-        (SectionTag::Counts, counts),
-        (SectionTag::Depth, depth),
-        (SectionTag::Color, color),
-        (SectionTag::Object, object),
-    ]
+    rayon::join(write_counts, residuals);
 }
 
 /// The four planes of `n` bytes of `v`.
@@ -1286,6 +1289,14 @@ impl Visit for BandDecoder<'_> {
 mod tests {
     use super::*;
 
+    /// The four sections of `frame`, in fresh buffers.
+    fn encode(frame: &DeepFrame) -> Vec<(SectionTag, Vec<u8>)> {
+        let mut raw: [Vec<u8>; 4] = Default::default();
+        let [a, b, c, d] = &mut raw;
+        encode_into(frame, [a, b, c, d]);
+        SECTIONS.into_iter().zip(raw).collect()
+    }
+
     #[test]
     fn med4_is_med_in_every_channel() {
         let lanes = Lanes::new();
@@ -1689,12 +1700,14 @@ mod tests {
     #[test]
     fn zero_runs_end_with_the_final_run() {
         // Residuals 0, 0, 5, 0, 300, 0, 0, 0.
+        let mut out = Vec::new();
         let mut z = ZeroRuns {
-            out: Vec::new(),
+            out: &mut out,
             next: 0,
         };
         z.nonzero(2, 5);
         z.nonzero(4, 300);
-        assert_eq!(z.finish(8), vec![2, 5, 1, 0xac, 0x02, 3]);
+        z.finish(8);
+        assert_eq!(out, [2, 5, 1, 0xac, 0x02, 3]);
     }
 }

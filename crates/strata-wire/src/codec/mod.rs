@@ -309,46 +309,104 @@ pub struct SectionInfo {
     pub decoded_len: u64,
 }
 
-/// A section ready to be written: its table entry and payload.
+/// A section ready to be written: its table entry and payload (in an [`EncodeScratch`]).
 #[derive(Debug)]
-pub(crate) struct EncodedSection {
+pub(crate) struct EncodedSection<'a> {
     pub(crate) info: SectionInfo,
-    pub(crate) payload: Vec<u8>,
+    pub(crate) payload: &'a [u8],
 }
 
-/// Encodes `frame` into its sections with `codec`.
-pub(crate) fn encode_sections(
-    frame: &DeepFrame,
-    codec: Codec,
-) -> Result<Vec<EncodedSection>, WireError> {
-    codec.validate()?;
-    let raw: Vec<(SectionTag, Vec<u8>)> = match codec {
-        Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => {
-            vec![(SectionTag::Seed, seed::encode(frame))]
-        }
-        Codec::DeepLz4 | Codec::DeepZstd { .. } => deep::encode(frame),
-    };
-    raw.into_par_iter()
-        .map(|(tag, bytes)| compressed_section(tag, &bytes, codec))
-        .collect()
-}
-
-/// One section of `bytes`, compressed with `codec`'s compressor (or stored, if that is smaller).
-pub(crate) fn compressed_section(
+/// One section an encoder is building: its bytes before compression, and the compressor that
+/// keeps its output.
+#[derive(Debug)]
+struct SectionSlot {
     tag: SectionTag,
-    bytes: &[u8],
-    codec: Codec,
-) -> Result<EncodedSection, WireError> {
-    let (compression, payload) = compress::compress(bytes, codec.compression(), codec.level())?;
-    Ok(EncodedSection {
-        info: SectionInfo {
-            tag,
-            compression,
-            encoded_len: payload.len() as u64,
-            decoded_len: bytes.len() as u64,
-        },
-        payload,
-    })
+    raw: Vec<u8>,
+    packer: compress::Packer,
+}
+
+/// Buffers an encoder keeps between frames, one slot a section of a message: each section's
+/// bytes are laid out, then compressed, into memory the previous frame used (`strata codecs`'s
+/// encode and a render node's encode thread). A fresh scratch gives the same bytes.
+///
+/// ```text
+/// slots[i]: tag, raw bytes (the layout's, before compression), packer (the payload)
+/// used:     slots of the message being encoded, in section order
+/// ```
+#[derive(Debug, Default)]
+pub(crate) struct EncodeScratch {
+    slots: Vec<SectionSlot>,
+    used: usize,
+}
+
+impl EncodeScratch {
+    /// Starts a message: no sections yet.
+    pub(crate) fn clear(&mut self) {
+        self.used = 0;
+    }
+
+    /// Appends sections tagged `tags` and returns their raw buffers, emptied (their capacity
+    /// kept), for the caller to fill.
+    fn push<const N: usize>(&mut self, tags: [SectionTag; N]) -> [&mut Vec<u8>; N] {
+        let start = self.used;
+        for (i, tag) in tags.into_iter().enumerate() {
+            match self.slots.get_mut(start + i) {
+                Some(slot) => slot.tag = tag,
+                None => self.slots.push(SectionSlot {
+                    tag,
+                    raw: Vec::new(),
+                    packer: compress::Packer::default(),
+                }),
+            }
+        }
+        self.used += N;
+        let mut raws = self.slots[start..start + N].iter_mut().map(|s| {
+            s.raw.clear();
+            &mut s.raw
+        });
+        std::array::from_fn(|_| raws.next().expect("N slots"))
+    }
+
+    /// Appends one section tagged `tag`, its raw bytes written by `fill` into an empty buffer.
+    pub(crate) fn push_with(&mut self, tag: SectionTag, fill: impl FnOnce(&mut Vec<u8>)) {
+        let [raw] = self.push([tag]);
+        fill(raw);
+    }
+
+    /// Appends `frame`'s sections in `codec`'s layout.
+    pub(crate) fn push_frame(&mut self, frame: &DeepFrame, codec: Codec) {
+        match codec {
+            Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => {
+                let [raw] = self.push([SectionTag::Seed]);
+                *raw = seed::encode(frame);
+            }
+            Codec::DeepLz4 | Codec::DeepZstd { .. } => {
+                deep::encode_into(frame, self.push(deep::SECTIONS));
+            }
+        }
+    }
+
+    /// Compresses every section appended since [`EncodeScratch::clear`] with `codec`'s
+    /// compressor (in parallel), each stored instead where that would not shrink it.
+    pub(crate) fn sections(&mut self, codec: Codec) -> Result<Vec<EncodedSection<'_>>, WireError> {
+        codec.validate()?;
+        let (method, level) = (codec.compression(), codec.level());
+        self.slots[..self.used]
+            .par_iter_mut()
+            .map(|slot| {
+                let (compression, payload) = slot.packer.pack(&slot.raw, method, level)?;
+                Ok(EncodedSection {
+                    info: SectionInfo {
+                        tag: slot.tag,
+                        compression,
+                        encoded_len: payload.len() as u64,
+                        decoded_len: slot.raw.len() as u64,
+                    },
+                    payload,
+                })
+            })
+            .collect()
+    }
 }
 
 /// A section as found in a message: its table entry, payload, and where the payload starts.
