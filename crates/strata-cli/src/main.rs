@@ -83,7 +83,7 @@ enum Command {
     /// The node listens on ADDR and serves one display connection at a time, for as long as it
     /// runs (stop it with Ctrl-C). For each frame the display asks for, it poses the scene at that
     /// animation frame, renders its objects with the chosen fragment store at the display's camera
-    /// and size, selects fragments with the display's transfer method, encodes them with the
+    /// and size, keeps the fragments the display's transfer method sends, encodes them with the
     /// display's codec and sends them. Several nodes can hold different objects of one scene; the
     /// display merges them per pixel. The first line on stdout is `listening on HOST:PORT`.
     ///

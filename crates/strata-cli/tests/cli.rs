@@ -1665,6 +1665,7 @@ fn bench_export_layers_cuts_the_exported_runs() {
     let (stdout, cut) = depth(Some("2"));
     assert_eq!(cut, Some(2), "{stdout}");
     assert!(stdout.contains("at most 2 fragments a pixel"), "{stdout}");
+    assert!(stdout.contains(" exported), "), "{stdout}");
 
     let err = run_err(strata().args(["bench", "mixed", "--export-layers", "2"]));
     assert_mentions(&err, &["--export"]);

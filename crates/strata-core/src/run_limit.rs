@@ -4,9 +4,10 @@
 //!
 //! Runs are sorted front to back, so what is kept is always a prefix: a fragment is kept while
 //! fewer than `layers` came before it and the opacity in front of it, `1 − Π(1 − αᵢ)` over the
-//! fragments before it, is still below the threshold. The first fragment is always kept (when
-//! `layers ≥ 1`); the one that crosses the threshold is kept too, as it is what makes the pixel
-//! reach it.
+//! fragments before it, is still below the threshold. With `layers ≥ 1` and a threshold in
+//! `(0, 1]` (what the depth-limited transfer accepts) the first fragment is always kept; the one
+//! that crosses the threshold is kept too, as it is what makes the pixel reach it. The rule is
+//! the arithmetic of the node's earlier selection pass, in `f32`, to the bit.
 //!
 //! One rule, used where the prefix is taken: a render node's store applies it as each strip's
 //! fragments are gathered for export ([`crate::GatherWriter::with_limit`]), and
@@ -104,6 +105,11 @@ mod tests {
         // An opaque first fragment is all it takes; a clear one never reaches anything.
         assert_eq!(RunLimit::new(10, Some(1.0)).keep(3, |_| 255), 1);
         assert_eq!(RunLimit::new(10, Some(0.01)).keep(4, |_| 0), 4);
+        // Opacity exactly at the threshold stops there (the test is `>=`, before the next
+        // fragment's alpha is multiplied in).
+        let at = 1.0 - (1.0 - 128.0f32 / 255.0);
+        assert_eq!(RunLimit::new(10, Some(at)).keep(5, half), 1);
+        assert_eq!(RunLimit::new(10, Some(at.next_up())).keep(5, half), 2);
         // The alpha of the i-th fragment is asked for, in order.
         let alphas = [0u8, 0, 255, 9];
         assert_eq!(RunLimit::new(10, Some(0.5)).keep(4, |i| alphas[i]), 3);

@@ -6,12 +6,13 @@
 //! Plain data flows between explicit stages:
 //!
 //! ```text
-//! node:    request ─► render (clear, capture, DeepFrame) ─► select (full | depth-limited | difference)
-//!                     ─► encode ─► socket
+//! node:    request ─► render (clear, capture, DeepFrame cut to the depth limit)
+//!                     ─► select (difference | reprojection) ─► encode ─► socket
 //! display: socket ─► decode ─► apply to the node's copy ─► [fixup round] ─► merge + resolve ─► stats
 //! ```
 //!
-//! - [`select`]: the depth-limited choice (N nearest, optional opacity threshold), `restrict`;
+//! - [`select`]: the depth-limited choice (N nearest, optional opacity threshold) for a whole
+//!   frame (a node makes it as its store exports, `strata_core::RunLimit`), `restrict`;
 //! - [`difference`]: the exact difference transfer — node keys, display copies, fixups;
 //! - [`merge`]: per-pixel k-way merge of sorted runs and resolve;
 //! - [`node`] and [`display`]: the services (tokio for sockets, threads for CPU stages);

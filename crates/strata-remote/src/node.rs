@@ -653,7 +653,8 @@ struct Encoded {
     encode_us: u64,
 }
 
-/// Selects fragments of `frame` with the request's transfer and encodes them into `bytes`.
+/// Selects fragments of `frame` with the request's transfer (the difference and reprojection
+/// transfers; a depth-limited frame was cut as it was exported) and encodes them into `bytes`.
 fn select_and_encode(
     enc: &mut Encoders,
     config: &NodeConfig,
@@ -731,7 +732,8 @@ fn select_and_encode(
     }
 }
 
-/// Selects, encodes and sends each rendered frame with its stats, and keeps it for fixups.
+/// Selects (where the transfer has a choice left), encodes and sends each rendered frame with its
+/// stats, and keeps it for fixups.
 fn encode_thread(
     config: NodeConfig,
     mut jobs: mpsc::Receiver<EncodeJob>,

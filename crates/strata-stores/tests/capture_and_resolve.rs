@@ -271,19 +271,26 @@ fn the_k_buffers_fused_export_gathers_every_chunk() {
         for threads in [1, 2] {
             let mut a = create("kbuffer", &options).expect("registered");
             let (apart, _) = run(a.as_mut(), &halves, background, threads, Mode::Apart);
-            let mut b = create("kbuffer", &options).expect("registered");
-            let (fused, _) = run(
-                b.as_mut(),
-                &halves,
-                background,
-                threads,
-                Mode::Export(RunLimit::NONE),
-            );
-            let at = format!("tail blend {tail_blend}, {threads} thread(s)");
-            let (_, stored, dropped, _, _) = fused.report;
-            assert!(stored > 0, "{at}: nothing stored");
-            assert!(tail_blend || dropped > 0, "{at}: nothing evicted");
-            assert_eq!(fused, apart, "{at}");
+            // `run` checks each export against the captured frame cut to its limit.
+            for limit in [
+                RunLimit::NONE,
+                RunLimit::new(2, None),
+                RunLimit::new(3, Some(0.7)),
+            ] {
+                let mut b = create("kbuffer", &options).expect("registered");
+                let (fused, _) = run(
+                    b.as_mut(),
+                    &halves,
+                    background,
+                    threads,
+                    Mode::Export(limit),
+                );
+                let at = format!("tail blend {tail_blend}, {threads} thread(s), {limit:?}");
+                let (_, stored, dropped, _, _) = fused.report;
+                assert!(stored > 0, "{at}: nothing stored");
+                assert!(tail_blend || dropped > 0, "{at}: nothing evicted");
+                assert_eq!(fused, apart, "{at}");
+            }
         }
     }
 }

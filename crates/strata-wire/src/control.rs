@@ -54,11 +54,12 @@
 //!
 //! ```text
 //!   0  frame_number        u64
-//!   8  fragments_rendered  u64    the node's whole frame
+//!   8  fragments_rendered  u64    the node's whole frame (before a depth limit)
 //!  16  fragments_sent      u64    after the transfer method chose
 //!  24  raw_bytes           u64    the sent frame in the thesis layout (4 per pixel + 12 per fragment)
 //!  32  render_us           u64    clear + capture + export to a DeepFrame
-//!  40  select_us           u64    the transfer method's choice (depth limit, difference)
+//!  40  select_us           u64    the transfer method's choice (difference, reprojection;
+//!                                 strata's nodes cut a depth-limited frame in the render)
 //!  48  encode_us           u64
 //!  56  flags               u8     bit 0: fixup reply
 //!  57  reserved            [u8; 7]

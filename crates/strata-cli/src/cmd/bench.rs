@@ -265,7 +265,12 @@ pub(crate) fn run(args: Args) -> Result<()> {
         let (total_med, total_min, total_max) = stats(&samples.totals);
         outln!()?;
         outln!(
-            "threads {n}: {fragments} fragments, {} covered pixels, depth max {} mean {:.2}, memory {:.1} MiB used of {:.1} MiB allocated = {:.1} B/fragment{}",
+            "threads {n}: {fragments} fragments{}, {} covered pixels, depth max {} mean {:.2}, memory {:.1} MiB used of {:.1} MiB allocated = {:.1} B/fragment{}",
+            match (&last.frame, args.export_layers) {
+                // The depth statistics are the exported frame's.
+                (Some(f), Some(_)) => format!(" ({} exported)", f.fragment_count()),
+                _ => String::new(),
+            },
             depth.covered_pixels(),
             depth.max_depth_complexity(),
             depth.mean_depth_complexity(),

@@ -460,8 +460,9 @@ pub(crate) const SECTIONS: [SectionTag; 4] = [
 ];
 
 /// The four uncompressed sections, in wire order ([`SECTIONS`]), into `counts`, `depth`,
-/// `color` and `object` (emptied by the caller; their capacity is reused, and every byte of the
-/// two planes is written, so a buffer left over from another frame gives the same bytes). The
+/// `color` and `object`, whatever they held: their capacity is reused, and the two planes are
+/// not zeroed where they were long enough already, as every byte of them is a residual written
+/// here (tested with buffers left over from a larger frame). The
 /// bands are predicted in parallel, beside the counts' varints; the bytes are the same for any
 /// thread count (tested). The object stream is written from the bands' few non-zero residuals.
 pub(crate) fn encode_into(frame: &DeepFrame, [counts, depth, color, object]: [&mut Vec<u8>; 4]) {
@@ -471,6 +472,7 @@ pub(crate) fn encode_into(frame: &DeepFrame, [counts, depth, color, object]: [&m
     let n = frame.fragment_count();
 
     let write_counts = || {
+        counts.clear();
         counts.reserve(pixels + pixels / 8);
         for c in frame.counts() {
             put_varint(counts, c);
@@ -501,6 +503,7 @@ pub(crate) fn encode_into(frame: &DeepFrame, [counts, depth, color, object]: [&m
                 (first, out.object)
             })
             .collect();
+        object.clear();
         let mut zero_runs = ZeroRuns {
             out: object,
             next: 0,

@@ -326,8 +326,9 @@ struct SectionSlot {
 }
 
 /// Buffers an encoder keeps between frames, one slot a section of a message: each section's
-/// bytes are laid out, then compressed, into memory the previous frame used (`strata codecs`'s
-/// encode and a render node's encode thread). A fresh scratch gives the same bytes.
+/// bytes are laid out, then compressed with LZ4, into memory the previous frame used (`strata
+/// codecs`'s encode and a render node's encode thread); zstd allocates its output each time. A
+/// fresh scratch gives the same bytes.
 ///
 /// ```text
 /// slots[i]: tag, raw bytes (the layout's, before compression), packer (the payload)
@@ -345,8 +346,8 @@ impl EncodeScratch {
         self.used = 0;
     }
 
-    /// Appends sections tagged `tags` and returns their raw buffers, emptied (their capacity
-    /// kept), for the caller to fill.
+    /// Appends sections tagged `tags` and returns their raw buffers as an earlier message left
+    /// them, for the caller to empty or overwrite (their capacity kept).
     fn push<const N: usize>(&mut self, tags: [SectionTag; N]) -> [&mut Vec<u8>; N] {
         let start = self.used;
         for (i, tag) in tags.into_iter().enumerate() {
@@ -360,16 +361,14 @@ impl EncodeScratch {
             }
         }
         self.used += N;
-        let mut raws = self.slots[start..start + N].iter_mut().map(|s| {
-            s.raw.clear();
-            &mut s.raw
-        });
+        let mut raws = self.slots[start..start + N].iter_mut().map(|s| &mut s.raw);
         std::array::from_fn(|_| raws.next().expect("N slots"))
     }
 
     /// Appends one section tagged `tag`, its raw bytes written by `fill` into an empty buffer.
     pub(crate) fn push_with(&mut self, tag: SectionTag, fill: impl FnOnce(&mut Vec<u8>)) {
         let [raw] = self.push([tag]);
+        raw.clear();
         fill(raw);
     }
 
@@ -378,7 +377,7 @@ impl EncodeScratch {
         match codec {
             Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => {
                 let [raw] = self.push([SectionTag::Seed]);
-                *raw = seed::encode(frame);
+                seed::encode_into(frame, raw);
             }
             Codec::DeepLz4 | Codec::DeepZstd { .. } => {
                 deep::encode_into(frame, self.push(deep::SECTIONS));

@@ -22,11 +22,12 @@ use crate::error::WireError;
 /// Bytes per node.
 pub const NODE_BYTES: usize = 12;
 
-/// The section's bytes.
-pub(crate) fn encode(frame: &DeepFrame) -> Vec<u8> {
+/// The section's bytes, into `out` (replaced; its capacity reused).
+pub(crate) fn encode_into(frame: &DeepFrame, out: &mut Vec<u8>) {
     let pixels = frame.offsets().len() - 1;
     let n = frame.fragment_count();
-    let mut out = Vec::with_capacity(4 * pixels + NODE_BYTES * n);
+    out.clear();
+    out.reserve(4 * pixels + NODE_BYTES * n);
     for c in frame.counts() {
         out.extend_from_slice(&c.to_le_bytes());
     }
@@ -40,7 +41,6 @@ pub(crate) fn encode(frame: &DeepFrame) -> Vec<u8> {
         out.extend_from_slice(&c.0);
         out.extend_from_slice(&o.0.to_le_bytes());
     }
-    out
 }
 
 /// Rebuilds the frame from the section's bytes, into `spare`'s allocations; `bytes.len() ==
