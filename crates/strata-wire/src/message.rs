@@ -407,11 +407,7 @@ impl FrameEncoder {
             ));
         }
         header.transfer.check().map_err(WireError::Encode)?;
-        codec.validate()?;
-        self.scratch.clear();
-        self.scratch.push_frame(frame, codec);
-        write_frame(out, header, frame, codec, &self.scratch.sections(codec)?);
-        Ok(())
+        self.write_message(out, header, frame, codec, |_| {})
     }
 
     /// Encodes a `difference` frame: the runs of `frame` at the pixels of `changed` replace the
@@ -441,14 +437,11 @@ impl FrameEncoder {
             )));
         }
         all_inside(frame, changed)?;
-        codec.validate()?;
-        self.scratch.clear();
-        for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
-            self.scratch.push_with(tag, |raw| m.encode(raw));
-        }
-        self.scratch.push_frame(frame, codec);
-        write_frame(out, header, frame, codec, &self.scratch.sections(codec)?);
-        Ok(())
+        self.write_message(out, header, frame, codec, |scratch| {
+            for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
+                scratch.push_with(tag, |raw| m.encode(raw));
+            }
+        })
     }
 
     /// Encodes a `reprojection` frame: at the pixels of `touched`, the display removes the
@@ -484,14 +477,27 @@ impl FrameEncoder {
             )));
         }
         all_inside(inserts, touched)?;
+        self.write_message(out, header, inserts, codec, |scratch| {
+            scratch.push_with(SectionTag::Mask, |raw| touched.encode(raw));
+            scratch.push_with(SectionTag::Removals, |raw| removals.encode(raw));
+        })
+    }
+
+    /// Lays out the sections `extra` appends, then `frame`'s in `codec`'s layout, compresses
+    /// them all and writes the message into `out`.
+    fn write_message(
+        &mut self,
+        out: &mut Vec<u8>,
+        header: &FrameHeader,
+        frame: &DeepFrame,
+        codec: Codec,
+        extra: impl FnOnce(&mut codec::EncodeScratch),
+    ) -> Result<(), WireError> {
         codec.validate()?;
         self.scratch.clear();
-        self.scratch
-            .push_with(SectionTag::Mask, |raw| touched.encode(raw));
-        self.scratch
-            .push_with(SectionTag::Removals, |raw| removals.encode(raw));
-        self.scratch.push_frame(inserts, codec);
-        write_frame(out, header, inserts, codec, &self.scratch.sections(codec)?);
+        extra(&mut self.scratch);
+        self.scratch.push_frame(frame, codec);
+        write_frame(out, header, frame, codec, &self.scratch.sections(codec)?);
         Ok(())
     }
 }
