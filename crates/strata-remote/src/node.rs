@@ -22,10 +22,12 @@
 //! being encoded and *t + 2* rendered: throughput is set by the slowest stage, not their sum. The
 //! render thread owns the fragment store and the rasterizer; the encode thread owns the
 //! difference state, which must see frames in order, and a [`FrameEncoder`] whose section
-//! buffers serve every frame. Fixups read the ring of recent frames and do not wait behind
-//! renders. A frame that leaves the ring, when nothing else holds it (a fixup being answered),
-//! goes back to the render thread over a channel of two, and the next export assembles into its
-//! buffers ([`strata_stores::export_frame`]); a message the writer has sent goes back to the
+//! buffers serve every frame. Fixups (of the difference and reprojection transfers, whose
+//! frames alone are kept) read the ring of recent frames and do not wait behind renders. A
+//! frame that leaves the ring, or a frame of another transfer once it is encoded, when nothing
+//! else holds it (a fixup being answered), goes back to the render thread over a channel of
+//! two, and the next export assembles into its buffers ([`strata_stores::export_frame`]); a
+//! message the writer has sent goes back to the
 //! encode thread the same way, and the next message is encoded into it: a stream of frames then
 //! needs no fresh memory.
 //!
@@ -791,7 +793,15 @@ fn encode_thread(
         {
             return send_error(&out, &e.to_string());
         }
-        if let Some(old) = keep_recent(&recent, request.frame_number, frame)
+        // Only the difference and reprojection transfers ask for fixups; any other frame goes
+        // back to the render thread at once, so a stream of them needs no fresh columns after
+        // its first frames (and the node holds two or three frames, not the ring's eight).
+        let done = if asks_for_fixups(request.transfer) {
+            keep_recent(&recent, request.frame_number, frame)
+        } else {
+            Some(frame)
+        };
+        if let Some(old) = done
             && let Ok(old) = Arc::try_unwrap(old)
         {
             // A full channel or a render thread that has stopped: the frame is freed here.
@@ -800,6 +810,16 @@ fn encode_thread(
         if out.blocking_send(bytes).is_err() {
             return;
         }
+    }
+}
+
+/// Whether a display receiving `transfer` may ask for fixups of its frames, which are answered
+/// from the ring of recent frames: the difference and reprojection transfers (the display's
+/// `needs_fixups`). A fixup of another transfer's frame is answered with `NotRecent`.
+fn asks_for_fixups(transfer: TransferMethod) -> bool {
+    match transfer {
+        TransferMethod::Difference | TransferMethod::Reprojection => true,
+        TransferMethod::Full | TransferMethod::DepthLimited { .. } => false,
     }
 }
 
@@ -885,6 +905,17 @@ mod tests {
 
     /// The ring keeps the last [`RECENT_FRAMES`] frames and hands back the one that leaves it,
     /// which the encode thread recycles only when nothing else holds it.
+    #[test]
+    fn only_transfers_with_fixups_keep_their_frames() {
+        assert!(asks_for_fixups(TransferMethod::Difference));
+        assert!(asks_for_fixups(TransferMethod::Reprojection));
+        assert!(!asks_for_fixups(TransferMethod::Full));
+        assert!(!asks_for_fixups(TransferMethod::DepthLimited {
+            layers: 6,
+            opacity_threshold: Some(0.9),
+        }));
+    }
+
     #[test]
     fn the_ring_hands_back_the_frame_that_leaves_it() {
         let recent: Recent = Arc::new(Mutex::new(VecDeque::new()));

@@ -98,8 +98,8 @@ fn two_nodes_full_transfer_equal_the_exact_render() {
     let s = scene();
     let (a, b) = (Node::start(&s, &[0, 2]), Node::start(&s, &[1, 3, 4]));
     let mut keep = Keep::default();
-    // More frames than the node's ring of recent frames holds: the later ones are exported into
-    // the buffers of frames that left it.
+    // A full-transfer frame goes back to its node's render thread once encoded: the later
+    // frames are exported into the buffers of earlier ones.
     let r = display::run(config(&s, &[&a, &b], Transfer::Full, 16), &mut keep).unwrap();
     assert_eq!(r.per_frame.len(), 16);
     assert!(r.incidents.is_empty(), "{:?}", r.incidents);
