@@ -1655,15 +1655,20 @@ fn bench_export_layers_cuts_the_exported_runs() {
         let ran = run_ok(cmd.arg("--json").arg(&json));
         let doc: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
-        (
-            ran.stdout,
-            doc["results"][0]["max_depth_complexity"].as_u64(),
-        )
+        let r = &doc["results"][0];
+        let counts = (r["fragments"].as_u64(), r["exported_fragments"].as_u64());
+        (ran.stdout, r["max_depth_complexity"].as_u64(), counts)
     };
-    let (_, whole) = depth(None);
+    let (_, whole, (held, exported)) = depth(None);
     assert!(whole > Some(2), "the scene is deeper than 2: {whole:?}");
-    let (stdout, cut) = depth(Some("2"));
+    assert_eq!(
+        held, exported,
+        "an export without a limit keeps every fragment"
+    );
+    let (stdout, cut, (held_too, exported)) = depth(Some("2"));
     assert_eq!(cut, Some(2), "{stdout}");
+    assert_eq!(held_too, held, "the store holds the same fragments");
+    assert!(exported < held, "the export kept {exported:?} of {held:?}");
     assert!(stdout.contains("at most 2 fragments a pixel"), "{stdout}");
     assert!(stdout.contains(" exported), "), "{stdout}");
 

@@ -735,7 +735,8 @@ fn select_and_encode(
 }
 
 /// Selects (where the transfer has a choice left), encodes and sends each rendered frame with its
-/// stats, and keeps it for fixups.
+/// stats; keeps it for fixups where its transfer asks for them, else hands it back to the render
+/// thread at once.
 fn encode_thread(
     config: NodeConfig,
     mut jobs: mpsc::Receiver<EncodeJob>,

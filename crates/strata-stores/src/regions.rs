@@ -665,6 +665,31 @@ mod tests {
     }
 
     #[test]
+    fn regions_sized_again_by_capacities_forget_their_uniform_size() {
+        // Uniform regions of 3, then per-pixel capacities 0, 1, 4, 2 on the same buffers: the
+        // sinks must find each region from its offsets again, not at p·3.
+        let layout = StripLayout {
+            width: 2,
+            height: 2,
+            strip_height: 1,
+        };
+        let mut r = Regions::new();
+        r.uniform(2, 2, 3).unwrap();
+        push_all(&mut r, &layout, Policy::Append, &[(3, frag(0.4, 9))], None);
+        assert_eq!(r.stored(3), &[frag(0.4, 9)]);
+        r.with_capacities(2, 2, &[0, 1, 4, 2]).unwrap();
+        let frags: Vec<(u32, Fragment)> = (0..4)
+            .flat_map(|p| (0..3).map(move |i| (p, frag(0.1 * (i + 1) as f32, p * 10 + i))))
+            .collect();
+        push_all(&mut r, &layout, Policy::Append, &frags, None);
+        assert!(r.stored(0).is_empty());
+        assert_eq!(r.stored(1), &[frag(0.1, 10)]);
+        assert_eq!(r.stored(2), &[frag(0.1, 20), frag(0.2, 21), frag(0.3, 22)]);
+        assert_eq!(r.stored(3), &[frag(0.1, 30), frag(0.2, 31)]);
+        assert_eq!((r.lost(), r.stored_count()), (6, 6));
+    }
+
+    #[test]
     fn append_keeps_the_first_and_counts_the_rest() {
         let layout = StripLayout {
             width: 2,

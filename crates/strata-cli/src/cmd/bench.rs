@@ -318,6 +318,8 @@ pub(crate) fn run(args: Args) -> Result<()> {
             "passes_ms": Value::Object(passes),
             "total_ms": {"median": total_med, "min": total_min, "max": total_max},
             "fragments": fragments,
+            // What the export kept (fewer than the store held with --export-layers).
+            "exported_fragments": last.frame.as_ref().map(|f| f.fragment_count()),
             "fragments_per_second": fps,
             "memory_bytes": last.memory_bytes,
             "used_memory_bytes": last.used_memory_bytes,
