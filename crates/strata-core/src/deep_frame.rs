@@ -28,6 +28,7 @@
 //!   colour), so two DeepFrames of the same fragments are equal whatever order they were captured in.
 
 use rayon::prelude::*;
+use std::borrow::Borrow;
 
 use crate::composite;
 use crate::fragment::{Fragment, ObjectId, Rgba8, sort_front_to_back};
@@ -327,14 +328,17 @@ impl DeepFrame {
     /// there is one: a stream of frames is then assembled in memory it already has, with no
     /// fresh pages for the kernel to fault in and zero, and nothing zeroed here but what the
     /// new frame holds beyond the old one's lengths.
-    pub fn from_gathered_reusing(
+    ///
+    /// The runs may be owned (each freed once its columns are in place) or borrowed, by a
+    /// caller that gathers into the same buffers frame after frame ([`GatherWriter::reusing`]).
+    pub fn from_gathered_reusing<G: Borrow<GatheredPixels> + Send>(
         width: u32,
         height: u32,
-        bands: Vec<GatheredPixels>,
+        bands: Vec<G>,
         reuse: Option<DeepFrame>,
     ) -> Result<Self, DeepFrameError> {
         let pixels = pixel_count(width, height);
-        let found: usize = bands.iter().map(|g| g.counts.len()).sum();
+        let found: usize = bands.iter().map(|g| g.borrow().counts.len()).sum();
         if found != pixels {
             return Err(DeepFrameError::PixelCount {
                 width,
@@ -349,7 +353,7 @@ impl DeepFrame {
         let mut total = 0u64;
         for g in &bands {
             bases.push(total as u32);
-            total += g.depth.len() as u64;
+            total += g.borrow().depth.len() as u64;
             u32::try_from(total).map_err(|_| DeepFrameError::TooManyFragments(total))?;
         }
         // Every entry is written below: the offsets past the first by their runs' tasks, the
@@ -372,10 +376,13 @@ impl DeepFrame {
             }
         };
         // Each run's offsets and columns go to the disjoint slices its pixels own.
-        let offset_slices = split_lens(&mut offsets[1..], bands.iter().map(|g| g.counts.len()));
-        let lens = bands.iter().map(|g| g.depth.len());
+        let offset_slices = split_lens(
+            &mut offsets[1..],
+            bands.iter().map(|g| g.borrow().counts.len()),
+        );
+        let lens = bands.iter().map(|g| g.borrow().depth.len());
         let slices = split_columns((&mut depth, &mut color, &mut object), lens);
-        // Consumed, so each run's columns are freed as soon as they are in place.
+        // Owned runs are consumed, so each one's columns are freed as soon as they are in place.
         let places: Vec<_> = bands
             .into_iter()
             .zip(bases)
@@ -384,6 +391,7 @@ impl DeepFrame {
         places
             .into_par_iter()
             .for_each(|((g, base), (offsets, (d, c, o)))| {
+                let g = g.borrow();
                 let mut end = base;
                 for (o, &n) in offsets.iter_mut().zip(&g.counts) {
                     end += n;
@@ -979,6 +987,19 @@ impl GatherWriter {
         }
     }
 
+    /// A writer into `gathered`'s buffers, emptied: a caller that gathers frame after frame
+    /// keeps its columns' memory.
+    pub fn reusing(mut gathered: GatheredPixels) -> Self {
+        gathered.counts.clear();
+        gathered.depth.clear();
+        gathered.color.clear();
+        gathered.object.clear();
+        GatherWriter {
+            gathered,
+            limit: RunLimit::NONE,
+        }
+    }
+
     /// Keeps only the prefix of each sorted run that `limit` keeps (a render node's
     /// depth-limited export, [`RunLimit`]); every fragment of the run is still checked.
     pub fn with_limit(mut self, limit: RunLimit) -> Self {
@@ -1196,6 +1217,26 @@ mod tests {
             }
         }
         assert_eq!(lent, 1, "the taller frame lends its buffers");
+        // Borrowed runs, gathered again into the buffers of runs of another frame (as a caller
+        // that keeps its runs from frame to frame does): the same frame.
+        let mut kept = runs(&[0, 4_800, 9_000, n]);
+        for (i, g) in kept.iter_mut().enumerate() {
+            let first = [0, 4_800, 9_000, n][i];
+            let last = [0, 4_800, 9_000, n][i + 1];
+            let mut writer = GatherWriter::reusing(std::mem::take(g));
+            // Every pixel of the run once, backwards in depth, so nothing of the last fill
+            // survives by chance.
+            for p in first..last {
+                let mut run: Vec<Fragment> = lists[p].iter().rev().copied().collect();
+                writer.push_run(p, &mut run).unwrap();
+            }
+            *g = writer.finish();
+        }
+        let borrowed: Vec<&GatheredPixels> = kept.iter().collect();
+        assert_eq!(
+            DeepFrame::from_gathered_reusing(w, h, borrowed, None).unwrap(),
+            built
+        );
         for cuts in [&[0, 4_800, n - 1][..], &[0, n, n + 1]] {
             let short = DeepFrame::from_gathered(w, h, runs(cuts));
             assert!(

@@ -725,8 +725,10 @@ fn select_and_encode(
                 &d.inserts,
                 request.codec,
             )?;
+            let sent = d.inserts.fragment_count() as u64;
+            enc.reproj.recycle(d.inserts);
             Ok(Encoded {
-                sent: d.inserts.fragment_count() as u64,
+                sent,
                 select_us,
                 encode_us: micros(t),
             })

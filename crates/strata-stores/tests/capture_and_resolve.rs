@@ -294,3 +294,42 @@ fn the_k_buffers_fused_export_gathers_every_chunk() {
         }
     }
 }
+
+/// A store that exports frame after frame, each into the buffers of the frame before (as a
+/// render node does): a deep frame, then a shallow one of another size, then the deep one
+/// again, each cut or not, must export what a fresh store exports.
+#[test]
+fn exports_into_the_last_frames_buffers_equal_fresh_exports() {
+    let deep_scene = scene("overlap", 64, 48);
+    let deep_plain = FrameInput::from_scene(&deep_scene, 2);
+    let (deep, _) = drawn_over(&deep_plain, 8);
+    let shallow_scene = scene("mixed", 72, 40);
+    let shallow = FrameInput::from_scene(&shallow_scene, 5);
+    let limits = [RunLimit::NONE, RunLimit::new(2, None), RunLimit::NONE];
+    let frames = [&deep, &shallow, &deep];
+    let export = |m: &mut dyn Method, input: &FrameInput<'_>, limit, reuse| {
+        let mut raster = Rasterizer::default();
+        m.clear(input.width, input.height).expect("clear");
+        let (_, frame) = m
+            .capture_and_export(&mut raster, input, limit, &mut PassTimings::new(), reuse)
+            .expect("capture and export");
+        frame.expect("exports").expect("valid DeepFrame")
+    };
+    for name in ["abuffer", "kbuffer"] {
+        for threads in [1, 2] {
+            pool(threads).install(|| {
+                let options = MethodOptions::default();
+                let mut reused = create(name, &options).expect("registered");
+                let mut last: Option<DeepFrame> = None;
+                for (i, (input, limit)) in frames.iter().zip(limits).enumerate() {
+                    let mut fresh = create(name, &options).expect("registered");
+                    let want = export(fresh.as_mut(), input, limit, None);
+                    let got = export(reused.as_mut(), input, limit, last.take());
+                    assert!(want.fragment_count() > 0, "{name}: frame {i} is empty");
+                    assert_eq!(got, want, "{name}, {threads} thread(s): frame {i} differs");
+                    last = Some(got);
+                }
+            });
+        }
+    }
+}

@@ -3,11 +3,11 @@
 //! what is missing, and check the merged run (see the module docs of `reprojection`).
 
 use rayon::prelude::*;
-use strata_core::{DeepFrame, Fragment, GatheredPixels};
+use strata_core::{DeepFrame, Fragment, GatherWriter, GatheredPixels};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
-use super::held::{Entry, Held, Scratch, band_digest, frame_digest};
+use super::held::{Entry, Held, Scratch, SortedBand, band_digest, frame_digest};
 use super::view::View;
 use super::{BAND_ROWS, DEPTH_SLACK, close, merge_pixel, sort_stably_by_key};
 
@@ -43,26 +43,54 @@ pub struct ReprojEncoder {
     /// Buffers reused from frame to frame.
     scratch: Scratch,
     bands: Vec<BandOut>,
+    /// An inserts frame given back ([`ReprojEncoder::recycle`]), whose buffers the next
+    /// frame's inserts reuse.
+    spare: Option<DeepFrame>,
 }
 
-/// One band's share of a node frame.
+/// One band's share of a node frame, and the buffers its task reuses from frame to frame.
 #[derive(Clone, Debug, Default)]
 struct BandOut {
+    /// The band's new state: its entries, and each pixel's run length.
     entries: Vec<Entry>,
     counts: Vec<u32>,
+    /// Pixels with removals or inserts, ascending.
     touched: Vec<u32>,
     /// Per touched pixel, how many of `removed` are its.
     removed_counts: Vec<u32>,
     removed: Vec<u32>,
-    /// Inserted normal fragments, per touched pixel in order.
-    insert_counts: Vec<u32>,
-    inserts: Vec<Fragment>,
     /// Largest |kept depth − rendered depth|.
     depth_error: f32,
     /// The band's share of the new state's digest ([`band_digest`]).
     digest: u64,
-    /// `inserts` as the band's share of the inserts frame ([`DeepFrame::from_gathered`]).
+    /// The band's inserted normal fragments, each pixel's run in the wire's order, as the
+    /// band's share of the inserts frame ([`DeepFrame::from_gathered_reusing`]); its buffers
+    /// serve frame after frame.
     gathered: GatheredPixels,
+    /// False if a run could not be gathered (which rendered fragments cannot cause).
+    gathered_ok: bool,
+    /// One pixel's work: what was rendered there, and what matching decided.
+    pixel: PixelScratch,
+    /// One row's rendered fragments as entries ([`View::row_entries`]).
+    row_entries: Vec<Entry>,
+    known: Vec<bool>,
+}
+
+/// One pixel's matching, in buffers reused from pixel to pixel.
+#[derive(Clone, Debug, Default)]
+struct PixelScratch {
+    /// The rendered fragments of known objects, in the entries' order: indices into the row's
+    /// entries ([`View::row_entries`]).
+    truth: Vec<u32>,
+    /// Projected positions removed, ascending.
+    removed: Vec<u32>,
+    /// Entries inserted, in the entries' order.
+    inserts: Vec<Entry>,
+    /// The inserted fragments, as indices into the row's entries (which follow the rendered
+    /// run's order).
+    inserted: Vec<u32>,
+    /// The inserted fragments as rendered, in the wire's order.
+    wire: Vec<Fragment>,
 }
 
 impl ReprojEncoder {
@@ -73,7 +101,14 @@ impl ReprojEncoder {
             held: None,
             scratch: Scratch::default(),
             bands: Vec::new(),
+            spare: None,
         }
+    }
+
+    /// Gives back the inserts frame of a delta once it is sent: the next frame's inserts are
+    /// assembled in its buffers instead of fresh memory (about 8 MB a 1280×720 frame).
+    pub fn recycle(&mut self, inserts: DeepFrame) {
+        self.spare = Some(inserts);
     }
 
     /// Forgets the display's state (a reset request): the next frame is sent whole.
@@ -100,113 +135,7 @@ impl ReprojEncoder {
         self.bands.resize_with(bands, BandOut::default);
         self.bands.par_iter_mut().enumerate().for_each(|(b, out)| {
             moved.sort_band(b, |projected| {
-                out.entries.clear();
-                out.counts.clear();
-                out.touched.clear();
-                out.removed_counts.clear();
-                out.removed.clear();
-                out.insert_counts.clear();
-                out.inserts.clear();
-                out.depth_error = 0.0;
-                let mut truth: Vec<(Entry, Fragment)> = Vec::new();
-                let mut removed: Vec<u32> = Vec::new();
-                let mut inserts: Vec<Entry> = Vec::new();
-                let mut inserted_wire: Vec<Fragment> = Vec::new();
-                let (mut row_entries, mut known) = (Vec::new(), Vec::new());
-                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-                let band_pixels = rows.start * w..rows.end * w;
-                let offsets = rendered.offsets();
-                // Pixel by pixel, with each row's entries made first (in lanes).
-                let pixels = rows.flat_map(|row| (0..w).map(move |x| (row, x)));
-                let mut row_first = 0;
-                for (row, x) in pixels {
-                    let p = row * w + x;
-                    if x == 0 {
-                        view.row_entries(rendered, row, &mut row_entries, &mut known);
-                        row_first = offsets[p] as usize;
-                    }
-                    if offsets[p] == offsets[p + 1] && projected.run(p).is_empty() {
-                        // Nothing rendered, nothing held: nothing to say.
-                        out.counts.push(0);
-                        continue;
-                    }
-                    truth.clear();
-                    for (k, f) in (offsets[p] as usize..).zip(rendered.run(p).iter()) {
-                        if known[k - row_first] {
-                            truth.push((row_entries[k - row_first], f));
-                        }
-                    }
-                    sort_truth(&mut truth);
-                    let held = projected.run(p);
-                    removed.clear();
-                    inserts.clear();
-                    inserted_wire.clear();
-                    let mut j = 0;
-                    for (n, f) in &truth {
-                        let z = view.eye_depth(n.fragment.depth);
-                        match held[j..].iter().position(|h| {
-                            close(&h.fragment, &n.fragment, tolerance)
-                                && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
-                        }) {
-                            Some(k) => {
-                                removed.extend(j as u32..(j + k) as u32);
-                                j += k + 1;
-                            }
-                            None => {
-                                inserts.push(*n);
-                                inserted_wire.push(*f);
-                            }
-                        }
-                    }
-                    removed.extend(j as u32..held.len() as u32);
-                    let start = out.entries.len();
-                    merge_pixel(held, &removed, &inserts, &mut out.entries);
-                    let merged = &out.entries[start..];
-                    let ok = merged.len() == truth.len()
-                        && merged
-                            .iter()
-                            .zip(&truth)
-                            .all(|(m, (n, _))| close(&m.fragment, &n.fragment, tolerance));
-                    if ok {
-                        for (m, (n, _)) in merged.iter().zip(&truth) {
-                            let e = (m.fragment.depth - n.fragment.depth).abs();
-                            out.depth_error = out.depth_error.max(e);
-                        }
-                    } else {
-                        out.entries.truncate(start);
-                        removed.clear();
-                        removed.extend(0..held.len() as u32);
-                        inserts.clear();
-                        inserted_wire.clear();
-                        for (n, f) in &truth {
-                            inserts.push(*n);
-                            inserted_wire.push(*f);
-                        }
-                        merge_pixel(held, &removed, &inserts, &mut out.entries);
-                    }
-                    out.counts.push((out.entries.len() - start) as u32);
-                    if !removed.is_empty() || !inserts.is_empty() {
-                        out.touched.push(p as u32);
-                        out.removed_counts.push(removed.len() as u32);
-                        out.removed.extend_from_slice(&removed);
-                        out.insert_counts.push(inserted_wire.len() as u32);
-                        out.inserts.extend_from_slice(&inserted_wire);
-                    }
-                }
-                out.digest = band_digest(b, &out.entries, &out.counts);
-                // The band's inserts, each pixel's run sorted in the wire's order (the truth is in
-                // the entries' order, which differs where depths tie).
-                let (mut t, mut at) = (0, 0);
-                let (touched, counts, list) = (&out.touched, &out.insert_counts, &out.inserts);
-                let gathered = GatheredPixels::gather(band_pixels, &mut inserted_wire, |p, run| {
-                    if touched.get(t) == Some(&(p as u32)) {
-                        let n = counts[t] as usize;
-                        run.extend_from_slice(&list[at..at + n]);
-                        (t, at) = (t + 1, at + n);
-                    }
-                });
-                // Rendered fragments are in range: gathering them cannot fail.
-                out.gathered = gathered.unwrap_or_default();
+                out.match_band(b, view, rendered, projected, tolerance);
             });
         });
 
@@ -245,12 +174,13 @@ impl ReprojEncoder {
         // The bands' inserts, assembled in parallel. They are rendered fragments of this frame's
         // size, so this cannot fail; were it to, the empty frame would make the display's
         // digest differ and the link reset, not lose fragments silently.
-        let gathered = self
-            .bands
-            .iter_mut()
-            .map(|o| std::mem::take(&mut o.gathered));
-        let inserts = DeepFrame::from_gathered(width, height, gathered.collect())
-            .unwrap_or_else(|_| DeepFrame::empty(width, height));
+        let gathered: Option<Vec<&GatheredPixels>> = (self.bands.iter())
+            .map(|o| o.gathered_ok.then_some(&o.gathered))
+            .collect();
+        let reuse = self.spare.take();
+        let inserts = gathered
+            .and_then(|g| DeepFrame::from_gathered_reusing(width, height, g, reuse).ok())
+            .unwrap_or_else(|| DeepFrame::empty(width, height));
         let count = held.len() as u64;
         self.held = Some(held);
         Ok(ReprojDelta {
@@ -262,7 +192,165 @@ impl ReprojEncoder {
     }
 }
 
-/// Sorts (entry, wire fragment) pairs by the entry's order, stably.
-fn sort_truth(run: &mut [(Entry, Fragment)]) {
-    sort_stably_by_key(run, |(e, _)| e.fragment.order_key());
+impl BandOut {
+    /// Matches band `b` (rows `b · BAND_ROWS` on) of `rendered` against `projected`, the same
+    /// band of the state before moved to `view`: the band's new state, its touched pixels with
+    /// their removals, its inserts, its digest and its largest depth error.
+    fn match_band(
+        &mut self,
+        b: usize,
+        view: &View,
+        rendered: &DeepFrame,
+        projected: &SortedBand,
+        tolerance: u8,
+    ) {
+        let (width, height) = view.size();
+        let w = width as usize;
+        let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
+        self.entries.clear();
+        self.counts.clear();
+        self.touched.clear();
+        self.removed_counts.clear();
+        self.removed.clear();
+        self.depth_error = 0.0;
+        let offsets = rendered.offsets();
+        // The inserts go into the last frame's buffers.
+        let mut inserts = GatherWriter::reusing(std::mem::take(&mut self.gathered));
+        let mut ok = true;
+        let mut empty = 0;
+        for row in rows {
+            // Each row's entries are made first, in lanes.
+            view.row_entries(rendered, row, &mut self.row_entries, &mut self.known);
+            let row_first = offsets[row * w] as usize;
+            for p in row * w..(row + 1) * w {
+                let run = offsets[p] as usize..offsets[p + 1] as usize;
+                let held = projected.run(p);
+                if run.is_empty() && held.is_empty() {
+                    // Nothing rendered, nothing held: nothing to say.
+                    self.counts.push(0);
+                    empty += 1;
+                    continue;
+                }
+                let s = &mut self.pixel;
+                s.truth.clear();
+                let row_run = run.start - row_first..run.end - row_first;
+                s.truth
+                    .extend(row_run.clone().filter(|&k| self.known[k]).map(|k| k as u32));
+                let entries = &self.row_entries;
+                sort_stably_by_key(&mut s.truth, |&k| entries[k as usize].fragment.order_key());
+                let start = self.entries.len();
+                let e = match_pixel(view, tolerance, held, entries, s, &mut self.entries);
+                self.depth_error = self.depth_error.max(e);
+                self.counts.push((self.entries.len() - start) as u32);
+                if s.removed.is_empty() && s.inserted.is_empty() {
+                    empty += 1;
+                    continue;
+                }
+                self.touched.push(p as u32);
+                self.removed_counts.push(s.removed.len() as u32);
+                self.removed.extend_from_slice(&s.removed);
+                // The inserted fragments as rendered, in the rendered run's order, which is
+                // the wire's (the truth is in the entries' order, which differs where depths
+                // tie).
+                s.inserted.sort_unstable();
+                s.wire.clear();
+                let r = rendered.run(p);
+                s.wire
+                    .extend((s.inserted.iter()).filter_map(|&k| r.get(k as usize - row_run.start)));
+                inserts.push_empty(empty);
+                empty = 0;
+                // Rendered fragments are in range: this cannot fail.
+                ok &= inserts.push_run(p, &mut s.wire).is_ok();
+            }
+        }
+        inserts.push_empty(empty);
+        self.digest = band_digest(b, &self.entries, &self.counts);
+        self.gathered = inserts.finish();
+        self.gathered_ok = ok;
+    }
+}
+
+/// One pixel's matching (see the module docs of `reprojection`): `s.truth`, the rendered run
+/// as entries of `row` in their order, against `held`, the projected run. Appends the pixel's
+/// new run to `out` and leaves in `s` the projected positions removed and the entries inserted
+/// (as indices into `row`); returns the largest |kept depth − rendered depth|.
+#[inline]
+fn match_pixel(
+    view: &View,
+    tolerance: u8,
+    held: &[Entry],
+    row: &[Entry],
+    s: &mut PixelScratch,
+    out: &mut Vec<Entry>,
+) -> f32 {
+    s.removed.clear();
+    s.inserts.clear();
+    s.inserted.clear();
+    // Most often each rendered fragment is the projected entry at its own position: the
+    // search below would match them one to one, and the run stays as it was projected.
+    let mut depth_error = 0f32;
+    if held.len() == s.truth.len()
+        && held.iter().zip(&s.truth).all(|(h, &k)| {
+            let n = &row[k as usize];
+            let z = view.eye_depth(n.fragment.depth);
+            depth_error = depth_error.max((h.fragment.depth - n.fragment.depth).abs());
+            close(&h.fragment, &n.fragment, tolerance)
+                && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
+        })
+    {
+        out.extend_from_slice(held);
+        return depth_error;
+    }
+    depth_error = 0.0;
+    let mut j = 0;
+    for &k in &s.truth {
+        let n = &row[k as usize];
+        let z = view.eye_depth(n.fragment.depth);
+        match held[j..].iter().position(|h| {
+            close(&h.fragment, &n.fragment, tolerance)
+                && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
+        }) {
+            Some(k) => {
+                s.removed.extend(j as u32..(j + k) as u32);
+                depth_error =
+                    depth_error.max((held[j + k].fragment.depth - n.fragment.depth).abs());
+                j += k + 1;
+            }
+            None => {
+                s.inserts.push(*n);
+                s.inserted.push(k);
+            }
+        }
+    }
+    s.removed.extend(j as u32..held.len() as u32);
+    let start = out.len();
+    merge_pixel(held, &s.removed, &s.inserts, out);
+    // Without inserts the merged run is the matched entries in the truth's order, each close to
+    // its rendered fragment: it holds. With inserts, the merge may order them otherwise.
+    if s.inserts.is_empty() {
+        return depth_error;
+    }
+    let merged = &out[start..];
+    let ok = merged.len() == s.truth.len()
+        && merged
+            .iter()
+            .zip(&s.truth)
+            .all(|(m, &k)| close(&m.fragment, &row[k as usize].fragment, tolerance));
+    if ok {
+        return merged.iter().zip(&s.truth).fold(0f32, |e, (m, &k)| {
+            e.max((m.fragment.depth - row[k as usize].fragment.depth).abs())
+        });
+    }
+    // The pixel is replaced whole.
+    out.truncate(start);
+    s.removed.clear();
+    s.removed.extend(0..held.len() as u32);
+    s.inserts.clear();
+    s.inserted.clear();
+    for &k in &s.truth {
+        s.inserts.push(row[k as usize]);
+        s.inserted.push(k);
+    }
+    merge_pixel(held, &s.removed, &s.inserts, out);
+    0.0
 }

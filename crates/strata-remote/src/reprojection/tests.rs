@@ -184,6 +184,30 @@ fn vec_with_one(p: usize) -> Vec<u32> {
 }
 
 #[test]
+fn recycled_inserts_frames_give_the_deltas_of_fresh_ones() {
+    // Turning fast, so the inserts grow and shrink from frame to frame.
+    let s = scene("mixed", 25.0);
+    let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
+    let deltas = |recycle: bool| {
+        let mut enc = ReprojEncoder::new(1);
+        let mut out = Vec::new();
+        for t in 0..5 {
+            let rendered = render(&s, &ids, t, FragmentOutput::PackedNormal);
+            let d = enc.encode(&view(&s, &ids, t), &rendered).expect("encodes");
+            out.push((d.touched, d.removals, d.inserts.clone(), d.held));
+            if recycle {
+                enc.recycle(d.inserts);
+            }
+        }
+        out
+    };
+    let (fresh, recycled) = (deltas(false), deltas(true));
+    let sizes: Vec<usize> = fresh.iter().map(|d| d.2.fragment_count()).collect();
+    assert!(sizes.windows(2).any(|w| w[1] < w[0]), "{sizes:?}");
+    assert!(fresh == recycled, "a recycled frame changed a delta");
+}
+
+#[test]
 fn digest_and_reprojection_do_not_depend_on_the_thread_count() {
     let s = scene("mixed", 5.0);
     let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
