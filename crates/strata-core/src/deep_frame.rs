@@ -1226,8 +1226,8 @@ mod tests {
             let mut writer = GatherWriter::reusing(std::mem::take(g));
             // Every pixel of the run once, backwards in depth, so nothing of the last fill
             // survives by chance.
-            for p in first..last {
-                let mut run: Vec<Fragment> = lists[p].iter().rev().copied().collect();
+            for (p, list) in lists.iter().enumerate().take(last).skip(first) {
+                let mut run: Vec<Fragment> = list.iter().rev().copied().collect();
                 writer.push_run(p, &mut run).unwrap();
             }
             *g = writer.finish();
