@@ -726,7 +726,7 @@ fn select_and_encode(
                 request.codec,
             )?;
             let sent = d.inserts.fragment_count() as u64;
-            enc.reproj.recycle(d.inserts);
+            enc.reproj.recycle(d);
             Ok(Encoded {
                 sent,
                 select_us,

@@ -186,6 +186,14 @@ impl MaskBuilder {
         }
     }
 
+    /// An empty mask of a `pixels`-pixel frame in the memory of `mask`, a mask no longer needed.
+    pub fn reusing(mut mask: PixelMask, pixels: u32) -> Self {
+        mask.pixels = pixels;
+        mask.runs.clear();
+        mask.count = 0;
+        MaskBuilder { mask }
+    }
+
     /// Adds pixel `p`, which must be above every pixel added before and inside the frame.
     ///
     /// # Panics
@@ -224,6 +232,17 @@ mod tests {
         assert_eq!(bytes, vec![3, 0, 3, 2, 2, 12, 1]);
         assert_eq!(PixelMask::decode(&bytes, 0, 20).unwrap(), m);
         assert_eq!(PixelMask::from_flags(&m.to_flags()), m);
+    }
+
+    #[test]
+    fn a_builder_in_an_old_masks_memory_builds_what_a_fresh_one_does() {
+        let old = PixelMask::from_fn(40, |p| p % 3 == 0);
+        let mut b = MaskBuilder::reusing(old, 20);
+        for p in [1, 2, 7] {
+            b.push(p);
+        }
+        let want = PixelMask::from_fn(20, |p| matches!(p, 1 | 2 | 7));
+        assert_eq!(b.finish(), want);
     }
 
     #[test]

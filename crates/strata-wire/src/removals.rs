@@ -92,6 +92,32 @@ impl Removals {
         self.offsets.push(self.positions.len() as u32);
     }
 
+    /// Appends touched pixels' positions at once, as [`Removals::push_pixel`] for each: the
+    /// `k`-th pixel's are the next `counts[k]` of `positions`.
+    ///
+    /// # Panics
+    /// If the counts do not add up to `positions.len()`, or as `push_pixel` panics.
+    pub fn push_pixels(&mut self, counts: &[u32], positions: &[u32]) {
+        let total: u64 = counts.iter().map(|&n| u64::from(n)).sum();
+        assert_eq!(
+            total,
+            positions.len() as u64,
+            "the counts must add up to the positions"
+        );
+        let mut at = 0;
+        for &n in counts {
+            let new = &positions[at..at + n as usize];
+            assert!(
+                new.windows(2).all(|w| w[0] < w[1]),
+                "removal positions must be strictly increasing"
+            );
+            assert!(n <= MAX_REMOVALS_PER_PIXEL);
+            at += n as usize;
+            self.offsets.push((self.positions.len() + at) as u32);
+        }
+        self.positions.extend_from_slice(positions);
+    }
+
     /// The state digest.
     pub fn checksum(&self) -> u64 {
         self.checksum
@@ -220,6 +246,28 @@ mod tests {
         assert_eq!(Removals::decode(&bytes, 0, 3).unwrap(), r);
         assert_eq!(r.pixel(1), &[0, 1, 5]);
         assert_eq!(r.total(), 4);
+    }
+
+    #[test]
+    fn pixels_pushed_at_once_are_pixels_pushed_one_by_one() {
+        let pixels: [&[u32]; 5] = [&[], &[0, 1, 5], &[300], &[], &[2, 9]];
+        let mut one_by_one = Removals::new(9);
+        let mut at_once = Removals::new(9);
+        for p in &pixels[..2] {
+            one_by_one.push_pixel(p.iter().copied());
+            at_once.push_pixel(p.iter().copied());
+        }
+        for p in &pixels[2..] {
+            one_by_one.push_pixel(p.iter().copied());
+        }
+        let counts: Vec<u32> = pixels[2..].iter().map(|p| p.len() as u32).collect();
+        at_once.push_pixels(&counts, &pixels[2..].concat());
+        assert_eq!(at_once, one_by_one);
+        assert_eq!(at_once.pixel(4), &[2, 9]);
+        for (counts, positions) in [(&[2u32][..], &[3u32, 3][..]), (&[1, 1], &[1, 2, 3])] {
+            let bad = std::panic::catch_unwind(|| Removals::new(0).push_pixels(counts, positions));
+            assert!(bad.is_err(), "{counts:?} {positions:?} accepted");
+        }
     }
 
     #[test]

@@ -43,9 +43,9 @@ pub struct ReprojEncoder {
     /// Buffers reused from frame to frame.
     scratch: Scratch,
     bands: Vec<BandOut>,
-    /// An inserts frame given back ([`ReprojEncoder::recycle`]), whose buffers the next
-    /// frame's inserts reuse.
-    spare: Option<DeepFrame>,
+    /// A delta given back ([`ReprojEncoder::recycle`]), whose buffers the next frame's delta
+    /// reuses.
+    spare: Option<ReprojDelta>,
 }
 
 /// One band's share of a node frame, and the buffers its task reuses from frame to frame.
@@ -105,10 +105,10 @@ impl ReprojEncoder {
         }
     }
 
-    /// Gives back the inserts frame of a delta once it is sent: the next frame's inserts are
-    /// assembled in its buffers instead of fresh memory (about 8 MB a 1280×720 frame).
-    pub fn recycle(&mut self, inserts: DeepFrame) {
-        self.spare = Some(inserts);
+    /// Gives back a delta once it is sent: the next frame's delta is built in its buffers
+    /// instead of fresh memory (about 10 MB a 1280×720 dragon frame).
+    pub fn recycle(&mut self, delta: ReprojDelta) {
+        self.spare = Some(delta);
     }
 
     /// Forgets the display's state (a reset request): the next frame is sent whole.
@@ -146,8 +146,15 @@ impl ReprojEncoder {
         held.assemble(view, &self.bands, |o| {
             (o.entries.as_slice(), o.counts.as_slice())
         });
-        let mut mask = MaskBuilder::new(pixels as u32);
-        let mut removals = Removals::new(0);
+        let (mut mask, mut removals, reuse) = match self.spare.take() {
+            Some(d) => {
+                let mut removals = d.removals;
+                removals.clear(0);
+                let mask = MaskBuilder::reusing(d.touched, pixels as u32);
+                (mask, removals, Some(d.inserts))
+            }
+            None => (MaskBuilder::new(pixels as u32), Removals::new(0), None),
+        };
         let mut depth_error = 0f32;
         if let Some(&n) = self.bands.iter().flat_map(|o| &o.removed_counts).max()
             && n > MAX_REMOVALS_PER_PIXEL
@@ -157,13 +164,10 @@ impl ReprojEncoder {
         }
         for o in &self.bands {
             depth_error = depth_error.max(o.depth_error);
-            let mut at = 0;
-            for (k, &p) in o.touched.iter().enumerate() {
+            for &p in &o.touched {
                 mask.push(p);
-                let n = o.removed_counts[k] as usize;
-                removals.push_pixel(o.removed[at..at + n].iter().copied());
-                at += n;
             }
+            removals.push_pixels(&o.removed_counts, &o.removed);
         }
         removals.set_checksum(frame_digest(
             width,
@@ -177,7 +181,6 @@ impl ReprojEncoder {
         let gathered: Option<Vec<&GatheredPixels>> = (self.bands.iter())
             .map(|o| o.gathered_ok.then_some(&o.gathered))
             .collect();
-        let reuse = self.spare.take();
         let inserts = gathered
             .and_then(|g| DeepFrame::from_gathered_reusing(width, height, g, reuse).ok())
             .unwrap_or_else(|| DeepFrame::empty(width, height));

@@ -184,7 +184,7 @@ fn vec_with_one(p: usize) -> Vec<u32> {
 }
 
 #[test]
-fn recycled_inserts_frames_give_the_deltas_of_fresh_ones() {
+fn recycled_deltas_give_the_deltas_of_fresh_ones() {
     // Turning fast, so the inserts grow and shrink from frame to frame.
     let s = scene("mixed", 25.0);
     let ids: Vec<ObjectId> = s.objects.iter().map(|o| o.id).collect();
@@ -194,9 +194,14 @@ fn recycled_inserts_frames_give_the_deltas_of_fresh_ones() {
         for t in 0..5 {
             let rendered = render(&s, &ids, t, FragmentOutput::PackedNormal);
             let d = enc.encode(&view(&s, &ids, t), &rendered).expect("encodes");
-            out.push((d.touched, d.removals, d.inserts.clone(), d.held));
+            out.push((
+                d.touched.clone(),
+                d.removals.clone(),
+                d.inserts.clone(),
+                d.held,
+            ));
             if recycle {
-                enc.recycle(d.inserts);
+                enc.recycle(d);
             }
         }
         out
