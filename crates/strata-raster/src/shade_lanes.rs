@@ -667,9 +667,7 @@ fn shade_weighted<const LIT: bool>(
         }
     }
     if shade.packed {
-        for l in 0..LANES {
-            out.color[l] = PackedNormal::pack([n[0][l], n[1][l], n[2][l]]).to_bits();
-        }
+        out.color = PackedNormal::pack_lanes(&n[0], &n[1], &n[2]);
         return out;
     }
     let alpha = u32::from(shade.alpha) << 24;
