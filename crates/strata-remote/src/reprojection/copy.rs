@@ -28,17 +28,15 @@ pub enum ApplyError {
     },
 }
 
-/// One band's new runs: the entries, each pixel's count, and the band's digest.
-type BandRuns = (Vec<Entry>, Vec<u32>, u64);
-
 /// The display's side: one node's held fragments.
 #[derive(Clone, Debug)]
 pub struct ReprojCopy {
     held: Held,
-    /// Buffers reused from frame to frame: the next state, bands.
+    /// Buffers reused from frame to frame: the next state.
     spare: Held,
     scratch: Scratch,
-    bands: Vec<BandRuns>,
+    /// Each band's digest of the next state.
+    digests: Vec<u64>,
 }
 
 impl ReprojCopy {
@@ -48,7 +46,7 @@ impl ReprojCopy {
             held: Held::empty(width, height),
             spare: Held::empty(0, 0),
             scratch: Scratch::default(),
-            bands: Vec::new(),
+            digests: Vec::new(),
         }
     }
 
@@ -103,26 +101,23 @@ impl ReprojCopy {
                 "the next state would hold more than 2^32 fragments".into(),
             ));
         }
-        self.bands.resize_with(bands, BandRuns::default);
-        let built = self
-            .spare
-            .build_bands(view, &lens, &mut self.bands, |b, runs, dest, out| {
-                let (entries, counts, digest) = runs;
-                let taken = moved.sort_band(b, |projected| {
-                    merge_band(
-                        b, view, projected, &touch, removals, inserts, entries, counts,
-                    )
-                })?;
-                if entries.len() != dest.len() {
-                    // Inserts outside the touched pixels (counted in the length, not taken),
-                    // reported below.
-                    return Ok((taken, false));
-                }
-                dest.copy_from_slice(entries);
-                out.copy_from_slice(counts);
-                *digest = band_digest(b, entries, counts);
-                Ok((taken, true))
-            });
+        self.digests.resize(bands, 0);
+        let built =
+            self.spare
+                .build_bands(view, &mut self.digests, |b, digest, entries, counts| {
+                    let taken = moved.sort_band(b, |projected| {
+                        merge_band(
+                            b, view, projected, &touch, removals, inserts, entries, counts,
+                        )
+                    })?;
+                    if entries.len() != lens[b] {
+                        // Inserts outside the touched pixels (counted in the length, not taken),
+                        // reported below.
+                        return Ok((taken, false));
+                    }
+                    *digest = band_digest(b, entries, counts);
+                    Ok((taken, true))
+                });
         let (mut taken, mut all_fit) = (0, true);
         for (result, fits) in built {
             let (t, fit) = result?;
@@ -142,7 +137,7 @@ impl ReprojCopy {
                 "a band's runs do not add up to its length".into(),
             ));
         }
-        let ours = frame_digest(width, height, self.bands.iter().map(|(_, _, d)| *d));
+        let ours = frame_digest(width, height, self.digests.iter().copied());
         if ours != removals.checksum() {
             return Err(ApplyError::Diverged {
                 ours,

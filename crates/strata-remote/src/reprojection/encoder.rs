@@ -2,7 +2,6 @@
 //! reprojected one, keep what shades within the tolerance, remove the rest by position, insert
 //! what is missing, and check the merged run (see the module docs of `reprojection`).
 
-use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment, GatherWriter, GatheredPixels};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
@@ -40,6 +39,8 @@ pub struct TooDeep {
 pub struct ReprojEncoder {
     tolerance: u8,
     held: Option<Held>,
+    /// The state before the last, whose buffers the next state is built in.
+    spare_held: Option<Held>,
     /// Buffers reused from frame to frame.
     scratch: Scratch,
     bands: Vec<BandOut>,
@@ -48,12 +49,10 @@ pub struct ReprojEncoder {
     spare: Option<ReprojDelta>,
 }
 
-/// One band's share of a node frame, and the buffers its task reuses from frame to frame.
+/// One band's share of a node frame (beside its new state, which it writes into the next held
+/// list's band), and the buffers its task reuses from frame to frame.
 #[derive(Clone, Debug, Default)]
 struct BandOut {
-    /// The band's new state: its entries, and each pixel's run length.
-    entries: Vec<Entry>,
-    counts: Vec<u32>,
     /// Pixels with removals or inserts, ascending.
     touched: Vec<u32>,
     /// Per touched pixel, how many of `removed` are its.
@@ -99,6 +98,7 @@ impl ReprojEncoder {
         ReprojEncoder {
             tolerance,
             held: None,
+            spare_held: None,
             scratch: Scratch::default(),
             bands: Vec::new(),
             spare: None,
@@ -133,19 +133,19 @@ impl ReprojEncoder {
         let bands = (height as usize).div_ceil(BAND_ROWS);
         let tolerance = self.tolerance;
         self.bands.resize_with(bands, BandOut::default);
-        self.bands.par_iter_mut().enumerate().for_each(|(b, out)| {
+        // The new state, each band written by its task into the buffers of the state before
+        // the last.
+        let mut held = self.spare_held.take().unwrap_or_else(|| Held::empty(0, 0));
+        let built = held.build_bands(view, &mut self.bands, |b, out, entries, counts| {
             moved.sort_band(b, |projected| {
-                out.match_band(b, view, rendered, projected, tolerance);
+                out.match_band(b, view, rendered, projected, tolerance, entries, counts);
             });
         });
+        debug_assert!(built.iter().all(|&(_, fits)| fits), "run lengths add up");
+        self.spare_held = Some(old);
 
-        // Assemble the new state (in the old state's buffers), the mask, the removals and the
-        // inserts, band by band.
+        // The mask, the removals and the inserts, band by band.
         let pixels = w * height as usize;
-        let mut held = old;
-        held.assemble(view, &self.bands, |o| {
-            (o.entries.as_slice(), o.counts.as_slice())
-        });
         let (mut mask, mut removals, reuse) = match self.spare.take() {
             Some(d) => {
                 let mut removals = d.removals;
@@ -197,8 +197,10 @@ impl ReprojEncoder {
 
 impl BandOut {
     /// Matches band `b` (rows `b · BAND_ROWS` on) of `rendered` against `projected`, the same
-    /// band of the state before moved to `view`: the band's new state, its touched pixels with
-    /// their removals, its inserts, its digest and its largest depth error.
+    /// band of the state before moved to `view`: the band's new state (its entries and each
+    /// pixel's run length, appended to the empty `entries` and `counts`), its touched pixels
+    /// with their removals, its inserts, its digest and its largest depth error.
+    #[allow(clippy::too_many_arguments)]
     fn match_band(
         &mut self,
         b: usize,
@@ -206,12 +208,12 @@ impl BandOut {
         rendered: &DeepFrame,
         projected: &SortedBand,
         tolerance: u8,
+        entries: &mut Vec<Entry>,
+        counts: &mut Vec<u32>,
     ) {
         let (width, height) = view.size();
         let w = width as usize;
         let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-        self.entries.clear();
-        self.counts.clear();
         self.touched.clear();
         self.removed_counts.clear();
         self.removed.clear();
@@ -230,7 +232,7 @@ impl BandOut {
                 let held = projected.run(p);
                 if run.is_empty() && held.is_empty() {
                     // Nothing rendered, nothing held: nothing to say.
-                    self.counts.push(0);
+                    counts.push(0);
                     empty += 1;
                     continue;
                 }
@@ -239,12 +241,12 @@ impl BandOut {
                 let row_run = run.start - row_first..run.end - row_first;
                 s.truth
                     .extend(row_run.clone().filter(|&k| self.known[k]).map(|k| k as u32));
-                let entries = &self.row_entries;
-                sort_stably_by_key(&mut s.truth, |&k| entries[k as usize].fragment.order_key());
-                let start = self.entries.len();
-                let e = match_pixel(view, tolerance, held, entries, s, &mut self.entries);
+                let row = &self.row_entries;
+                sort_stably_by_key(&mut s.truth, |&k| row[k as usize].fragment.order_key());
+                let start = entries.len();
+                let e = match_pixel(view, tolerance, held, row, s, entries);
                 self.depth_error = self.depth_error.max(e);
-                self.counts.push((self.entries.len() - start) as u32);
+                counts.push((entries.len() - start) as u32);
                 if s.removed.is_empty() && s.inserted.is_empty() {
                     empty += 1;
                     continue;
@@ -267,7 +269,7 @@ impl BandOut {
             }
         }
         inserts.push_empty(empty);
-        self.digest = band_digest(b, &self.entries, &self.counts);
+        self.digest = band_digest(b, entries, counts);
         self.gathered = inserts.finish();
         self.gathered_ok = ok;
     }

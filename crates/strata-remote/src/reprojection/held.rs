@@ -1,8 +1,12 @@
 //! What both ends hold for one node: per pixel a run of entries (surfel + the fragment it shades
 //! to now), sorted front to back; how it moves to a new view; its digest.
 //!
-//! Layout: `offsets[w·h + 1]` into one `entries` array, like a DeepFrame, with the 36-byte
-//! [`Entry`] (12-byte fragment, 24-byte surfel) as the column.
+//! Layout: one [`HeldBand`] per band of [`BAND_ROWS`] rows, each like a DeepFrame of its rows:
+//! `offsets[pixels + 1]` into its own `entries` array, with the 36-byte [`Entry`] (12-byte
+//! fragment, 24-byte surfel) as the column. Both ends build the next state band by band, in
+//! parallel, and each band task writes its band's runs straight into that band's vectors
+//! ([`Held::build_bands`]), kept from frame to frame; one array for the whole list would need
+//! every band copied into it (32 MB a dragon frame, on each end).
 
 use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId};
@@ -34,38 +38,82 @@ pub struct Entry {
 pub struct Held {
     width: u32,
     height: u32,
-    /// `offsets[p]..offsets[p + 1]` indexes `entries` for pixel `p`.
-    offsets: Vec<u32>,
-    entries: Vec<Entry>,
+    /// One per band of [`BAND_ROWS`] rows, top to bottom.
+    bands: Vec<HeldBand>,
+    /// Entries in all bands.
+    len: usize,
     /// The view the entries are shaded and bucketed for (none when empty).
     view: Option<View>,
+}
+
+/// One band's runs: `offsets[k]..offsets[k + 1]` indexes `entries` for the band's `k`-th pixel.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct HeldBand {
+    offsets: Vec<u32>,
+    entries: Vec<Entry>,
+}
+
+impl HeldBand {
+    /// Run lengths, pixel by pixel.
+    fn counts(&self) -> impl Iterator<Item = u32> + '_ {
+        self.offsets.windows(2).map(|o| o[1] - o[0])
+    }
+}
+
+/// The pixels of band `b` of a `width` × `height` frame, row-major indices.
+fn band_pixels(b: usize, width: usize, height: usize) -> std::ops::Range<usize> {
+    let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height);
+    rows.start * width..rows.end * width
 }
 
 impl Held {
     /// Nothing held.
     pub fn empty(width: u32, height: u32) -> Self {
+        let (w, h) = (width as usize, height as usize);
+        let bands = (0..h.div_ceil(BAND_ROWS))
+            .map(|b| HeldBand {
+                offsets: vec![0; band_pixels(b, w, h).len() + 1],
+                entries: Vec::new(),
+            })
+            .collect();
         Held {
             width,
             height,
-            offsets: vec![0; width as usize * height as usize + 1],
-            entries: Vec::new(),
+            bands,
+            len: 0,
             view: None,
         }
     }
 
     /// Fragments held.
     pub fn len(&self) -> usize {
-        self.entries.len()
+        self.len
     }
 
     /// True if nothing is held.
     pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
+        self.len == 0
     }
 
     /// Pixel `p`'s run.
     pub fn run(&self, p: usize) -> &[Entry] {
-        &self.entries[self.offsets[p] as usize..self.offsets[p + 1] as usize]
+        let band_size = self.width as usize * BAND_ROWS;
+        let band = &self.bands[p / band_size];
+        let k = p % band_size;
+        &band.entries[band.offsets[k] as usize..band.offsets[k + 1] as usize]
+    }
+
+    /// Each band's first entry in the order of the whole list (the bands' entries one after
+    /// another), and the list's length after them.
+    fn band_starts(&self) -> Vec<usize> {
+        let mut starts = Vec::with_capacity(self.bands.len() + 1);
+        let mut at = 0;
+        for band in &self.bands {
+            starts.push(at);
+            at += band.entries.len();
+        }
+        starts.push(at);
+        starts
     }
 
     /// Every held surfel moved to `view` (eq. 5.9), shaded, bucketed by the pixel it lands in and
@@ -89,30 +137,18 @@ impl Held {
     /// fragment order, whatever the thread count.
     pub fn reproject_into(&self, view: &View, out: &mut Held, scratch: &mut Scratch) {
         let moved = self.move_to(view, scratch);
-        let (width, height) = view.size();
-        let (new_w, new_h) = (width as usize, height as usize);
-        let pixels = new_w * new_h;
-        let total = moved.band_starts[moved.band_count()];
-        // Every entry and offset is written below: no need to clear what the last frame left.
-        out.offsets.resize(pixels + 1, 0);
-        out.offsets[pixels] = total as u32;
-        out.entries.resize(total, Entry::default());
-        let mut jobs = Vec::with_capacity(moved.band_count());
-        let (mut offs_rest, mut entries_rest) =
-            (&mut out.offsets[..pixels], out.entries.as_mut_slice());
-        for d in 0..moved.band_count() {
-            let (offs, o_tail) =
-                std::mem::take(&mut offs_rest).split_at_mut(moved.band_pixels(d).len());
-            let (entries, e_tail) =
-                std::mem::take(&mut entries_rest).split_at_mut(moved.band_len(d));
-            jobs.push((d, offs, entries));
-            (offs_rest, entries_rest) = (o_tail, e_tail);
-        }
-        jobs.into_par_iter().for_each(|(d, offs, entries)| {
-            moved.sort_band_into(d, moved.band_starts[d] as u32, offs, entries);
+        out.bands.resize_with(moved.band_count(), HeldBand::default);
+        out.bands.par_iter_mut().enumerate().for_each(|(d, band)| {
+            let pixels = moved.band_pixels(d).len();
+            // Every entry and offset is written below: no need to clear what the last frame
+            // left.
+            band.offsets.resize(pixels + 1, 0);
+            band.offsets[pixels] = moved.band_len(d) as u32;
+            band.entries.resize(moved.band_len(d), Entry::default());
+            moved.sort_band_into(d, 0, &mut band.offsets[..pixels], &mut band.entries);
         });
-        out.width = width;
-        out.height = height;
+        (out.width, out.height) = view.size();
+        out.len = moved.band_starts[moved.band_count()];
         out.view = Some(view.clone());
     }
 
@@ -152,36 +188,38 @@ impl Held {
             sorted,
         } = scratch;
         // Every element is written in pass 1: no need to clear what the last frame left.
-        moved.resize(self.entries.len(), (u32::MAX, Fragment::default()));
+        moved.resize(self.len, (u32::MAX, Fragment::default()));
         let (w, h) = (self.width as usize, self.height as usize);
-        let src_bands = h.div_ceil(BAND_ROWS);
+        let src_bands = self.bands.len();
         shares.resize_with(src_bands, Vec::new);
+        let src_starts = self.band_starts();
 
         // 1. Move every entry; count where each source band's entries land.
         {
-            let offsets = &self.offsets;
-            split_bands(moved, offsets, w, h)
+            let lens = self.bands.iter().map(|b| b.entries.len());
+            split_lens(moved, lens)
                 .into_par_iter()
+                .zip(self.bands.par_iter().enumerate())
                 .zip(shares.par_iter_mut())
-                .for_each(|((row, band), share)| {
-                    let base = offsets[row * w] as usize;
-                    let end = (row + BAND_ROWS).min(h);
+                .for_each(|((band, (s, src)), share)| {
+                    let first = band_pixels(s, w, h).start;
                     let mut batch = Batch::default();
-                    for p in row * w..end * w {
-                        for i in offsets[p] as usize..offsets[p + 1] as usize {
-                            let e = &self.entries[i];
+                    for (k, o) in src.offsets.windows(2).enumerate() {
+                        let p = (first + k) as u32;
+                        for i in o[0] as usize..o[1] as usize {
+                            let e = &src.entries[i];
                             let object = e.fragment.object;
                             if unchanged.get(object.0 as usize) == Some(&true) {
-                                band[i - base] = (p as u32, e.fragment);
+                                band[i] = (p, e.fragment);
                                 continue;
                             }
                             if batch.len == LANES || (batch.len > 0 && batch.object != object) {
-                                batch.flush(view, band, base);
+                                batch.flush(view, band);
                             }
                             batch.push(object, i, e.surfel);
                         }
                     }
-                    batch.flush(view, band, base);
+                    batch.flush(view, band);
                     share.clear();
                     share.resize(dst_bands, 0);
                     for &(p, _) in band.iter() {
@@ -218,15 +256,13 @@ impl Held {
                     rest = tail;
                 }
             }
-            let offsets = &self.offsets;
             let moved = &*moved;
+            let src_starts = &src_starts;
             per_source
                 .into_par_iter()
                 .enumerate()
                 .for_each(|(s, mut pieces)| {
-                    let row = s * BAND_ROWS;
-                    let first = offsets[row * w] as usize;
-                    let last = offsets[(row + BAND_ROWS).min(h) * w] as usize;
+                    let (first, last) = (src_starts[s], src_starts[s + 1]);
                     let mut fill = vec![0usize; dst_bands];
                     for (i, &(p, _)) in (first..last).zip(&moved[first..last]) {
                         if p != u32::MAX {
@@ -242,88 +278,60 @@ impl Held {
             moved,
             bucket,
             band_starts,
+            src_starts,
+            shares,
             sorted,
             width: new_w,
             height: new_h,
         }
     }
 
-    /// Rebuilds this list for `view` from bands of consecutive pixels, each its entries and its
-    /// pixels' run lengths (`parts` of each of `bands`, bands of [`BAND_ROWS`] rows), in order;
-    /// keeps the buffers. The bands are copied in parallel, each into its own share of the list.
-    pub(super) fn assemble<B: Sync>(
-        &mut self,
-        view: &View,
-        bands: &[B],
-        parts: impl Fn(&B) -> (&[Entry], &[u32]) + Sync,
-    ) {
-        let lens: Vec<usize> = bands.iter().map(|b| parts(b).0.len()).collect();
-        let mut state = vec![(); bands.len()];
-        let built = self.build_bands(view, &lens, &mut state, |d, _, dest, counts| {
-            let (entries, c) = parts(&bands[d]);
-            dest.copy_from_slice(entries);
-            counts.copy_from_slice(c);
-        });
-        debug_assert!(
-            built.iter().all(|&(_, fits)| fits),
-            "run lengths do not add up"
-        );
-    }
-
-    /// Rebuilds this list for `view` band by band in parallel, keeping the buffers: band `d`
-    /// (of [`BAND_ROWS`] rows) holds `lens[d]` entries, and `fill(d, &mut state[d], entries,
-    /// counts)` writes them and its pixels' run lengths (one per pixel of the band), each band
-    /// straight into its share of the list. Returns each band's result, and whether its run
-    /// lengths added up to its length: if one did not, the list is not a valid state.
+    /// Rebuilds this list for `view` band by band in parallel, each band in its own buffers
+    /// from the frame before: `fill(d, &mut state[d], entries, counts)` leaves band `d`'s
+    /// entries (of [`BAND_ROWS`] rows) in `entries` and one run length per pixel of the band in
+    /// `counts`, both emptied for it. Returns each band's result, and whether its run lengths
+    /// added up to its entries: if one did not, the list is not a valid state.
     ///
     /// # Panics
-    /// If `lens` or `state` does not have one item per band of the view, or the lengths add up
-    /// to more than `u32::MAX` (callers that take lengths from the wire check that first).
+    /// If `state` does not have one item per band of the view.
     pub(super) fn build_bands<S: Send, R: Send>(
         &mut self,
         view: &View,
-        lens: &[usize],
         state: &mut [S],
-        fill: impl Fn(usize, &mut S, &mut [Entry], &mut [u32]) -> R + Sync,
+        fill: impl Fn(usize, &mut S, &mut Vec<Entry>, &mut Vec<u32>) -> R + Sync,
     ) -> Vec<(R, bool)> {
         (self.width, self.height) = view.size();
         self.view = Some(view.clone());
         let (w, h) = (self.width as usize, self.height as usize);
-        assert_eq!(lens.len(), h.div_ceil(BAND_ROWS), "one length per band");
-        assert_eq!(state.len(), lens.len(), "one state per band");
-        let total: usize = lens.iter().sum();
-        // Every element is written below: no need to clear what the last frame left.
-        self.offsets.resize(w * h + 1, 0);
-        self.entries.resize(total, Entry::default());
-        self.offsets[0] = 0;
-        let mut jobs = Vec::with_capacity(lens.len());
-        let (mut offs_rest, mut entries_rest) =
-            (&mut self.offsets[1..], self.entries.as_mut_slice());
-        assert!(
-            u32::try_from(total).is_ok(),
-            "a held list indexes its entries in 32 bits"
-        );
-        let mut start = 0u32;
-        for ((d, &len), s) in lens.iter().enumerate().zip(state) {
-            let rows = BAND_ROWS.min(h - d * BAND_ROWS);
-            let (offs, o_tail) = std::mem::take(&mut offs_rest).split_at_mut(rows * w);
-            let (dest, e_tail) = std::mem::take(&mut entries_rest).split_at_mut(len);
-            jobs.push((d, s, start, offs, dest));
-            (offs_rest, entries_rest) = (o_tail, e_tail);
-            start += len as u32;
-        }
-        jobs.into_par_iter()
-            .map(|(d, s, start, offs, dest)| {
-                let r = fill(d, s, dest, offs);
-                // The counts become each pixel's run end.
-                let mut end = u64::from(start);
-                for o in offs.iter_mut() {
-                    end += u64::from(*o);
+        let bands = h.div_ceil(BAND_ROWS);
+        assert_eq!(state.len(), bands, "one state per band");
+        self.bands.resize_with(bands, HeldBand::default);
+        let built: Vec<(R, bool)> = self
+            .bands
+            .par_iter_mut()
+            .zip(state.par_iter_mut())
+            .enumerate()
+            .map(|(d, (band, s))| {
+                band.entries.clear();
+                band.offsets.clear();
+                let r = fill(d, s, &mut band.entries, &mut band.offsets);
+                let pixels = band_pixels(d, w, h).len();
+                // The counts become each pixel's first entry, and the band's length follows.
+                let mut end = 0u64;
+                for o in band.offsets.iter_mut() {
+                    let n = u64::from(*o);
                     *o = end as u32;
+                    end += n;
                 }
-                (r, end == u64::from(start) + dest.len() as u64)
+                band.offsets.push(end as u32);
+                let fits = band.offsets.len() == pixels + 1
+                    && end == band.entries.len() as u64
+                    && u32::try_from(end).is_ok();
+                (r, fits)
             })
-            .collect()
+            .collect();
+        self.len = self.bands.iter().map(|b| b.entries.len()).sum();
+        built
     }
 
     /// The colour DeepFrame the display resolves.
@@ -337,14 +345,26 @@ impl Held {
     pub fn frame_into(&self, reuse: DeepFrame) -> DeepFrame {
         let (width, height) = (self.width, self.height);
         let (_, _, mut offsets, depth, color, object) = reuse.into_parts();
-        offsets.clear();
-        offsets.extend_from_slice(&self.offsets);
+        // Each band's offsets, moved by the entries of the bands above it. A list past u32
+        // entries (which no wire frame can fill) gives the empty frame below.
+        let starts = self.band_starts();
+        let pixels = width as usize * height as usize;
+        offsets.resize(pixels + 1, 0);
+        offsets[pixels] = starts[self.bands.len()] as u32;
         let w = width as usize;
+        let lens = (0..self.bands.len()).map(|b| band_pixels(b, w, height as usize).len());
+        split_lens(&mut offsets[..pixels], lens)
+            .into_par_iter()
+            .zip(self.bands.par_iter().zip(&starts[..self.bands.len()]))
+            .for_each(|(out, (band, &start))| {
+                for (o, &k) in out.iter_mut().zip(&band.offsets) {
+                    *o = (start + k as usize) as u32;
+                }
+            });
         let bands: Vec<std::ops::Range<usize>> = (0..height as usize)
             .step_by(BAND_ROWS)
             .map(|row| row * w..(row + BAND_ROWS).min(height as usize) * w)
             .collect();
-        let entries = &self.entries;
         // Runs are sorted by the fragment order, so this cannot fail.
         DeepFrame::fill_bands(
             width,
@@ -352,9 +372,8 @@ impl Held {
             offsets,
             &bands,
             (depth, color, object),
-            |_, band| {
-                let first = band.offsets[band.pixels.start] as usize;
-                let from = &entries[first..first + band.depth.len()];
+            |i, band| {
+                let from = &self.bands[i].entries;
                 for (((e, d), c), o) in from
                     .iter()
                     .zip(band.depth.iter_mut())
@@ -377,19 +396,10 @@ impl Held {
     /// computed over fixed bands (`band_digest`, combined by `frame_digest`), so it does not
     /// depend on the thread count.
     pub fn digest(&self) -> u64 {
-        let width = self.width as usize;
-        let bands = (self.height as usize).div_ceil(BAND_ROWS);
-        let parts: Vec<u64> = (0..bands)
-            .into_par_iter()
-            .map(|b| {
-                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(self.height as usize);
-                let (first, last) = (rows.start * width, rows.end * width);
-                let counts: Vec<u32> = (first..last)
-                    .map(|p| self.offsets[p + 1] - self.offsets[p])
-                    .collect();
-                let entries =
-                    &self.entries[self.offsets[first] as usize..self.offsets[last] as usize];
-                band_digest(b, entries, &counts)
+        let parts: Vec<u64> = (self.bands.par_iter().enumerate())
+            .map(|(b, band)| {
+                let counts: Vec<u32> = band.counts().collect();
+                band_digest(b, &band.entries, &counts)
             })
             .collect();
         frame_digest(self.width, self.height, parts)
@@ -448,26 +458,15 @@ pub(super) fn frame_digest(width: u32, height: u32, bands: impl IntoIterator<Ite
     h.finish()
 }
 
-/// Cuts `items`, one per fragment of a list laid out by `offsets` over `height` rows of `width`
-/// pixels, into bands of [`BAND_ROWS`] rows: `(first row, the band's items)`.
-fn split_bands<'a, T>(
-    items: &'a mut [T],
-    offsets: &[u32],
-    width: usize,
-    height: usize,
-) -> Vec<(usize, &'a mut [T])> {
-    let mut bands = Vec::with_capacity(height.div_ceil(BAND_ROWS));
+/// Cuts `items` into consecutive pieces of `lens` items each.
+fn split_lens<T>(items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
     let mut rest = items;
-    let mut row = 0;
-    while row < height {
-        let end = (row + BAND_ROWS).min(height);
-        let n = (offsets[end * width] - offsets[row * width]) as usize;
-        let (band, tail) = std::mem::take(&mut rest).split_at_mut(n);
-        bands.push((row, band));
+    lens.map(|n| {
+        let (piece, tail) = std::mem::take(&mut rest).split_at_mut(n);
         rest = tail;
-        row = end;
-    }
-    bands
+        piece
+    })
+    .collect()
 }
 
 /// Buffers the reprojection reuses from frame to frame: [`Held::reproject_into`], and the two
@@ -537,6 +536,12 @@ pub(super) struct Moved<'a> {
     bucket: &'a [u32],
     /// `band_starts[d]..band_starts[d + 1]` indexes `bucket` for destination band `d`.
     band_starts: Vec<usize>,
+    /// Each source band's first entry in `moved` (and in the bucket's indices), and the
+    /// list's length after them.
+    src_starts: Vec<usize>,
+    /// Per source band, how many of its entries land in each destination band: the pieces a
+    /// destination band's bucket is made of, in source order.
+    shares: &'a [Vec<u32>],
     sorted: &'a BandPool,
     width: usize,
     height: usize,
@@ -595,14 +600,22 @@ impl Moved<'_> {
             end += *o;
             *o = end;
         }
-        for &i in items.iter().rev() {
-            let (p, f) = moved[i as usize];
-            let o = &mut offs[p as usize - first_pixel];
-            *o -= 1;
-            entries[(*o - base) as usize] = Entry {
-                fragment: f,
-                surfel: held.entries[i as usize].surfel,
-            };
+        // The bucket holds each source band's share in turn: walked backwards, share by
+        // share, each entry's surfel is found in its source band.
+        let mut end = items.len();
+        for (s, share) in self.shares.iter().enumerate().rev() {
+            let n = share[d] as usize;
+            let (source, start) = (&held.bands[s].entries, self.src_starts[s]);
+            for &i in items[end - n..end].iter().rev() {
+                let (p, f) = moved[i as usize];
+                let o = &mut offs[p as usize - first_pixel];
+                *o -= 1;
+                entries[(*o - base) as usize] = Entry {
+                    fragment: f,
+                    surfel: source[i as usize - start].surfel,
+                };
+            }
+            end -= n;
         }
         for (k, &start) in offs.iter().enumerate() {
             let stop = offs
@@ -634,9 +647,9 @@ impl Batch {
         self.len += 1;
     }
 
-    /// Moves the batch to `view`, into `band` (whose first entry is entry `base`).
+    /// Moves the batch to `view`, into `band` (its source band's share of the moved list).
     #[inline]
-    fn flush(&mut self, view: &View, band: &mut [(u32, Fragment)], base: usize) {
+    fn flush(&mut self, view: &View, band: &mut [(u32, Fragment)]) {
         let n = self.len;
         if n == 0 {
             return;
@@ -645,7 +658,7 @@ impl Batch {
         // Lanes past `n` hold earlier batches' surfels: moved, and not written back.
         view.project_batch(self.object, &self.surfels, &mut moved);
         for (&i, m) in self.index[..n].iter().zip(moved) {
-            band[i - base] = m;
+            band[i] = m;
         }
         self.len = 0;
     }
