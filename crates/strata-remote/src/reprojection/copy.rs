@@ -78,7 +78,7 @@ impl ReprojCopy {
             )));
         }
         // The held list moved to the view; each band task sorts its band of it and merges it
-        // with the node's removals and inserts straight into its share of the next state.
+        // with the node's removals and inserts straight into its band of the next state.
         let moved = self.held.move_to(view, &mut self.scratch);
         let bands = moved.band_count();
         // The touched pixels as the mask's runs, each with the removal entry of its first

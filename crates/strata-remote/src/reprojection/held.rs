@@ -131,7 +131,7 @@ impl Held {
     /// task that consumes it, with the same passes, so their runs are this list's.
     ///
     /// The list is moved and bucketed by destination band in parallel passes (`Held::move_to`),
-    /// then each band is sorted in parallel straight into its share of `out`: a counting sort
+    /// then each band is sorted in parallel straight into its band of `out`: a counting sort
     /// by pixel, then each run front to back. Buckets keep the list's order and the counting
     /// sort is stable, so the result is the stable sort of the whole list by pixel, then by
     /// fragment order, whatever the thread count.

@@ -30,7 +30,8 @@
 //! ```
 //!
 //! `projected(t)` never exists as a whole list: each band is sorted into a small buffer by the
-//! task that then matches it (node) or merges it straight into its share of `held(t)` (display).
+//! task that then matches it (node) or merges it (display), writing the band's runs of `held(t)`
+//! straight into that band's own buffers (`held(t)` is kept band by band).
 //!
 //! **Matching** (node, per pixel): the rendered run, converted to entries exactly as the display
 //! will convert them, is walked in order; a projected entry survives as the next rendered
