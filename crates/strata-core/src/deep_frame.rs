@@ -1217,15 +1217,14 @@ mod tests {
             }
         }
         assert_eq!(lent, 1, "the taller frame lends its buffers");
-        // Borrowed runs, gathered again into the buffers of runs of another frame (as a caller
-        // that keeps its runs from frame to frame does): the same frame.
+        // Borrowed runs, gathered again into their own buffers (as a caller that keeps its runs
+        // from frame to frame does), each pixel's run reversed so that nothing of the first
+        // gather survives by chance: the same frame.
         let mut kept = runs(&[0, 4_800, 9_000, n]);
         for (i, g) in kept.iter_mut().enumerate() {
             let first = [0, 4_800, 9_000, n][i];
             let last = [0, 4_800, 9_000, n][i + 1];
             let mut writer = GatherWriter::reusing(std::mem::take(g));
-            // Every pixel of the run once, backwards in depth, so nothing of the last fill
-            // survives by chance.
             for (p, list) in lists.iter().enumerate().take(last).skip(first) {
                 let mut run: Vec<Fragment> = list.iter().rev().copied().collect();
                 writer.push_run(p, &mut run).unwrap();

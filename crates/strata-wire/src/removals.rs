@@ -104,6 +104,7 @@ impl Removals {
             positions.len() as u64,
             "the counts must add up to the positions"
         );
+        // Everything is checked before anything is appended.
         let mut at = 0;
         for &n in counts {
             let new = &positions[at..at + n as usize];
@@ -113,7 +114,11 @@ impl Removals {
             );
             assert!(n <= MAX_REMOVALS_PER_PIXEL);
             at += n as usize;
-            self.offsets.push((self.positions.len() + at) as u32);
+        }
+        let mut end = self.positions.len();
+        for &n in counts {
+            end += n as usize;
+            self.offsets.push(end as u32);
         }
         self.positions.extend_from_slice(positions);
     }
@@ -264,8 +269,12 @@ mod tests {
         at_once.push_pixels(&counts, &pixels[2..].concat());
         assert_eq!(at_once, one_by_one);
         assert_eq!(at_once.pixel(4), &[2, 9]);
-        for (counts, positions) in [(&[2u32][..], &[3u32, 3][..]), (&[1, 1], &[1, 2, 3])] {
-            let bad = std::panic::catch_unwind(|| Removals::new(0).push_pixels(counts, positions));
+        for (counts, positions) in [(&[1u32, 2][..], &[3u32, 3, 3][..]), (&[1, 1], &[1, 2, 3])] {
+            let mut r = at_once.clone();
+            let bad = std::panic::catch_unwind(move || {
+                r.push_pixels(counts, positions);
+                r
+            });
             assert!(bad.is_err(), "{counts:?} {positions:?} accepted");
         }
     }

@@ -143,6 +143,14 @@ impl ReprojEncoder {
         });
         debug_assert!(built.iter().all(|&(_, fits)| fits), "run lengths add up");
         self.spare_held = Some(old);
+        if let Some(&n) = self.bands.iter().flat_map(|o| &o.removed_counts).max()
+            && n > MAX_REMOVALS_PER_PIXEL
+        {
+            // The state is as after a reset; the new list's buffers serve the next frame.
+            self.held = None;
+            self.spare_held = Some(held);
+            return Err(TooDeep { removals: n });
+        }
 
         // The mask, the removals and the inserts, band by band.
         let pixels = w * height as usize;
@@ -156,12 +164,6 @@ impl ReprojEncoder {
             None => (MaskBuilder::new(pixels as u32), Removals::new(0), None),
         };
         let mut depth_error = 0f32;
-        if let Some(&n) = self.bands.iter().flat_map(|o| &o.removed_counts).max()
-            && n > MAX_REMOVALS_PER_PIXEL
-        {
-            self.held = None;
-            return Err(TooDeep { removals: n });
-        }
         for o in &self.bands {
             depth_error = depth_error.max(o.depth_error);
             for &p in &o.touched {
