@@ -652,6 +652,15 @@ mod tests {
         }
     }
 
+    /// The strips of a `width` × `height` frame, one row each.
+    fn one_row_strips(width: u32, height: u32) -> StripLayout {
+        StripLayout {
+            width,
+            height,
+            strip_height: 1,
+        }
+    }
+
     #[test]
     fn prefix_sum_matches_sequential() {
         let counts: Vec<u32> = (0..200_000u32).map(|i| i % 7).collect();
@@ -668,11 +677,7 @@ mod tests {
     fn regions_sized_again_by_capacities_forget_their_uniform_size() {
         // Uniform regions of 3, then per-pixel capacities 0, 1, 4, 2 on the same buffers: the
         // sinks must find each region from its offsets again, not at p·3.
-        let layout = StripLayout {
-            width: 2,
-            height: 2,
-            strip_height: 1,
-        };
+        let layout = one_row_strips(2, 2);
         let mut r = Regions::new();
         r.uniform(2, 2, 3).unwrap();
         push_all(&mut r, &layout, Policy::Append, &[(3, frag(0.4, 9))], None);
@@ -691,11 +696,7 @@ mod tests {
 
     #[test]
     fn append_keeps_the_first_and_counts_the_rest() {
-        let layout = StripLayout {
-            width: 2,
-            height: 2,
-            strip_height: 1,
-        };
+        let layout = one_row_strips(2, 2);
         let mut r = Regions::new();
         r.uniform(2, 2, 2).unwrap();
         push_all(
@@ -725,11 +726,7 @@ mod tests {
             }
         }
         let log = Log(Mutex::new(Vec::new()));
-        let layout = StripLayout {
-            width: 1,
-            height: 1,
-            strip_height: 1,
-        };
+        let layout = one_row_strips(1, 1);
         let mut r = Regions::new();
         r.uniform(1, 1, 3).unwrap();
         let depths = [0.5, 0.9, 0.1, 0.7, 0.3, 0.95, 0.2];
@@ -749,11 +746,7 @@ mod tests {
 
     #[test]
     fn variable_capacities_and_zero_capacity_regions() {
-        let layout = StripLayout {
-            width: 3,
-            height: 1,
-            strip_height: 1,
-        };
+        let layout = one_row_strips(3, 1);
         let mut r = Regions::new();
         r.with_capacities(3, 1, &[0, 1, 2]).unwrap();
         push_all(
@@ -781,11 +774,7 @@ mod tests {
 
     #[test]
     fn sort_then_truncate_keeps_the_nearest_and_counts_the_rest() {
-        let layout = StripLayout {
-            width: 3,
-            height: 1,
-            strip_height: 1,
-        };
+        let layout = one_row_strips(3, 1);
         let mut r = Regions::new();
         r.with_capacities(3, 1, &[3, 0, 2]).unwrap();
         push_all(
@@ -812,11 +801,7 @@ mod tests {
 
     #[test]
     fn insert_nearest_returns_what_falls_off() {
-        let layout = StripLayout {
-            width: 1,
-            height: 1,
-            strip_height: 1,
-        };
+        let layout = one_row_strips(1, 1);
         let mut r = Regions::new();
         r.uniform(1, 1, 2).unwrap();
         let mut sinks = r.strips(&layout, Policy::Append, None);

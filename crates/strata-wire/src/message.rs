@@ -427,15 +427,7 @@ impl FrameEncoder {
                 "only a difference frame carries a pixel mask".into(),
             ));
         }
-        let pixels = u64::from(frame.width()) * u64::from(frame.height());
-        if u64::from(changed.frame_pixels()) != pixels || u64::from(stale.frame_pixels()) != pixels
-        {
-            return Err(WireError::Encode(format!(
-                "the masks cover {} and {} pixels, the frame has {pixels}",
-                changed.frame_pixels(),
-                stale.frame_pixels()
-            )));
-        }
+        masks_fit(frame, &[changed, stale])?;
         all_inside(frame, changed)?;
         self.write_message(out, header, frame, codec, |scratch| {
             for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
@@ -462,13 +454,7 @@ impl FrameEncoder {
                 "encode_reprojection_into writes reprojection frames only".into(),
             ));
         }
-        let pixels = u64::from(inserts.width()) * u64::from(inserts.height());
-        if u64::from(touched.frame_pixels()) != pixels {
-            return Err(WireError::Encode(format!(
-                "the mask covers {} pixels, the frame has {pixels}",
-                touched.frame_pixels()
-            )));
-        }
+        masks_fit(inserts, &[touched])?;
         if removals.pixel_count() != touched.len() as usize {
             return Err(WireError::Encode(format!(
                 "{} removal entries for {} touched pixels",
@@ -499,6 +485,18 @@ impl FrameEncoder {
         self.scratch.push_frame(frame, codec);
         write_frame(out, header, frame, codec, &self.scratch.sections(codec)?);
         Ok(())
+    }
+}
+
+/// An encoder's check that every mask of a message is a mask of `frame`'s pixels.
+fn masks_fit(frame: &DeepFrame, masks: &[&PixelMask]) -> Result<(), WireError> {
+    let pixels = u64::from(frame.width()) * u64::from(frame.height());
+    match masks.iter().find(|m| u64::from(m.frame_pixels()) != pixels) {
+        Some(m) => Err(WireError::Encode(format!(
+            "a mask covers {} pixels, the frame has {pixels}",
+            m.frame_pixels()
+        ))),
+        None => Ok(()),
     }
 }
 

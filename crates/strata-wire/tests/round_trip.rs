@@ -290,6 +290,20 @@ fn render(scene: &Scene, frame: u32) -> (FrameHeader, DeepFrame) {
 }
 
 /// Built-in scene `name` resized to `width` × `height`.
+/// The frames of the reuse tests' streams: a big one, a smaller one of another size and scene,
+/// and an empty one.
+fn stream_frames() -> (
+    (FrameHeader, DeepFrame),
+    (FrameHeader, DeepFrame),
+    DeepFrame,
+) {
+    let search = SearchPath::default();
+    let big = render(&scene("spheres", &search, 96, 54), 3);
+    let small = render(&scene("mixed", &search, 64, 36), 5);
+    let empty = DeepFrame::from_pixel_lists(5, 4, &vec![Vec::new(); 20]).unwrap();
+    (big, small, empty)
+}
+
 fn scene(name: &str, search: &SearchPath, width: u32, height: u32) -> Scene {
     let mut s = open_scene(name, search).unwrap_or_else(|e| panic!("{name}: {e}"));
     (s.width, s.height) = (width, height);
@@ -568,10 +582,7 @@ fn one_decoder_reusing_its_buffers_decodes_a_stream_like_fresh_decoders() {
     // Frames that grow, shrink, change size and codec, a difference frame and a corrupt
     // message in the middle: a decoder that keeps its buffers and gets each frame back must
     // decode each exactly as a fresh one does, and survive the error.
-    let search = SearchPath::default();
-    let big = render(&scene("spheres", &search, 96, 54), 3);
-    let small = render(&scene("mixed", &search, 64, 36), 5);
-    let empty = DeepFrame::from_pixel_lists(5, 4, &vec![Vec::new(); 20]).unwrap();
+    let (big, small, empty) = stream_frames();
     // Without the checksum, so that the corrupt payloads reach the codecs and fail there,
     // after the decoder has resized its buffers.
     let options = DecodeOptions {
@@ -633,10 +644,7 @@ fn one_encoder_reusing_its_buffers_writes_the_bytes_of_fresh_encoders() {
     // smaller one's), change size and codec, with difference and reprojection frames between
     // (more sections, in other slots): one encoder must write each message
     // byte for byte as the free functions do.
-    let search = SearchPath::default();
-    let big = render(&scene("spheres", &search, 96, 54), 3);
-    let small = render(&scene("mixed", &search, 64, 36), 5);
-    let empty = DeepFrame::from_pixel_lists(5, 4, &vec![Vec::new(); 20]).unwrap();
+    let (big, small, empty) = stream_frames();
     let mut encoder = FrameEncoder::new();
     let (mut fresh, mut reused) = (Vec::new(), vec![0xee; 7]);
     let mut messages = 0;
@@ -777,6 +785,16 @@ fn difference_frames_carry_their_masks() {
     assert!(e.to_string().contains("11"), "{e}");
     let e = encode_delta_into(
         &mut out,
+        &header,
+        &changed,
+        &PixelMask::empty(13),
+        &frame,
+        Codec::Raw,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("a mask covers 13 pixels"), "{e}");
+    let e = encode_delta_into(
+        &mut out,
         &FrameHeader::default(),
         &changed,
         &stale,
@@ -848,6 +866,16 @@ fn reprojection_frames_carry_their_mask_and_removals() {
     let e = encode_reprojection_into(&mut out, &header, &outside, &one, &frame, Codec::Raw)
         .unwrap_err();
     assert!(e.to_string().contains("2 fragments lie outside"), "{e}");
+    let e = encode_reprojection_into(
+        &mut out,
+        &header,
+        &PixelMask::full(11),
+        &removals,
+        &frame,
+        Codec::Raw,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("a mask covers 11 pixels"), "{e}");
     let e = encode_reprojection_into(
         &mut out,
         &FrameHeader::default(),

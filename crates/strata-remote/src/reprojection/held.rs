@@ -40,8 +40,6 @@ pub struct Held {
     height: u32,
     /// One per band of [`BAND_ROWS`] rows, top to bottom.
     bands: Vec<HeldBand>,
-    /// Entries in all bands.
-    len: usize,
     /// The view the entries are shaded and bucketed for (none when empty).
     view: Option<View>,
 }
@@ -80,19 +78,18 @@ impl Held {
             width,
             height,
             bands,
-            len: 0,
             view: None,
         }
     }
 
     /// Fragments held.
     pub fn len(&self) -> usize {
-        self.len
+        self.bands.iter().map(|b| b.entries.len()).sum()
     }
 
     /// True if nothing is held.
     pub fn is_empty(&self) -> bool {
-        self.len == 0
+        self.bands.iter().all(|b| b.entries.is_empty())
     }
 
     /// Pixel `p`'s run.
@@ -148,7 +145,6 @@ impl Held {
             moved.sort_band_into(d, 0, &mut band.offsets[..pixels], &mut band.entries);
         });
         (out.width, out.height) = view.size();
-        out.len = moved.band_starts[moved.band_count()];
         out.view = Some(view.clone());
     }
 
@@ -188,7 +184,7 @@ impl Held {
             sorted,
         } = scratch;
         // Every element is written in pass 1: no need to clear what the last frame left.
-        moved.resize(self.len, (u32::MAX, Fragment::default()));
+        moved.resize(self.len(), (u32::MAX, Fragment::default()));
         let (w, h) = (self.width as usize, self.height as usize);
         let src_bands = self.bands.len();
         shares.resize_with(src_bands, Vec::new);
@@ -330,7 +326,6 @@ impl Held {
                 (r, fits)
             })
             .collect();
-        self.len = self.bands.iter().map(|b| b.entries.len()).sum();
         built
     }
 
