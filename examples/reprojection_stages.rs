@@ -1,6 +1,8 @@
-//! The reprojection node's two stages timed alone, one frame after another: the render of normal
-//! fragments (rasteriser, linked-list A-buffer, export) and the encode of the delta against what
-//! the display holds (`ReprojEncoder::encode`: move, sort, match, merge, digest, inserts).
+//! The reprojection node's stages timed alone, one frame after another: the render of normal
+//! fragments (rasteriser, linked-list A-buffer, export), the encode of the delta against what
+//! the display holds (`ReprojEncoder::encode`: move, sort, match, merge, digest, inserts), and
+//! the wire encode of that delta into one message (`FrameEncoder::encode_reprojection_into`:
+//! mask, removals and the inserts' deep-lz4 sections).
 //!
 //! ```sh
 //! cargo run --release -p strata-examples --example reprojection_stages -- [THREADS] [FRAMES] [SCENE]
@@ -11,8 +13,8 @@
 //! worker threads (default 1), as a render node serving the reprojection transfer does, but
 //! without sockets or a second thread: the stages run one after the other, so each is timed
 //! alone. Prints the median of each stage over the frames after the first (which sends
-//! everything), and the fragments held and inserted in the last frame. `strata node` runs the
-//! two stages side by side on the same worker threads.
+//! everything), the fragments held and inserted and the message's bytes in the last frame.
+//! `strata node` runs the stages side by side on the same worker threads.
 
 use std::time::Instant;
 
@@ -22,6 +24,7 @@ use strata_raster::{FragmentOutput, FrameInput, Rasterizer};
 use strata_remote::reprojection::{ReprojEncoder, View};
 use strata_scene::SearchPath;
 use strata_stores::{MethodOptions, export_frame};
+use strata_wire::{Codec, FrameEncoder, FrameHeader, TransferMethod};
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
@@ -50,7 +53,9 @@ fn main() -> Result<()> {
     let mut method = strata_stores::create("abuffer", &MethodOptions::default())?;
     let mut raster = Rasterizer::default();
     let mut encoder = ReprojEncoder::new(1);
-    let (mut render_ms, mut encode_ms) = (Vec::new(), Vec::new());
+    let mut wire = FrameEncoder::new();
+    let mut message = Vec::new();
+    let (mut render_ms, mut encode_ms, mut wire_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut held, mut inserted) = (0, 0);
     let mut reuse = None;
     pool.install(|| -> Result<()> {
@@ -80,6 +85,23 @@ fn main() -> Result<()> {
             let start = Instant::now();
             let delta = encoder.encode(&view, &exported.frame)?;
             encode_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            let header = FrameHeader {
+                frame_number: u64::from(frame),
+                view: input.view.to_cols_array(),
+                projection: input.projection.to_cols_array(),
+                transfer: TransferMethod::Reprojection,
+                ..FrameHeader::default()
+            };
+            let start = Instant::now();
+            wire.encode_reprojection_into(
+                &mut message,
+                &header,
+                &delta.touched,
+                &delta.removals,
+                &delta.inserts,
+                Codec::DeepLz4,
+            )?;
+            wire_ms.push(start.elapsed().as_secs_f64() * 1e3);
             (held, inserted) = (delta.held, delta.inserts.fragment_count());
             // As the node does: the next frame is exported into this one's buffers, and the
             // next delta built in this one's.
@@ -95,10 +117,13 @@ fn main() -> Result<()> {
     };
     println!(
         "{scene_name} {width}x{height}, {threads} thread(s), median of {} frames: render {:.2} ms, \
-         encode {:.2} ms; last frame held {held} fragments, inserted {inserted}",
+         encode {:.2} ms, wire {:.2} ms; last frame held {held} fragments, inserted {inserted}, \
+         {} bytes on the wire (deep-lz4)",
         frames - 1,
         median(&render_ms),
         median(&encode_ms),
+        median(&wire_ms),
+        message.len(),
     );
     Ok(())
 }
