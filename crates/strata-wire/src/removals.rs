@@ -155,13 +155,16 @@ impl Removals {
     pub fn encode(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.checksum.to_le_bytes());
         out.extend_from_slice(&self.depth_error.to_le_bytes());
-        for k in 0..self.pixel_count() {
-            let p = self.pixel(k);
+        // At least a byte a count and a position; most take one.
+        out.reserve(self.offsets.len() + self.positions.len());
+        for w in self.offsets.windows(2) {
+            let p = &self.positions[w[0] as usize..w[1] as usize];
             put_varint(out, p.len() as u32);
-            let mut prev: Option<u32> = None;
+            // The first position as it is, then each one's gap after the one before.
+            let mut next = 0u32;
             for &i in p {
-                put_varint(out, prev.map_or(i, |q| i - q - 1));
-                prev = Some(i);
+                put_varint(out, i - next);
+                next = i.wrapping_add(1);
             }
         }
     }
