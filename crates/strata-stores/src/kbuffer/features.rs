@@ -359,7 +359,7 @@ pub struct FeatureSink<'a> {
 }
 
 impl FragmentSink for FeatureSink<'_> {
-    #[inline]
+    #[inline(always)]
     fn push(&mut self, pixel: u32, fragment: Fragment) {
         let i = pixel as usize - self.first_pixel;
         let [r, g, b, a] = fragment.color.0.map(u32::from);
