@@ -103,16 +103,45 @@ impl Worth {
         self.log_first.is_finite() && self.log_fall.is_finite() && self.log_fall < 0.0
     }
 
+    /// `ln g(j)` of the `(extra + 2)`-th fragment (the tests' greedy references).
+    #[cfg(test)]
+    fn log_worth(&self, extra: u32) -> f64 {
+        self.curve().log_worth(extra)
+    }
+
+    /// The worth curve alone, what the bisection reads.
+    #[inline(always)]
+    fn curve(&self) -> Curve {
+        Curve {
+            log_first: self.log_first,
+            log_fall: self.log_fall,
+        }
+    }
+}
+
+/// A [`Worth`] without its contrast: the two numbers a candidate's worth per fragment comes
+/// from, all the allocation's bisection reads (16 bytes a candidate rather than 24).
+#[derive(Clone, Copy, Debug)]
+struct Curve {
+    /// `ln g(2)`.
+    log_first: f64,
+    /// `ln t`.
+    log_fall: f64,
+}
+
+impl Curve {
     /// `ln g(j)` of the `(extra + 2)`-th fragment.
+    #[inline(always)]
     fn log_worth(&self, extra: u32) -> f64 {
         self.log_first + f64::from(extra) * self.log_fall
     }
 
     /// Fragments beyond the first worth more than `level` (`ln`), at most `room`, for a
-    /// [`Worth::worthwhile`] model (only [`Candidate`]s, which are, ask: this runs once per
-    /// candidate per bisection round, and checking again cost more than the rest of it).
+    /// [`Worth::worthwhile`] model (only candidates, which are, ask). The bisection's rounds
+    /// count the same values in lanes ([`ExtraAt`]); this gives each candidate its share once
+    /// the level is found.
+    #[inline(always)]
     fn extra_above(&self, level: f64, room: u32) -> u32 {
-        debug_assert!(self.worthwhile(), "only a worthwhile model is asked");
         if self.log_first <= level {
             return 0;
         }
@@ -123,10 +152,115 @@ impl Worth {
             return 0;
         }
         // The ceiling of x clamped to [0, room], by truncation (`f64::ceil` is a library call
-        // on x86-64 without SSE4.1, and this runs once per candidate per bisection round).
+        // on x86-64 without SSE4.1).
         let x = x.clamp(0.0, f64::from(room));
         let whole = x as u32;
         whole + u32::from(f64::from(whole) < x)
+    }
+}
+
+/// The lists [`analytic_k_reusing`] keeps between frames: the candidates (pixels with a choice
+/// the model can make), one [`Candidates`] list per chunk of pixels. A frame listed into fresh
+/// lists paid for their growth and for fresh pages.
+#[derive(Debug, Default)]
+pub struct AnalyticScratch {
+    chunks: Vec<Candidates>,
+}
+
+impl AnalyticScratch {
+    /// No lists yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Bytes the lists hold.
+    pub fn memory_bytes(&self) -> u64 {
+        self.chunks.iter().map(Candidates::memory_bytes).sum()
+    }
+}
+
+/// One chunk's candidates in pixel order, a structure of arrays: entry `i` is pixel
+/// `pixel[i]`, whose fragments beyond the first are worth `ln g = first[i] + j · fall[i]`
+/// (`j = 0, 1, …`), with room for `room[i]` of them, of which `given[i]` were given at the
+/// level the bisection found. The bisection's count reads only `first`, `fall` and `room`, in
+/// lanes ([`ExtraAt`]).
+#[derive(Debug, Default)]
+struct Candidates {
+    first: Vec<f64>,
+    fall: Vec<f64>,
+    room: Vec<u32>,
+    pixel: Vec<u32>,
+    given: Vec<u32>,
+}
+
+impl Candidates {
+    fn clear(&mut self) {
+        self.first.clear();
+        self.fall.clear();
+        self.room.clear();
+        self.pixel.clear();
+        self.given.clear();
+    }
+
+    fn push(&mut self, c: Candidate) {
+        self.first.push(c.curve.log_first);
+        self.fall.push(c.curve.log_fall);
+        self.room.push(c.room);
+        self.pixel.push(c.pixel);
+    }
+
+    fn len(&self) -> usize {
+        self.pixel.len()
+    }
+
+    fn curve(&self, i: usize) -> Curve {
+        Curve {
+            log_first: self.first[i],
+            log_fall: self.fall[i],
+        }
+    }
+
+    fn memory_bytes(&self) -> u64 {
+        (self.first.capacity() * 8
+            + self.fall.capacity() * 8
+            + (self.room.capacity() + self.pixel.capacity() + self.given.capacity()) * 4)
+            as u64
+    }
+}
+
+/// Fragments beyond the first worth more than `level`, summed over a chunk's candidates:
+/// [`Curve::extra_above`] of every candidate without a branch, compiled per instruction set
+/// ([`pulp::Arch::dispatch`]) so that the divisions and roundings run in vector registers (one
+/// candidate at a time, the division alone took most of a bisection round). Each lane computes
+/// `extra_above`'s value exactly — the same division, the ceiling of a value in `[0, room]`
+/// — and the counts are summed in `f64`, exact for sums below 2⁵³.
+struct ExtraAt<'a> {
+    level: f64,
+    candidates: &'a Candidates,
+}
+
+impl pulp::WithSimd for ExtraAt<'_> {
+    type Output = u64;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> u64 {
+        let Candidates {
+            first, fall, room, ..
+        } = self.candidates;
+        let level = self.level;
+        let n = first.len();
+        let (first, fall, room) = (&first[..n], &fall[..n], &room[..n]);
+        let mut sum = 0.0f64;
+        for i in 0..n {
+            let x = (level - first[i]) / fall[i];
+            let x = if first[i] > level && x.is_finite() {
+                x
+            } else {
+                0.0
+            };
+            sum += x.clamp(0.0, f64::from(room[i])).ceil();
+        }
+        sum as u64
     }
 }
 
@@ -136,6 +270,21 @@ impl Worth {
 /// # Panics
 /// If `worth` does not hold one model per pixel of `counts` (a caller's bug, not an input).
 pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>) -> Allocation {
+    analytic_k_reusing(&mut AnalyticScratch::new(), counts, worth, budget, k)
+}
+
+/// [`analytic_k`], listing the candidates in `scratch`'s lists (kept for the next frame): the
+/// same `k`.
+///
+/// # Panics
+/// If `worth` does not hold one model per pixel of `counts` (a caller's bug, not an input).
+pub fn analytic_k_reusing(
+    scratch: &mut AnalyticScratch,
+    counts: &[u32],
+    worth: &[Worth],
+    budget: u64,
+    k: &mut Vec<u32>,
+) -> Allocation {
     assert_eq!(counts.len(), worth.len(), "one worth per pixel");
     let pixels = counts.len();
     let (total, covered) = base_k(counts, k);
@@ -163,35 +312,35 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
     // With them, in the same pass, the level's range: every candidate's second fragment is
     // worth at most `hi`, and below `lo` every fragment of every candidate is in; and the
     // smallest fall of a worth per fragment.
-    let (chunks, ranges): (Vec<Vec<Candidate>>, Vec<Range>) = counts
-        .par_chunks(PIXELS_PER_TASK)
+    let lists = pixels.div_ceil(PIXELS_PER_TASK);
+    scratch.chunks.resize_with(lists, Candidates::default);
+    scratch.chunks.truncate(lists);
+    let ranges: Vec<Range> = scratch
+        .chunks
+        .par_iter_mut()
+        .zip(counts.par_chunks(PIXELS_PER_TASK))
         .zip(worth.par_chunks(PIXELS_PER_TASK))
         .enumerate()
-        .map(|(chunk, (c, w))| {
+        .map(|(chunk, ((candidates, c), w))| {
             let first = chunk * PIXELS_PER_TASK;
             let mut range = Range::EMPTY;
-            let candidates = c
-                .iter()
-                .zip(w)
-                .enumerate()
-                .filter_map(|(i, (&c, &w))| {
-                    let candidate = Candidate::new(w, c, (first + i) as u32)?;
+            candidates.clear();
+            for (i, (&c, &w)) in c.iter().zip(w).enumerate() {
+                if let Some(candidate) = Candidate::new(w, c, (first + i) as u32) {
                     range = range.with(&candidate);
-                    Some(candidate)
-                })
-                .collect();
-            (candidates, range)
+                    candidates.push(candidate);
+                }
+            }
+            range
         })
-        .unzip();
+        .collect();
+    let arch = pulp::Arch::new();
     let range = ranges.iter().fold(Range::EMPTY, Range::join);
     let extra_at = |level: f64| -> u64 {
-        chunks
+        scratch
+            .chunks
             .par_iter()
-            .map(|c| {
-                c.iter()
-                    .map(|c| u64::from(c.extra_above(level)))
-                    .sum::<u64>()
-            })
+            .map(|candidates| arch.dispatch(ExtraAt { level, candidates }))
             .collect::<Vec<u64>>()
             .iter()
             .sum()
@@ -230,39 +379,44 @@ pub fn analytic_k(counts: &[u32], worth: &[Worth], budget: u64, k: &mut Vec<u32>
         }
         let level = hi;
         // Each chunk of candidates covers its own chunk of pixels, so k is written in parallel.
+        // Each candidate's share is kept beside it for the units left below.
         let given: u64 = k
             .par_chunks_mut(PIXELS_PER_TASK)
-            .zip(&chunks)
+            .zip(&mut scratch.chunks)
             .enumerate()
             .map(|(chunk, (k, candidates))| {
                 let first = chunk * PIXELS_PER_TASK;
-                candidates
-                    .iter()
-                    .map(|c| {
-                        let n = c.extra_above(level);
-                        k[c.pixel as usize - first] += n;
-                        u64::from(n)
-                    })
-                    .sum::<u64>()
+                let mut sum = 0u64;
+                candidates.given.clear();
+                for i in 0..candidates.len() {
+                    let n = candidates.curve(i).extra_above(level, candidates.room[i]);
+                    k[candidates.pixel[i] as usize - first] += n;
+                    candidates.given.push(n);
+                    sum += u64::from(n);
+                }
+                sum
             })
             .collect::<Vec<u64>>()
             .iter()
             .sum();
+        let chunks = &scratch.chunks;
         rest -= given;
         // The units left: to the pixels whose next fragment is worth most. Those lie above `lo`
         // (more fragments than `rest` do, at most one per pixel), so only they are sorted; the
         // whole list serves if the rounds ran out first.
         if rest > 0 {
+            // A candidate has `1 + given` fragments now (every covered pixel has one), room
+            // for more while `given < room`, and its next one is worth `ln g` at `given`: what
+            // the model's `ln g(k[p] + 1)` gives, read from the candidate's own lists.
             let next_worths = |above: f64| -> Vec<(TotalF64, usize)> {
                 chunks
                     .par_iter()
-                    .map(|candidates| {
-                        candidates
-                            .iter()
-                            .map(|c| c.pixel as usize)
-                            .filter(|&p| k[p] < counts[p])
-                            .map(|p| (TotalF64(worth[p].log_worth(k[p] - 1)), p))
+                    .map(|c| {
+                        (0..c.len())
+                            .filter(|&i| c.given[i] < c.room[i])
+                            .map(|i| (TotalF64(c.curve(i).log_worth(c.given[i])), i))
                             .filter(|(w, _)| w.0 > above)
+                            .map(|(w, i)| (w, c.pixel[i] as usize))
                             .collect::<Vec<_>>()
                     })
                     .collect::<Vec<_>>()
@@ -314,9 +468,9 @@ impl Range {
 
     fn with(self, c: &Candidate) -> Range {
         Range {
-            lo: self.lo.min(c.worth.log_worth(c.room - 1)),
-            hi: self.hi.max(c.worth.log_first),
-            narrowest: self.narrowest.min(-c.worth.log_fall),
+            lo: self.lo.min(c.curve.log_worth(c.room - 1)),
+            hi: self.hi.max(c.curve.log_first),
+            narrowest: self.narrowest.min(-c.curve.log_fall),
         }
     }
 
@@ -332,7 +486,7 @@ impl Range {
 /// A pixel with room for fragments beyond its first that are worth something.
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
-    worth: Worth,
+    curve: Curve,
     room: u32,
     pixel: u32,
 }
@@ -343,15 +497,10 @@ impl Candidate {
     #[inline]
     fn new(worth: Worth, count: u32, pixel: u32) -> Option<Candidate> {
         (count > 1 && worth.worthwhile()).then(|| Candidate {
-            worth,
+            curve: worth.curve(),
             room: count - 1,
             pixel,
         })
-    }
-
-    #[inline]
-    fn extra_above(&self, level: f64) -> u32 {
-        self.worth.extra_above(level, self.room)
     }
 }
 
@@ -389,6 +538,48 @@ mod tests {
             }
         }
         k
+    }
+
+    /// The bisection's count in lanes against `extra_above` one candidate at a time: levels
+    /// above a candidate's first worth, between its worths, exactly on one, beyond its room and
+    /// far below everything, with falls from tiny to huge.
+    #[test]
+    fn the_count_in_lanes_is_the_sum_of_each_candidates_share() {
+        let mut candidates = Candidates::default();
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for i in 0..1000u32 {
+            let fall = -(1e-9 + 50.0 * next() * next() * next());
+            let first = 20.0 * next() - 10.0;
+            candidates.push(Candidate {
+                curve: Curve {
+                    log_first: first,
+                    log_fall: fall,
+                },
+                room: 1 + (next() * 40.0) as u32,
+                pixel: i,
+            });
+        }
+        let arch = pulp::Arch::new();
+        let mut levels = vec![-1e300, -1e6, -30.0, 0.0, 10.0, 1e6];
+        levels.extend((0..40).map(|j| -12.0 + 0.55 * f64::from(j)));
+        // Exactly on a worth of some candidates.
+        levels.extend((0..20).map(|i| candidates.curve(i).log_worth(i as u32 % 3)));
+        for level in levels {
+            let one_by_one: u64 = (0..candidates.len())
+                .map(|i| u64::from(candidates.curve(i).extra_above(level, candidates.room[i])))
+                .sum();
+            let lanes = arch.dispatch(ExtraAt {
+                level,
+                candidates: &candidates,
+            });
+            assert_eq!(lanes, one_by_one, "level {level}");
+        }
     }
 
     #[test]

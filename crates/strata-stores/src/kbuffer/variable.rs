@@ -84,7 +84,7 @@ use crate::options::{Budget, ImportanceParams, KFrom, MethodOptions};
 use crate::regions::{Policy, RegionCapture, Regions};
 
 use super::allocate::{Allocation, allocate_k};
-use super::analytic::{Worth, analytic_k};
+use super::analytic::{AnalyticScratch, Worth, analytic_k_reusing};
 use super::features::{FeatureAccumulator, FeatureCapture, FeatureMaps, FrameFeatures};
 use super::importance::importance_map;
 use super::learned::{LearnedModel, Target};
@@ -116,6 +116,8 @@ pub struct VariableKBuffer {
     want_maps: bool,
     /// Each pixel's model (`--k-from analytic`).
     worth: Vec<Worth>,
+    /// The error-curve allocation's candidate lists, kept between frames.
+    analytic: AnalyticScratch,
     /// The network (`--k-from learned` only).
     model: Option<std::sync::Arc<LearnedModel>>,
 }
@@ -139,6 +141,7 @@ impl VariableKBuffer {
             maps: FeatureMaps::new(),
             want_maps: options.features,
             worth: Vec::new(),
+            analytic: AnalyticScratch::new(),
             model: (options.k_from == KFrom::Learned).then(|| {
                 options
                     .weights
@@ -189,6 +192,7 @@ impl VariableKBuffer {
         let features = self.sums.memory_bytes() + self.maps.memory_bytes();
         ((self.importance.len() + self.k.len()) * 4) as u64
             + (self.worth.len() * std::mem::size_of::<Worth>()) as u64
+            + self.analytic.memory_bytes()
             + self.counts.memory_bytes()
             + features
     }
@@ -262,7 +266,7 @@ impl VariableKBuffer {
         };
         self.allocation = timings.time("capture.k", || {
             if use_curve {
-                analytic_k(counts, &self.worth, budget, &mut self.k)
+                analytic_k_reusing(&mut self.analytic, counts, &self.worth, budget, &mut self.k)
             } else {
                 allocate_k(counts, &self.importance, budget, &mut self.k)
             }
