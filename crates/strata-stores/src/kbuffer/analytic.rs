@@ -202,6 +202,15 @@ impl Candidates {
         self.given.clear();
     }
 
+    /// Room for `n` candidates in every list.
+    fn reserve_exact(&mut self, n: usize) {
+        self.first.reserve_exact(n);
+        self.fall.reserve_exact(n);
+        self.room.reserve_exact(n);
+        self.pixel.reserve_exact(n);
+        self.given.reserve_exact(n);
+    }
+
     fn push(&mut self, c: Candidate) {
         self.first.push(c.curve.log_first);
         self.fall.push(c.curve.log_fall);
@@ -325,6 +334,9 @@ pub fn analytic_k_reusing(
             let first = chunk * PIXELS_PER_TASK;
             let mut range = Range::EMPTY;
             candidates.clear();
+            // At most the pixels with a choice: reserved exactly, so that the lists hold what
+            // the largest frame needed rather than up to twice that.
+            candidates.reserve_exact(c.iter().filter(|&&c| c > 1).count());
             for (i, (&c, &w)) in c.iter().zip(w).enumerate() {
                 if let Some(candidate) = Candidate::new(w, c, (first + i) as u32) {
                     range = range.with(&candidate);
