@@ -37,6 +37,21 @@
 //!    left, in pixel order, up to their counts, so `Σ k = M'` whenever fragments remain.
 //!
 //! The result depends only on the counts, the sums and `M`: the same for any thread count.
+//!
+//! # Data
+//!
+//! ```text
+//! candidates, one list per chunk of 8,192 pixels, in pixel order (structure of arrays, kept
+//! between frames in an AnalyticScratch):
+//!   first[i], fall[i]   ln g(2) and ln t of the candidate's model (f64)
+//!   room[i]             count − 1, the fragments it may get beyond its first
+//!   pixel[i]            its pixel index
+//!   given[i]            its share at the level the bisection found (step 3 reads it)
+//! ```
+//!
+//! A bisection round counts, per list, every candidate's fragments above the level in lanes
+//! (`ExtraAt`, compiled per instruction set), with the division and ceiling of the one-at-a-time
+//! count.
 
 use rayon::prelude::*;
 
@@ -160,7 +175,7 @@ impl Curve {
 }
 
 /// The lists [`analytic_k_reusing`] keeps between frames: the candidates (pixels with a choice
-/// the model can make), one [`Candidates`] list per chunk of pixels. A frame listed into fresh
+/// the model can make), one list per chunk of pixels. A frame listed into fresh
 /// lists paid for their growth and for fresh pages.
 #[derive(Debug, Default)]
 pub struct AnalyticScratch {

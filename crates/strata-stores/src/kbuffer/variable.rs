@@ -58,7 +58,7 @@
 //! | --- | --- |
 //! | count fragments and feature sums (geometry) | `capture.count` |
 //! | each pixel's model: the analytic [`Worth`] from its mean colour and alpha, or the network's (screen) | `capture.importance` |
-//! | water-filling the worths to the budget ([`analytic_k`]), or the importance allocator for networks that predict an importance | `capture.k` |
+//! | water-filling the worths to the budget ([`analytic_k_reusing`], its lists kept between frames), or the importance allocator for networks that predict an importance | `capture.k` |
 //! | prefix sum, keep the k(p) nearest, composite | as for importance maps |
 //!
 //! # Features for a learned k
