@@ -567,46 +567,29 @@ mod tests {
         k
     }
 
-    /// The bisection's count in lanes against `extra_above` one candidate at a time: levels
-    /// above a candidate's first worth, between its worths, exactly on one, beyond its room and
-    /// far below everything, with falls from tiny to huge.
-    #[test]
-    fn the_count_in_lanes_is_the_sum_of_each_candidates_share() {
+    /// Candidates of the models `(ln g(2), −ln t, room)`, pixel by pixel.
+    fn candidate_lists(models: &[(f64, f64, u32)]) -> Candidates {
         let mut candidates = Candidates::default();
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        for i in 0..1000u32 {
-            let fall = -(1e-9 + 50.0 * next() * next() * next());
-            let first = 20.0 * next() - 10.0;
+        for (i, &(first, fall, room)) in models.iter().enumerate() {
             candidates.push(Candidate {
                 curve: Curve {
                     log_first: first,
-                    log_fall: fall,
+                    log_fall: -fall,
                 },
-                room: 1 + (next() * 40.0) as u32,
-                pixel: i,
+                room,
+                pixel: i as u32,
             });
         }
-        let arch = pulp::Arch::new();
-        let mut levels = vec![-1e300, -1e6, -30.0, 0.0, 10.0, 1e6];
-        levels.extend((0..40).map(|j| -12.0 + 0.55 * f64::from(j)));
-        // Exactly on a worth of some candidates.
-        levels.extend((0..20).map(|i| candidates.curve(i).log_worth(i as u32 % 3)));
-        for level in levels {
-            let one_by_one: u64 = (0..candidates.len())
-                .map(|i| u64::from(candidates.curve(i).extra_above(level, candidates.room[i])))
-                .sum();
-            let lanes = arch.dispatch(ExtraAt {
-                level,
-                candidates: &candidates,
-            });
-            assert_eq!(lanes, one_by_one, "level {level}");
-        }
+        candidates
+    }
+
+    /// The bisection's count in lanes against `extra_above` one candidate at a time.
+    fn assert_lanes_count_like_one_at_a_time(candidates: &Candidates, level: f64) {
+        let one_by_one: u64 = (0..candidates.len())
+            .map(|i| u64::from(candidates.curve(i).extra_above(level, candidates.room[i])))
+            .sum();
+        let lanes = pulp::Arch::new().dispatch(ExtraAt { level, candidates });
+        assert_eq!(lanes, one_by_one, "level {level}");
     }
 
     #[test]
@@ -715,6 +698,23 @@ mod tests {
     }
 
     proptest! {
+        /// Levels above a candidate's first worth, between its worths, exactly on one, beyond
+        /// its room and far below everything, with falls from tiny to huge (a test of the count
+        /// in lanes: taking its ceiling away fails it).
+        #[test]
+        fn the_count_in_lanes_is_the_sum_of_each_candidates_share(
+            models in prop::collection::vec((-10.0f64..10.0, 1e-9f64..50.0, 1u32..40), 1..200),
+            level in -30.0f64..12.0,
+            on in 0usize..200,
+            extra in 0u32..4,
+        ) {
+            let candidates = candidate_lists(&models);
+            let exactly = candidates.curve(on % models.len()).log_worth(extra);
+            for level in [level, exactly, -1e300, 1e6] {
+                assert_lanes_count_like_one_at_a_time(&candidates, level);
+            }
+        }
+
         /// Few distinct models, so many pixels tie (one material over a whole mesh).
         #[test]
         fn ties_give_the_greedy_result_too(
