@@ -338,7 +338,6 @@ pub fn analytic_k_reusing(
     // smallest fall of a worth per fragment.
     let lists = pixels.div_ceil(PIXELS_PER_TASK);
     scratch.chunks.resize_with(lists, Candidates::default);
-    scratch.chunks.truncate(lists);
     let ranges: Vec<Range> = scratch
         .chunks
         .par_iter_mut()
