@@ -782,7 +782,7 @@ fn difference_frames_carry_their_masks() {
         Codec::Raw,
     )
     .unwrap_err();
-    assert!(e.to_string().contains("11"), "{e}");
+    assert!(e.to_string().contains("a mask covers 11 pixels"), "{e}");
     let e = encode_delta_into(
         &mut out,
         &header,

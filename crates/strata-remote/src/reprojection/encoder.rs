@@ -141,6 +141,10 @@ impl ReprojEncoder {
                 out.match_band(b, view, rendered, projected, tolerance, entries, counts);
             });
         });
+        // `match_band` pushes one run length a pixel with that pixel's entries, and a pixel's
+        // new run is at most as long as its rendered run, so a band's lengths always add up
+        // (and stay below 2^32, as the rendered frame's fragments do): unlike the display's,
+        // which merges what a node sent, this cannot fail.
         debug_assert!(built.iter().all(|&(_, fits)| fits), "run lengths add up");
         self.spare_held = Some(old);
         if let Some(&n) = self.bands.iter().flat_map(|o| &o.removed_counts).max()
