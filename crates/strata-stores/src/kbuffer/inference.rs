@@ -12,6 +12,7 @@
 //!     2. inputs     x[u][lane] = (transform(feature[input u]) − mean_u) · scale_u
 //!     3. layers     h[o][lane] = act(b_o + Σ_i W_oi · x[i][lane])   ping-pong between two
 //!                   [width][lane] buffers; each weight multiplies LANES pixels at once
+//!                   (the built-in shape, 20-8-2: compiled with its sizes, in registers)
 //!     4. output     error curve: (a, b) → ln d, ln t, ln(1 − t) in the log domain → Worth
 //!                   other targets: σ(y) → importance
 //! ```
@@ -43,8 +44,8 @@ use super::features::{
     FEATURE_COUNT, FeatureAccumulator, FeatureBlock, FrameFeatures, LANES, Lanes,
 };
 use super::learned::{
-    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, Layer, LearnedModel, MEAN_R, Target,
-    Transform,
+    ALPHA_SUM, Activation, CONTRAST, COUNT, CURVE_FLOOR, Input, Layer, LearnedModel, MEAN_R,
+    Target, Transform,
 };
 
 /// Rows per parallel task of the importance pass.
@@ -272,25 +273,23 @@ impl LearnedModel {
     /// `a` and `b` (`[width][LANES]`) as the layers' buffers.
     #[inline(always)]
     fn network(&self, f: &FeatureBlock, a: &mut Vec<Lanes>, b: &mut Vec<Lanes>) -> [Lanes; 2] {
+        // The built-in model's shape, compiled with its sizes known.
+        if self.is_relu_mlp(20, 8, 2) {
+            return self.relu_mlp::<20, 8, 2>(f);
+        }
+        self.network_in_loops(f, a, b)
+    }
+
+    /// [`LearnedModel::network`] for any shape: loops over the layers' sizes.
+    #[inline(always)]
+    fn network_in_loops(
+        &self,
+        f: &FeatureBlock,
+        a: &mut Vec<Lanes>,
+        b: &mut Vec<Lanes>,
+    ) -> [Lanes; 2] {
         for (x, input) in a.iter_mut().zip(&self.inputs) {
-            // Whole lanes in and out (a copy, not a borrow): the shape the compiler turns into
-            // one vector operation per step.
-            let v: Lanes = f[input.feature];
-            let (mean, scale) = (input.mean, input.scale);
-            let mut y = [0.0; LANES];
-            match input.transform {
-                Transform::Identity => {
-                    for l in 0..LANES {
-                        y[l] = (v[l] - mean) * scale;
-                    }
-                }
-                Transform::Log1p => {
-                    for l in 0..LANES {
-                        y[l] = (fast_ln(1.0 + v[l].max(0.0)) - mean) * scale;
-                    }
-                }
-            }
-            *x = y;
+            *x = input_lanes(input, f);
         }
         let last = self.layers.len() - 1;
         for (li, layer) in self.layers.iter().enumerate() {
@@ -320,6 +319,93 @@ impl LearnedModel {
         }
         [a[0], if a.len() > 1 { a[1] } else { [0.0; LANES] }]
     }
+}
+
+impl LearnedModel {
+    /// True if the model is `inputs` inputs, one hidden ReLU layer of `hidden` units, and
+    /// `outputs` outputs: the shape [`LearnedModel::relu_mlp`] evaluates.
+    fn is_relu_mlp(&self, inputs: usize, hidden: usize, outputs: usize) -> bool {
+        matches!(&self.layers[..], [h, o] if h.inputs == inputs && h.outputs == hidden
+            && o.inputs == hidden && o.outputs == outputs)
+            && self.inputs.len() == inputs
+            && self.activation == Activation::Relu
+    }
+
+    /// [`LearnedModel::network`] for a model of `I` inputs, one hidden ReLU layer of `H` units
+    /// and `O` ≤ 2 outputs ([`LearnedModel::is_relu_mlp`]). The arithmetic of the general
+    /// loops in the same order (each sum starts at its bias and adds the inputs in order), so
+    /// the same bits; with the sizes known at compile time, the inputs and the hidden layer
+    /// stay in registers, each weight is read once a block, and the hidden units are `H`
+    /// independent chains of additions. On the built-in model (20, 8, 2) the importance pass
+    /// of the full dragon took 17.3 → 14.9 ms on one thread (AMD EPYC with AVX-512). Written
+    /// with plain index loops: the same loops as iterator chains (`zip` over rows of weights)
+    /// compiled to slower code than the general loops (the pass took 23 ms).
+    #[inline(always)]
+    fn relu_mlp<const I: usize, const H: usize, const O: usize>(
+        &self,
+        f: &FeatureBlock,
+    ) -> [Lanes; 2] {
+        let mut x = [[0f32; LANES]; I];
+        for (x, input) in x.iter_mut().zip(&self.inputs) {
+            *x = input_lanes(input, f);
+        }
+        let (l0, l1) = (&self.layers[0], &self.layers[1]);
+        let (w0, b0) = (&l0.weight[..I * H], &l0.bias[..H]);
+        let (w1, b1) = (&l1.weight[..H * O], &l1.bias[..O]);
+        let mut h = [[0f32; LANES]; H];
+        for o in 0..H {
+            h[o] = [b0[o]; LANES];
+        }
+        for i in 0..I {
+            for o in 0..H {
+                let w = w0[o * I + i];
+                for l in 0..LANES {
+                    h[o][l] += w * x[i][l];
+                }
+            }
+        }
+        for o in 0..H {
+            for l in 0..LANES {
+                h[o][l] = h[o][l].max(0.0);
+            }
+        }
+        let mut y = [[0f32; LANES]; 2];
+        for o in 0..O {
+            y[o] = [b1[o]; LANES];
+        }
+        for i in 0..H {
+            for o in 0..O {
+                let w = w1[o * H + i];
+                for l in 0..LANES {
+                    y[o][l] += w * h[i][l];
+                }
+            }
+        }
+        y
+    }
+}
+
+/// One network input of a block, lane by lane: `(transform(feature) − mean) · scale`. Whole
+/// lanes in and out (a copy, not a borrow): the shape the compiler turns into one vector
+/// operation per step.
+#[inline(always)]
+fn input_lanes(input: &Input, f: &FeatureBlock) -> Lanes {
+    let v: Lanes = f[input.feature];
+    let (mean, scale) = (input.mean, input.scale);
+    let mut y = [0.0; LANES];
+    match input.transform {
+        Transform::Identity => {
+            for l in 0..LANES {
+                y[l] = (v[l] - mean) * scale;
+            }
+        }
+        Transform::Log1p => {
+            for l in 0..LANES {
+                y[l] = (fast_ln(1.0 + v[l].max(0.0)) - mean) * scale;
+            }
+        }
+    }
+    y
 }
 
 /// Outputs `first .. first + G` of `layer` for the block whose inputs are `x`, into `out`:
@@ -381,5 +467,47 @@ impl CurveBlock {
             c.contrast[l] = Worth::contrast_of(mean, background);
         }
         c
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The built-in shape's network, compiled with its sizes known, gives the bits of the
+    /// general loops, for random weights and inputs of every scale.
+    #[test]
+    fn the_built_in_shape_is_the_general_loops_bit_for_bit() {
+        let mut x = 0x2545_f491u32;
+        let mut next = move |scale: f32| {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            ((x % 20_001) as f32 / 10_000.0 - 1.0) * scale
+        };
+        let mut model = LearnedModel::builtin().as_ref().clone();
+        assert!(model.is_relu_mlp(20, 8, 2), "the built-in model's shape");
+        let (mut a, mut b) = (
+            vec![[0.0; LANES]; model.width()],
+            vec![[0.0; LANES]; model.width()],
+        );
+        let mut compared = 0;
+        for round in 0..200 {
+            for layer in &mut model.layers {
+                layer.weight.iter_mut().for_each(|w| *w = next(2.0));
+                layer.bias.iter_mut().for_each(|w| *w = next(1.0));
+            }
+            for input in &mut model.inputs {
+                (input.mean, input.scale) = (next(1.0), next(3.0));
+            }
+            let scale = [1e-3, 1.0, 1e3][round % 3];
+            let f: FeatureBlock = std::array::from_fn(|_| std::array::from_fn(|_| next(scale)));
+            let fixed = model.network(&f, &mut a, &mut b);
+            let general = model.network_in_loops(&f, &mut a, &mut b);
+            let bits = |y: [Lanes; 2]| y.map(|l| l.map(f32::to_bits));
+            assert_eq!(bits(fixed), bits(general), "round {round}");
+            compared += 2 * LANES;
+        }
+        assert_eq!(compared, 200 * 2 * LANES);
     }
 }
