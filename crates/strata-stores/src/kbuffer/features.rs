@@ -366,11 +366,6 @@ impl FragmentSink for FeatureSink<'_> {
         let s = &mut self.sums[i];
         let key = nearest_key(&fragment);
         let stats = &mut *self.stats;
-        if self.counts[i] == 0 {
-            *s = PixelSums::default();
-            stats.covered += 1;
-        }
-        self.counts[i] += 1;
         stats.fragments += 1;
         // Plain compares, not `f32::min`/`max` (which also test for NaN): the key's depth is
         // never NaN, and a NaN depth fails `>` and is ignored, as `max` ignores it.
@@ -381,6 +376,32 @@ impl FragmentSink for FeatureSink<'_> {
         if fragment.depth > stats.depth_max {
             stats.depth_max = fragment.depth;
         }
+        let n = self.counts[i];
+        self.counts[i] = n + 1;
+        let square = u64::from(r * r + g * g + b * b);
+        let log_t = self.log_t[a as usize];
+        let opaque = u32::from(a == 255);
+        if n == 0 {
+            // The pixel's first fragment this frame (the counts are cleared, the sums are not):
+            // its sums are written whole, the values a cleared pixel would get from the
+            // additions below, without loading back fields just stored. (The counting pass of
+            // the full dragon: 15.6 → 14.8 ms on one thread, AMD EPYC.)
+            stats.covered += 1;
+            *s = PixelSums {
+                nearest: key.min(NO_FRAGMENT),
+                sum_sq: square,
+                log_t,
+                depth_max: if fragment.depth > 0.0 {
+                    fragment.depth
+                } else {
+                    0.0
+                },
+                alpha_max: a,
+                sum: [r, g, b, a],
+                opaque,
+            };
+            return;
+        }
         s.nearest = s.nearest.min(key);
         if fragment.depth > s.depth_max {
             s.depth_max = fragment.depth;
@@ -389,10 +410,10 @@ impl FragmentSink for FeatureSink<'_> {
         s.sum[1] += g;
         s.sum[2] += b;
         s.sum[3] += a;
-        s.sum_sq += u64::from(r * r + g * g + b * b);
+        s.sum_sq += square;
         s.alpha_max = s.alpha_max.max(a);
-        s.log_t += self.log_t[a as usize];
-        s.opaque += u32::from(a == 255);
+        s.log_t += log_t;
+        s.opaque += opaque;
     }
 }
 

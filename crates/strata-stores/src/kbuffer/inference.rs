@@ -34,12 +34,13 @@
 //! ```
 //!
 //! which never rounds `t` to 1 (a pixel whose `t` is near 1 keeps a falling worth) and costs
-//! five logarithms (two of them in `softplus`) and three exponentials a pixel, all vectorised.
+//! four logarithms and two exponentials a pixel, all vectorised (the two `softplus` share
+//! their `ln(1 + e^−|z|)`).
 
 use rayon::prelude::*;
 
 use super::analytic::Worth;
-use super::fast_math::{fast_exp, fast_ln, fast_sigmoid, softplus};
+use super::fast_math::{fast_exp, fast_ln, fast_sigmoid, ln_1p};
 use super::features::{
     FEATURE_COUNT, FeatureAccumulator, FeatureBlock, FrameFeatures, LANES, Lanes,
 };
@@ -458,8 +459,11 @@ impl CurveBlock {
             let t0 = (1.0 - f[ALPHA_SUM][l] / count).clamp(CURVE_FLOOR, 1.0 - CURVE_FLOOR);
             let ln_d = fast_ln(d0) + a[l];
             let z = fast_ln(t0) - fast_ln(1.0 - t0) + b[l];
-            let ln_t = -softplus(-z);
-            let ln_not_t = -softplus(z);
+            // `ln t = −softplus(−z)` and `ln(1 − t) = −softplus(z)`, whose logarithmic
+            // terms are one: `ln(1 + e^−|z|)`.
+            let tail = ln_1p(fast_exp(-z.abs()));
+            let ln_t = -((-z).max(0.0) + tail);
+            let ln_not_t = -(z.max(0.0) + tail);
             c.log_first[l] = ln_d + ln_not_t + ln_t;
             c.log_fall[l] = ln_t;
             c.importance[l] = fast_exp(ln_d + ln_t);
