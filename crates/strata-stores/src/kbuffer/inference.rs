@@ -365,10 +365,8 @@ impl LearnedModel {
                 }
             }
         }
-        for o in 0..H {
-            for l in 0..LANES {
-                h[o][l] = h[o][l].max(0.0);
-            }
+        for h in &mut h {
+            h.iter_mut().for_each(|v| *v = v.max(0.0));
         }
         let mut y = [[0f32; LANES]; 2];
         for o in 0..O {
