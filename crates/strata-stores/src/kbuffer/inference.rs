@@ -368,17 +368,17 @@ impl LearnedModel {
         for h in &mut h {
             h.iter_mut().for_each(|v| *v = v.max(0.0));
         }
+        // The few outputs one after the other, each its own chain over the hidden units.
         let mut y = [[0f32; LANES]; 2];
-        for o in 0..O {
-            y[o] = [b1[o]; LANES];
-        }
-        for i in 0..H {
-            for o in 0..O {
+        for (o, y) in y.iter_mut().enumerate().take(O) {
+            let mut sum = [b1[o]; LANES];
+            for (i, h) in h.iter().enumerate() {
                 let w = w1[o * H + i];
                 for l in 0..LANES {
-                    y[o][l] += w * h[i][l];
+                    sum[l] += w * h[l];
                 }
             }
+            *y = sum;
         }
         y
     }
