@@ -335,7 +335,7 @@ impl LearnedModel {
     /// [`LearnedModel::network`] for a model of `I` inputs, one hidden ReLU layer of `H` units
     /// and `O` ≤ 2 outputs ([`LearnedModel::is_relu_mlp`]). The arithmetic of the general
     /// loops in the same order (each sum starts at its bias and adds the inputs in order), so
-    /// the same bits; with the sizes known at compile time, the inputs and the hidden layer
+    /// the same bits in the `O` outputs (the others are 0); with the sizes known at compile time, the inputs and the hidden layer
     /// stay in registers, each weight is read once a block, and the hidden units are `H`
     /// independent chains of additions. On the built-in model (20, 8, 2) the importance pass
     /// of the full dragon took 17.3 → 14.9 ms on one thread (AMD EPYC with AVX-512). Written
@@ -346,6 +346,7 @@ impl LearnedModel {
         &self,
         f: &FeatureBlock,
     ) -> [Lanes; 2] {
+        const { assert!(O <= 2, "at most two outputs") };
         let mut x = [[0f32; LANES]; I];
         for (x, input) in x.iter_mut().zip(&self.inputs) {
             *x = input_lanes(input, f);
@@ -509,6 +510,23 @@ mod tests {
             let bits = |y: [Lanes; 2]| y.map(|l| l.map(f32::to_bits));
             assert_eq!(bits(fixed), bits(general), "round {round}");
             compared += 2 * LANES;
+            // Models of another activation or output count are not of the built-in shape:
+            // they run the general loops (were they taken for it, they would differ, or panic).
+            let mut sigmoid = model.clone();
+            sigmoid.activation = Activation::Sigmoid;
+            let mut one = model.clone();
+            one.layers[1] = Layer {
+                inputs: 8,
+                outputs: 1,
+                weight: one.layers[1].weight[..8].to_vec(),
+                bias: one.layers[1].bias[..1].to_vec(),
+            };
+            for other in [&sigmoid, &one] {
+                assert!(!other.is_relu_mlp(20, 8, 2));
+                let y = other.network(&f, &mut a, &mut b);
+                let general = other.network_in_loops(&f, &mut a, &mut b);
+                assert_eq!(bits(y), bits(general), "round {round}");
+            }
         }
         assert_eq!(compared, 200 * 2 * LANES);
     }
