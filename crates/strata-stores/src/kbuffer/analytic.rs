@@ -696,6 +696,47 @@ mod tests {
         }
     }
 
+    /// One scratch serves frames of many chunks, growing and shrinking, at several budgets,
+    /// with the `k` of fresh lists and the greedy's where the units left are few enough to
+    /// check by brute force (the lists' chunk boundaries included).
+    #[test]
+    fn lists_kept_between_frames_give_the_fresh_result() {
+        let mut scratch = AnalyticScratch::new();
+        let mut state = 0x853c_49e6_748f_ea9bu64;
+        let mut next = move |n: u64| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 33) % n
+        };
+        for (frame, pixels) in [30_000usize, 9_000, 17_000, 2_000, 24_577]
+            .into_iter()
+            .enumerate()
+        {
+            let counts: Vec<u32> = (0..pixels).map(|_| next(6) as u32).collect();
+            let w: Vec<Worth> = (0..pixels)
+                .map(|_| worth(0.1 + next(10) as f64 / 10.0, 0.05 + next(90) as f64 / 100.0))
+                .collect();
+            let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+            let covered = counts.iter().filter(|&&c| c > 0).count() as u64;
+            for budget in [covered / 2, covered + 40, (covered + total) / 2, total + 5] {
+                let (mut fresh, mut kept) = (Vec::new(), Vec::new());
+                let a = analytic_k(&counts, &w, budget, &mut fresh);
+                let b = analytic_k_reusing(&mut scratch, &counts, &w, budget, &mut kept);
+                assert_eq!(fresh, kept, "frame {frame}, budget {budget}");
+                assert_eq!((a.sum, b.sum), (budget.min(total), budget.min(total)));
+                if frame == 1 && budget == covered + 40 {
+                    assert_eq!(
+                        kept,
+                        greedy(&counts, &w, 40),
+                        "the units left, by brute force"
+                    );
+                }
+            }
+        }
+        assert!(scratch.memory_bytes() > 0);
+    }
+
     proptest! {
         /// Levels above a candidate's first worth, between its worths, exactly on one, beyond
         /// its room and far below everything, with falls from tiny to huge (a test of the count
