@@ -319,6 +319,46 @@ fn one_pixel_at_a_time_matches_the_maps_and_the_frame_values_the_pixels() {
     );
 }
 
+/// A frame counted in several calls (a chunked capture: the counts and sums carry over from
+/// call to call) gives the frame values and the features of one call. Each strip's `N` and `C`
+/// are taken from its counts when the strip ends, so they must be the frame's so far, not the
+/// last call's alone.
+#[test]
+fn a_frame_counted_in_several_calls_is_counted_once() {
+    use strata_stores::count::FragmentCounts;
+    use strata_stores::kbuffer::features::{FeatureAccumulator, FeatureCapture};
+    let s = scene("mixed", 80, 45);
+    let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
+    let whole = count_into(&s, &mut counts, &mut sums, 2);
+    let mut once = FeatureMaps::new();
+    let frame_once = once.compute(&sums, counts.counts(), whole / 2, s.background);
+    let input = FrameInput::from_scene(&s, 0);
+    let total = input.triangle_count();
+    for parts in [2, 5] {
+        let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
+        counts.clear(s.width, s.height).unwrap();
+        sums.clear(s.width, s.height).unwrap();
+        let mut n = 0;
+        for k in 0..parts {
+            let part = input.triangle_range(total * k / parts..total * (k + 1) / parts);
+            n += pool(2).install(|| {
+                Rasterizer::default()
+                    .prepare(&part)
+                    .rasterize(&mut FeatureCapture {
+                        counts: &mut counts,
+                        sums: &mut sums,
+                    })
+                    .fragments
+            });
+        }
+        assert_eq!(n, whole, "{parts} calls");
+        let mut maps = FeatureMaps::new();
+        let frame = maps.compute(&sums, counts.counts(), whole / 2, s.background);
+        assert_eq!(frame, frame_once, "{parts} calls");
+        assert!(maps == once, "{parts} calls: the features differ");
+    }
+}
+
 /// The sums are never cleared: a pixel's start afresh at its first fragment. Counting a frame
 /// that covers few pixels after one that covers many, with the same sums, gives the features of
 /// fresh sums, and so do 1 and 2 threads.

@@ -22,9 +22,10 @@
 //!    Fragments of a pixel arrive in primitive order from the one thread that owns the pixel's
 //!    strip, so the float sums are the same for any thread count. The sums are never cleared: a
 //!    pixel's start afresh at its first fragment (its count goes from 0 to 1), and nothing reads
-//!    the sums of a pixel whose count is 0. Each strip's sink also keeps `N`, `C` and the depth
-//!    range of its fragments, which give the frame values ([`FrameFeatures::of`]) without a
-//!    pass over the pixels.
+//!    the sums of a pixel whose count is 0. Each strip's sink also keeps the depth range of its
+//!    fragments, and sums its counts into its `N` and `C` when the strip ends (not two counters
+//!    a fragment); these give the frame values ([`FrameFeatures::of`]) without a pass over the
+//!    pixels.
 //!
 //! 2. **Finish** ([`FeatureAccumulator::block_features`]): the features of a block of [`LANES`]
 //!    pixels from their sums, the frame's counts and the budget `M`, as a struct of arrays
@@ -366,7 +367,6 @@ impl FragmentSink for FeatureSink<'_> {
         let s = &mut self.sums[i];
         let key = nearest_key(&fragment);
         let stats = &mut *self.stats;
-        stats.fragments += 1;
         // Plain compares, not `f32::min`/`max` (which also test for NaN): the key's depth is
         // never NaN, and a NaN depth fails `>` and is ignored, as `max` ignores it.
         let near = f32::from_bits((key >> 32) as u32);
@@ -386,7 +386,6 @@ impl FragmentSink for FeatureSink<'_> {
             // its sums are written whole, the values a cleared pixel would get from the
             // additions below, without loading back fields just stored. (The counting pass of
             // the full dragon: 15.6 → 14.8 ms on one thread, AMD EPYC.)
-            stats.covered += 1;
             *s = PixelSums {
                 // `min(NO_FRAGMENT, key)`: no key is above `NO_FRAGMENT`.
                 nearest: key,
@@ -415,6 +414,18 @@ impl FragmentSink for FeatureSink<'_> {
         s.alpha_max = s.alpha_max.max(a);
         s.log_t += log_t;
         s.opaque += opaque;
+    }
+
+    /// The strip's `N` and `C` from its counts, once, rather than two counters a fragment (the
+    /// counting pass of the full dragon, one thread, AMD EPYC: 14.80 → 14.51 ms, medians of six
+    /// side-by-side rounds).
+    fn finish(&mut self) {
+        let (mut fragments, mut covered) = (0u64, 0u64);
+        for &c in self.counts.iter() {
+            fragments += u64::from(c);
+            covered += u64::from(c != 0);
+        }
+        (self.stats.fragments, self.stats.covered) = (fragments, covered);
     }
 }
 
