@@ -9,15 +9,25 @@
 //!    fragment updates one or two cache lines rather than one per sum:
 //!
 //!    ```text
-//!    nearest:       u64   (depth bits << 32) | rgba8 bits of the nearest fragment; the minimum
-//!                         key wins, so ties between equal depths break on the colour bits
-//!    sum_sq:        u64   Σ (r² + g² + b²), 8-bit channels
+//!    head:          [u64; 2]  three or more fragments: [nearest, sum_sq] below;
+//!                             one or two: the keys of the first and second fragment
+//!      nearest:     u64   key (depth bits << 32) | rgba8 bits of the nearest fragment; the
+//!                         minimum key wins, so ties between equal depths break on the colour
+//!      sum_sq:      u64   Σ (r² + g² + b²), 8-bit channels
 //!    log_t:         u64   Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
 //!    depth_max:     f32   farthest window depth
 //!    alpha_max:     u32   max α, 8-bit
 //!    sum:           [u32; 4]  Σ straight-alpha r, g, b and α, 8-bit channels
 //!    opaque:        u32   fragments with α = 1 (255)
 //!    ```
+//!
+//!    A fragment's key holds all the sums need of it (its depth, clamped to 0 as the sums
+//!    clamp it, and its colour). So a pixel's first two fragments are kept as two keys, stored
+//!    without reading anything back, and its sums are formed from them at its third
+//!    ([`PixelSums::settled`] forms them for a pixel of one or two, when the features are
+//!    read). Most covered pixels of a closed mesh hold two fragments (the full dragon: all
+//!    415,085 hold two or more, 48,004 three or more): their counting touches 16 bytes of the
+//!    sums and never loads them.
 //!
 //!    Fragments of a pixel arrive in primitive order from the one thread that owns the pixel's
 //!    strip, so the float sums are the same for any thread count. The sums are never cleared: a
@@ -201,11 +211,12 @@ pub fn feature_index(name: &str) -> Option<usize> {
 /// Rows per parallel work item of the finishing pass.
 const ROWS_PER_TASK: usize = 8;
 
-/// One pixel's order-independent sums; see the module docs.
+/// One pixel's order-independent sums, or its first two fragments' keys; see the module docs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PixelSums {
-    nearest: u64,
-    sum_sq: u64,
+    /// Three or more fragments: `[nearest, sum_sq]`. One or two: the fragments' keys, and the
+    /// fields below are stale.
+    head: [u64; 2],
     log_t: u64,
     depth_max: f32,
     alpha_max: u32,
@@ -216,14 +227,64 @@ pub struct PixelSums {
 impl Default for PixelSums {
     fn default() -> Self {
         PixelSums {
-            nearest: NO_FRAGMENT,
-            sum_sq: 0,
+            head: [NO_FRAGMENT, 0],
             log_t: 0,
             depth_max: 0.0,
             alpha_max: 0,
             sum: [0; 4],
             opaque: 0,
         }
+    }
+}
+
+impl PixelSums {
+    /// The sums of a pixel whose one fragment has `key` ([`nearest_key`]).
+    #[inline(always)]
+    fn of_key(key: u64, log_t: &[u64; 256]) -> PixelSums {
+        let [r, g, b, a] = Rgba8::from_bits(key as u32).0.map(u32::from);
+        PixelSums {
+            // `min(NO_FRAGMENT, key)`: no key is above `NO_FRAGMENT`.
+            head: [key, u64::from(r * r + g * g + b * b)],
+            log_t: log_t[a as usize],
+            // The key's depth: the fragment's, or 0 where that is not above 0 (NaN included).
+            depth_max: f32::from_bits((key >> 32) as u32),
+            alpha_max: a,
+            sum: [r, g, b, a],
+            opaque: u32::from(a == 255),
+        }
+    }
+
+    /// Adds the fragment of `key` to these sums (of one fragment or more).
+    #[inline(always)]
+    fn add_key(&mut self, key: u64, log_t: &[u64; 256]) {
+        let [r, g, b, a] = Rgba8::from_bits(key as u32).0.map(u32::from);
+        let depth = f32::from_bits((key >> 32) as u32);
+        self.head[0] = self.head[0].min(key);
+        self.head[1] += u64::from(r * r + g * g + b * b);
+        if depth > self.depth_max {
+            self.depth_max = depth;
+        }
+        self.sum[0] += r;
+        self.sum[1] += g;
+        self.sum[2] += b;
+        self.sum[3] += a;
+        self.alpha_max = self.alpha_max.max(a);
+        self.log_t += log_t[a as usize];
+        self.opaque += u32::from(a == 255);
+    }
+
+    /// The sums of a pixel of `count` fragments (at least 1), formed from its keys if it has
+    /// one or two.
+    #[inline(always)]
+    fn settled(&self, count: u32, log_t: &[u64; 256]) -> PixelSums {
+        if count > 2 {
+            return *self;
+        }
+        let mut sums = PixelSums::of_key(self.head[0], log_t);
+        if count == 2 {
+            sums.add_key(self.head[1], log_t);
+        }
+        sums
     }
 }
 
@@ -318,7 +379,7 @@ impl FeatureAccumulator {
             return ([0.0; 3], 0.0);
         }
         let unit = |sum: u32| mean_of(sum as f32, count as f32);
-        let [r, g, b, a] = self.sums[p].sum;
+        let [r, g, b, a] = self.sums[p].settled(count, log_t_table()).sum;
         ([unit(r), unit(g), unit(b)], unit(a))
     }
 
@@ -363,8 +424,6 @@ impl FragmentSink for FeatureSink<'_> {
     #[inline(always)]
     fn push(&mut self, pixel: u32, fragment: Fragment) {
         let i = pixel as usize - self.first_pixel;
-        let [r, g, b, a] = fragment.color.0.map(u32::from);
-        let s = &mut self.sums[i];
         let key = nearest_key(&fragment);
         let stats = &mut *self.stats;
         // Plain compares, not `f32::min`/`max` (which also test for NaN): the key's depth is
@@ -378,42 +437,23 @@ impl FragmentSink for FeatureSink<'_> {
         }
         let n = self.counts[i];
         self.counts[i] = n + 1;
-        let square = u64::from(r * r + g * g + b * b);
-        let log_t = self.log_t[a as usize];
-        let opaque = u32::from(a == 255);
-        if n == 0 {
-            // The pixel's first fragment this frame (the counts are cleared, the sums are not):
-            // its sums are written whole, the values a cleared pixel would get from the
-            // additions below, without loading back fields just stored. (The counting pass of
-            // the full dragon: 15.6 → 14.8 ms on one thread, AMD EPYC.)
-            *s = PixelSums {
-                // `min(NO_FRAGMENT, key)`: no key is above `NO_FRAGMENT`.
-                nearest: key,
-                sum_sq: square,
-                log_t,
-                depth_max: if fragment.depth > 0.0 {
-                    fragment.depth
-                } else {
-                    0.0
-                },
-                alpha_max: a,
-                sum: [r, g, b, a],
-                opaque,
-            };
-            return;
+        let s = &mut self.sums[i];
+        if n < 2 {
+            // The pixel's first or second fragment this frame (the counts are cleared, the
+            // sums are not): kept as its key, stored without loading anything back. (The full
+            // dragon, AMD EPYC, against writing the sums whole at the first fragment and adding
+            // to them after: the counting pass 14.0 → 12.2 ms on one thread, the importance
+            // pass, which forms the sums of such pixels from their keys, 13.5 → 13.9 ms.)
+            s.head[n as usize & 1] = key;
+        } else if n == 2 {
+            // The third: the sums of all three, written whole.
+            let mut sums = PixelSums::of_key(s.head[0], self.log_t);
+            sums.add_key(s.head[1], self.log_t);
+            sums.add_key(key, self.log_t);
+            *s = sums;
+        } else {
+            s.add_key(key, self.log_t);
         }
-        s.nearest = s.nearest.min(key);
-        if fragment.depth > s.depth_max {
-            s.depth_max = fragment.depth;
-        }
-        s.sum[0] += r;
-        s.sum[1] += g;
-        s.sum[2] += b;
-        s.sum[3] += a;
-        s.sum_sq += square;
-        s.alpha_max = s.alpha_max.max(a);
-        s.log_t += log_t;
-        s.opaque += opaque;
     }
 
     /// The strip's `N` and `C` from its counts, once, rather than two counters a fragment (the
@@ -735,6 +775,91 @@ struct Gathered {
     around: [[u32; LANES]; 3],
     x: [u32; LANES],
     y: [u32; LANES],
+    /// 1 where the fields above were copied from settled sums (three fragments or more); else
+    /// they follow from the keys below, in lanes (`PixelSums::settled`'s values).
+    settled: [u32; LANES],
+    /// A pixel of one or two fragments: its keys (the first twice for one); zeros elsewhere.
+    keys: [[u64; LANES]; 2],
+}
+
+// Lane loops index several planes by one lane: the shape the compiler vectorises.
+#[allow(clippy::needless_range_loop)]
+impl Gathered {
+    /// Lane `l` from the settled sums `s` of a pixel of `count` fragments.
+    #[inline(always)]
+    fn take_settled(&mut self, l: usize, count: u32, s: &PixelSums) {
+        let [nearest, sum_sq] = s.head;
+        self.count[l] = count;
+        self.near_depth[l] = f32::from_bits((nearest >> 32) as u32);
+        let near = Rgba8::from_bits(nearest as u32).0;
+        for c in 0..4 {
+            self.near[c][l] = u32::from(near[c]);
+            self.sum[c][l] = s.sum[c];
+        }
+        self.depth_max[l] = s.depth_max;
+        self.alpha_max[l] = s.alpha_max;
+        self.log_t[l] = if s.opaque > 0 {
+            f32::INFINITY
+        } else {
+            s.log_t as f32
+        };
+        self.opaque[l] = s.opaque;
+        self.spread[l] = spread(count, sum_sq, s.sum);
+        self.settled[l] = 1;
+    }
+
+    /// Lane `l` from the keys in `s` of a pixel of one or two fragments; its values follow in
+    /// [`Gathered::settle_keys`].
+    #[inline(always)]
+    fn take_keys(&mut self, l: usize, count: u32, s: &PixelSums) {
+        self.count[l] = count;
+        self.keys[0][l] = s.head[0];
+        self.keys[1][l] = if count == 2 { s.head[1] } else { s.head[0] };
+    }
+
+    /// The lanes of pixels of one or two fragments (most of a closed mesh's) from their keys:
+    /// the values [`Gathered::take_settled`] gives for [`PixelSums::settled`]'s sums (a test
+    /// holds them equal). A pixel of one has its key twice, where a repeat changes nothing
+    /// (the nearest, the maxima, the spread), and counts it once in the sums (`two` is 0).
+    /// Lanes without a pixel have zero keys, which give the zeros they hold.
+    #[inline(always)]
+    fn settle_keys(&mut self, log_t: &[u64; 256]) {
+        for l in 0..LANES {
+            if self.settled[l] != 0 {
+                continue;
+            }
+            let [k0, k1] = [self.keys[0][l], self.keys[1][l]];
+            let two = u32::from(self.count[l] == 2);
+            let nearest = k0.min(k1);
+            self.near_depth[l] = f32::from_bits((nearest >> 32) as u32);
+            let channel = |k: u64, c: usize| (k >> (8 * c)) as u32 & 0xff;
+            let mut diff = 0;
+            for c in 0..4 {
+                let (a, b) = (channel(k0, c), channel(k1, c));
+                self.near[c][l] = channel(nearest, c);
+                self.sum[c][l] = a + two * b;
+                if c < 3 {
+                    diff += a.abs_diff(b).pow(2);
+                }
+            }
+            let (d0, d1) = (
+                f32::from_bits((k0 >> 32) as u32),
+                f32::from_bits((k1 >> 32) as u32),
+            );
+            self.depth_max[l] = if d1 > d0 { d1 } else { d0 };
+            let (a0, a1) = (channel(k0, 3), channel(k1, 3));
+            self.alpha_max[l] = a0.max(a1);
+            let opaque = u32::from(a0 == 255) + two * u32::from(a1 == 255);
+            self.opaque[l] = opaque;
+            self.log_t[l] = if opaque > 0 {
+                f32::INFINITY
+            } else {
+                (log_t[a0 as usize] + u64::from(two) * log_t[a1 as usize]) as f32
+            };
+            // count · Σc² − (Σc)² of two fragments is Σ (c₀ − c₁)², and 0 for one.
+            self.spread[l] = diff as f32;
+        }
+    }
 }
 
 impl FeatureAccumulator {
@@ -790,24 +915,14 @@ impl FeatureAccumulator {
                 g.around[2][l] = 9;
             }
         }
-        // One pixel's sums into lane `l`.
+        // One pixel's sums into lane `l`: copied where they are settled, else its keys, whose
+        // values follow in lanes (`Gathered::settle_keys`).
         let take = |g: &mut Gathered, l: usize, count: u32, s: &PixelSums| {
-            g.count[l] = count;
-            g.near_depth[l] = f32::from_bits((s.nearest >> 32) as u32);
-            let near = Rgba8::from_bits(s.nearest as u32).0;
-            for c in 0..4 {
-                g.near[c][l] = u32::from(near[c]);
-                g.sum[c][l] = s.sum[c];
-            }
-            g.depth_max[l] = s.depth_max;
-            g.alpha_max[l] = s.alpha_max;
-            g.log_t[l] = if s.opaque > 0 {
-                f32::INFINITY
+            if count > 2 {
+                g.take_settled(l, count, s);
             } else {
-                s.log_t as f32
-            };
-            g.opaque[l] = s.opaque;
-            g.spread[l] = spread(count, s.sum_sq, s.sum);
+                g.take_keys(l, count, s);
+            }
         };
         if run {
             // Such a block's columns follow from the first, and its counts and sums are one
@@ -841,6 +956,7 @@ impl FeatureAccumulator {
                 }
             }
         }
+        g.settle_keys(log_t_table());
         // The integers as f32, lane by lane (every one converts to its nearest f32, in lanes
         // as one at a time).
         let f = |v: [u32; LANES]| v.map(|v| v as f32);
@@ -943,6 +1059,63 @@ mod tests {
     fn spread_wide(count: u32, sum_sq: u64, sum: [u32; 4]) -> f32 {
         let squares: u128 = sum[..3].iter().map(|&c| u128::from(c).pow(2)).sum();
         (u128::from(count) * u128::from(sum_sq)).saturating_sub(squares) as f32
+    }
+
+    /// A pixel of one or two fragments read from its keys in lanes (`settle_keys`) gives the
+    /// values its settled sums give (`take_settled` of `PixelSums::settled`): the same nearest
+    /// fragment, maxima, sums, transmittance and spread, bit for bit. Dropping the second
+    /// key's colour from the sums, or its alpha from the transmittance, fails it.
+    #[test]
+    fn keys_give_the_values_of_their_settled_sums() {
+        let table = log_t_table();
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let key = |r: u64| {
+            let depth = match r % 4 {
+                0 => 0,
+                1 => 1.0f32.to_bits(),
+                _ => ((r >> 40) as f32 / (1u64 << 24) as f32).to_bits(),
+            };
+            let alpha = match (r >> 2) % 4 {
+                0 => 0,
+                1 => 255,
+                _ => (r >> 16) as u8,
+            };
+            let colour = Rgba8([(r >> 24) as u8, (r >> 32) as u8, (r >> 48) as u8, alpha]);
+            (u64::from(depth) << 32) | u64::from(colour.to_bits())
+        };
+        let bits = |v: &Lanes| v.map(f32::to_bits);
+        for round in 0..2000 {
+            let (mut from_keys, mut from_sums) = (Gathered::default(), Gathered::default());
+            for l in 0..LANES {
+                let count = (next() % 3) as u32;
+                if count == 0 {
+                    continue; // an uncovered lane: nothing taken either way
+                }
+                let stale = PixelSums {
+                    head: [key(next()), key(next())],
+                    ..PixelSums::of_key(key(next()), table)
+                };
+                from_keys.take_keys(l, count, &stale);
+                from_sums.take_settled(l, count, &stale.settled(count, table));
+            }
+            from_keys.settle_keys(table);
+            let (a, b) = (&from_keys, &from_sums);
+            assert_eq!(a.count, b.count, "round {round}");
+            assert_eq!(bits(&a.near_depth), bits(&b.near_depth), "round {round}");
+            assert_eq!(a.near, b.near, "round {round}");
+            assert_eq!(bits(&a.depth_max), bits(&b.depth_max), "round {round}");
+            assert_eq!(a.alpha_max, b.alpha_max, "round {round}");
+            assert_eq!(a.sum, b.sum, "round {round}");
+            assert_eq!(bits(&a.log_t), bits(&b.log_t), "round {round}");
+            assert_eq!(a.opaque, b.opaque, "round {round}");
+            assert_eq!(bits(&a.spread), bits(&b.spread), "round {round}");
+        }
     }
 
     #[test]
