@@ -5,29 +5,33 @@
 //!
 //! 1. **Accumulate** ([`FeatureAccumulator`], filled through [`FeatureCapture`] together with the
 //!    fragment counts): order-independent per-pixel sums, strip-owned like the counters, so no
-//!    atomics. Layout: one [`PixelSums`] per pixel, row-major (56 bytes with padding), so a
-//!    fragment updates one or two cache lines rather than one per sum:
+//!    atomics. Layout: a pixel's [`PixelSums`] (56 bytes) in two row-major arrays, its `head`
+//!    (16 bytes) in one and the `rest` (40 bytes with padding) in the other:
 //!
 //!    ```text
-//!    head:          [u64; 2]  three or more fragments: [nearest, sum_sq] below;
-//!                             one or two: the keys of the first and second fragment
+//!    heads[p]:      [u64; 2]  three or more fragments: [nearest, sum_sq];
+//!                             one or two: the keys of the first and the second fragment
 //!      nearest:     u64   key (depth bits << 32) | rgba8 bits of the nearest fragment; the
 //!                         minimum key wins, so ties between equal depths break on the colour
 //!      sum_sq:      u64   Σ (r² + g² + b²), 8-bit channels
-//!    log_t:         u64   Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
-//!    depth_max:     f32   farthest window depth
-//!    alpha_max:     u32   max α, 8-bit
-//!    sum:           [u32; 4]  Σ straight-alpha r, g, b and α, 8-bit channels
-//!    opaque:        u32   fragments with α = 1 (255)
+//!    rests[p]:      (three or more fragments; stale below)
+//!      log_t:       u64   Σ −ln(1 − α) over the non-opaque fragments, fixed point (2⁻²⁰)
+//!      depth_max:   f32   farthest window depth
+//!      alpha_max:   u32   max α, 8-bit
+//!      sum:         [u32; 4]  Σ straight-alpha r, g, b and α, 8-bit channels
+//!      opaque:      u32   fragments with α = 1 (255)
 //!    ```
 //!
 //!    A fragment's key holds all the sums need of it (its depth, clamped to 0 as the sums
 //!    clamp it, and its colour). So a pixel's first two fragments are kept as two keys, stored
 //!    without reading anything back, and its sums are formed from them at its third
-//!    ([`PixelSums::settled`] forms them for a pixel of one or two, when the features are
-//!    read). Most covered pixels of a closed mesh hold two fragments (the full dragon: all
-//!    415,085 hold two or more, 48,004 three or more): their counting touches 16 bytes of the
-//!    sums and never loads them.
+//!    (`PixelSums::settled` forms them for a pixel of one or two, and the importance pass
+//!    reads such a pixel's values straight from its keys, in lanes). Most covered pixels of a
+//!    closed mesh hold two fragments (the full dragon: all 415,085 hold two or more, 48,004
+//!    three or more): their counting writes 16 bytes, four pixels to a cache line, and loads
+//!    nothing. The counting pass of the full dragon on one thread, AMD EPYC: 14.0 ms with one
+//!    56-byte record a pixel, written whole at the first fragment and added to after; 12.1 ms
+//!    with the keys in the record's first 16 bytes; 11.4 ms with them in an array of their own.
 //!
 //!    Fragments of a pixel arrive in primitive order from the one thread that owns the pixel's
 //!    strip, so the float sums are the same for any thread count. The sums are never cleared: a
@@ -211,12 +215,19 @@ pub fn feature_index(name: &str) -> Option<usize> {
 /// Rows per parallel work item of the finishing pass.
 const ROWS_PER_TASK: usize = 8;
 
-/// One pixel's order-independent sums, or its first two fragments' keys; see the module docs.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// One pixel's order-independent sums, as the accumulator's two arrays hold them: `head` in
+/// one, `rest` in the other; see the module docs.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PixelSums {
-    /// Three or more fragments: `[nearest, sum_sq]`. One or two: the fragments' keys, and the
-    /// fields below are stale.
+    /// Three or more fragments: `[nearest, sum_sq]`. One or two: the fragments' keys, and
+    /// `rest` is stale.
     head: [u64; 2],
+    rest: PixelRest,
+}
+
+/// The sums beside `[nearest, sum_sq]`, valid for a pixel of three or more fragments.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PixelRest {
     log_t: u64,
     depth_max: f32,
     alpha_max: u32,
@@ -224,10 +235,9 @@ pub struct PixelSums {
     opaque: u32,
 }
 
-impl Default for PixelSums {
+impl Default for PixelRest {
     fn default() -> Self {
-        PixelSums {
-            head: [NO_FRAGMENT, 0],
+        PixelRest {
             log_t: 0,
             depth_max: 0.0,
             alpha_max: 0,
@@ -243,14 +253,16 @@ impl PixelSums {
     fn of_key(key: u64, log_t: &[u64; 256]) -> PixelSums {
         let [r, g, b, a] = Rgba8::from_bits(key as u32).0.map(u32::from);
         PixelSums {
-            // `min(NO_FRAGMENT, key)`: no key is above `NO_FRAGMENT`.
             head: [key, u64::from(r * r + g * g + b * b)],
-            log_t: log_t[a as usize],
-            // The key's depth: the fragment's, or 0 where that is not above 0 (NaN included).
-            depth_max: f32::from_bits((key >> 32) as u32),
-            alpha_max: a,
-            sum: [r, g, b, a],
-            opaque: u32::from(a == 255),
+            rest: PixelRest {
+                log_t: log_t[a as usize],
+                // The key's depth: the fragment's, or 0 where that is not above 0 (NaN
+                // included).
+                depth_max: f32::from_bits((key >> 32) as u32),
+                alpha_max: a,
+                sum: [r, g, b, a],
+                opaque: u32::from(a == 255),
+            },
         }
     }
 
@@ -261,16 +273,17 @@ impl PixelSums {
         let depth = f32::from_bits((key >> 32) as u32);
         self.head[0] = self.head[0].min(key);
         self.head[1] += u64::from(r * r + g * g + b * b);
-        if depth > self.depth_max {
-            self.depth_max = depth;
+        let rest = &mut self.rest;
+        if depth > rest.depth_max {
+            rest.depth_max = depth;
         }
-        self.sum[0] += r;
-        self.sum[1] += g;
-        self.sum[2] += b;
-        self.sum[3] += a;
-        self.alpha_max = self.alpha_max.max(a);
-        self.log_t += log_t[a as usize];
-        self.opaque += u32::from(a == 255);
+        rest.sum[0] += r;
+        rest.sum[1] += g;
+        rest.sum[2] += b;
+        rest.sum[3] += a;
+        rest.alpha_max = rest.alpha_max.max(a);
+        rest.log_t += log_t[a as usize];
+        rest.opaque += u32::from(a == 255);
     }
 
     /// The sums of a pixel of `count` fragments (at least 1), formed from its keys if it has
@@ -296,7 +309,10 @@ impl PixelSums {
 pub struct FeatureAccumulator {
     width: u32,
     height: u32,
-    sums: Vec<PixelSums>,
+    /// Per pixel, `PixelSums::head`: its first two fragments' keys, or the head of its sums.
+    heads: Vec<[u64; 2]>,
+    /// Per pixel, `PixelSums::rest`.
+    rests: Vec<PixelRest>,
     /// `N`, `C` and the depth range of each strip's fragments, kept by its sink.
     strips: Vec<StripStats>,
 }
@@ -340,9 +356,6 @@ fn log_t_table() -> &'static [u64; 256] {
     })
 }
 
-/// The `nearest` key of an empty pixel.
-const NO_FRAGMENT: u64 = u64::MAX;
-
 impl FeatureAccumulator {
     /// Empty sums.
     pub fn new() -> Self {
@@ -355,9 +368,14 @@ impl FeatureAccumulator {
         let n = width as usize * height as usize;
         (self.width, self.height) = (width, height);
         self.strips.clear();
-        if self.sums.len() != n {
-            self.sums = Vec::new();
-            self.sums = try_alloc(
+        if self.heads.len() != n {
+            (self.heads, self.rests) = (Vec::new(), Vec::new());
+            self.heads = try_alloc(
+                n,
+                || format!("{n} per-pixel feature sums (heads)"),
+                "render a smaller image",
+            )?;
+            self.rests = try_alloc(
                 n,
                 || format!("{n} per-pixel feature sums"),
                 "render a smaller image",
@@ -379,13 +397,22 @@ impl FeatureAccumulator {
             return ([0.0; 3], 0.0);
         }
         let unit = |sum: u32| mean_of(sum as f32, count as f32);
-        let [r, g, b, a] = self.sums[p].settled(count, log_t_table()).sum;
+        let [r, g, b, a] = self.pixel_sums(p).settled(count, log_t_table()).rest.sum;
         ([unit(r), unit(g), unit(b)], unit(a))
+    }
+
+    /// Pixel `p`'s sums as stored (keys, for a pixel of one or two fragments).
+    fn pixel_sums(&self, p: usize) -> PixelSums {
+        PixelSums {
+            head: self.heads[p],
+            rest: self.rests[p],
+        }
     }
 
     /// Bytes of the sums.
     pub fn memory_bytes(&self) -> u64 {
-        (self.sums.len() * std::mem::size_of::<PixelSums>()) as u64
+        (self.heads.len() * size_of::<[u64; 2]>() + self.rests.len() * size_of::<PixelRest>())
+            as u64
     }
 }
 
@@ -415,7 +442,8 @@ pub struct FeatureCapture<'a> {
 pub struct FeatureSink<'a> {
     first_pixel: usize,
     counts: &'a mut [u32],
-    sums: &'a mut [PixelSums],
+    heads: &'a mut [[u64; 2]],
+    rests: &'a mut [PixelRest],
     stats: &'a mut StripStats,
     log_t: &'static [u64; 256],
 }
@@ -437,23 +465,28 @@ impl FragmentSink for FeatureSink<'_> {
         }
         let n = self.counts[i];
         self.counts[i] = n + 1;
-        let s = &mut self.sums[i];
+        let head = &mut self.heads[i];
         if n < 2 {
             // The pixel's first or second fragment this frame (the counts are cleared, the
-            // sums are not): kept as its key, stored without loading anything back. (The full
-            // dragon, AMD EPYC, against writing the sums whole at the first fragment and adding
-            // to them after: the counting pass 14.0 → 12.2 ms on one thread, the importance
-            // pass, which forms the sums of such pixels from their keys, 13.5 → 13.9 ms.)
-            s.head[n as usize & 1] = key;
-        } else if n == 2 {
-            // The third: the sums of all three, written whole.
-            let mut sums = PixelSums::of_key(s.head[0], self.log_t);
-            sums.add_key(s.head[1], self.log_t);
-            sums.add_key(key, self.log_t);
-            *s = sums;
-        } else {
-            s.add_key(key, self.log_t);
+            // sums are not): kept as its key, stored without loading anything back (the
+            // module docs give the counting pass's times).
+            head[n as usize & 1] = key;
+            return;
         }
+        let rest = &mut self.rests[i];
+        let mut sums = if n == 2 {
+            // The third: the sums of all three, written whole.
+            let mut sums = PixelSums::of_key(head[0], self.log_t);
+            sums.add_key(head[1], self.log_t);
+            sums
+        } else {
+            PixelSums {
+                head: *head,
+                rest: *rest,
+            }
+        };
+        sums.add_key(key, self.log_t);
+        (*head, *rest) = (sums.head, sums.rest);
     }
 
     /// The strip's `N` and `C` from its counts, once, rather than two counters a fragment (the
@@ -490,14 +523,16 @@ impl CaptureTarget for FeatureCapture<'_> {
             s.strips = vec![StripStats::default(); layout.count()];
         }
         let mut counts = layout.split_mut(self.counts.counts_mut());
-        let mut sums = layout.split_mut(&mut s.sums);
+        let mut heads = layout.split_mut(&mut s.heads);
+        let mut rests = layout.split_mut(&mut s.rests);
         let mut stats = s.strips.iter_mut();
         (0..layout.count())
             .filter_map(|strip| {
                 Some(FeatureSink {
                     first_pixel: layout.pixels(strip).start,
                     counts: counts.next()?,
-                    sums: sums.next()?,
+                    heads: heads.next()?,
+                    rests: rests.next()?,
                     stats: stats.next()?,
                     log_t: log_t_table(),
                 })
@@ -794,27 +829,27 @@ impl Gathered {
         let near = Rgba8::from_bits(nearest as u32).0;
         for c in 0..4 {
             self.near[c][l] = u32::from(near[c]);
-            self.sum[c][l] = s.sum[c];
+            self.sum[c][l] = s.rest.sum[c];
         }
-        self.depth_max[l] = s.depth_max;
-        self.alpha_max[l] = s.alpha_max;
-        self.log_t[l] = if s.opaque > 0 {
+        self.depth_max[l] = s.rest.depth_max;
+        self.alpha_max[l] = s.rest.alpha_max;
+        self.log_t[l] = if s.rest.opaque > 0 {
             f32::INFINITY
         } else {
-            s.log_t as f32
+            s.rest.log_t as f32
         };
-        self.opaque[l] = s.opaque;
-        self.spread[l] = spread(count, sum_sq, s.sum);
+        self.opaque[l] = s.rest.opaque;
+        self.spread[l] = spread(count, sum_sq, s.rest.sum);
         self.settled[l] = 1;
     }
 
-    /// Lane `l` from the keys in `s` of a pixel of one or two fragments; its values follow in
+    /// Lane `l` from the keys in `head` of a pixel of one or two fragments; its values follow in
     /// [`Gathered::settle_keys`].
     #[inline(always)]
-    fn take_keys(&mut self, l: usize, count: u32, s: &PixelSums) {
+    fn take_keys(&mut self, l: usize, count: u32, head: &[u64; 2]) {
         self.count[l] = count;
-        self.keys[0][l] = s.head[0];
-        self.keys[1][l] = if count == 2 { s.head[1] } else { s.head[0] };
+        self.keys[0][l] = head[0];
+        self.keys[1][l] = if count == 2 { head[1] } else { head[0] };
     }
 
     /// The lanes of pixels of one or two fragments (most of a closed mesh's) from their keys:
@@ -917,11 +952,12 @@ impl FeatureAccumulator {
         }
         // One pixel's sums into lane `l`: copied where they are settled, else its keys, whose
         // values follow in lanes (`Gathered::settle_keys`).
-        let take = |g: &mut Gathered, l: usize, count: u32, s: &PixelSums| {
+        let take = |g: &mut Gathered, l: usize, count: u32, head: &[u64; 2], rest: &PixelRest| {
             if count > 2 {
-                g.take_settled(l, count, s);
+                let (head, rest) = (*head, *rest);
+                g.take_settled(l, count, &PixelSums { head, rest });
             } else {
-                g.take_keys(l, count, s);
+                g.take_keys(l, count, head);
             }
         };
         if run {
@@ -931,11 +967,12 @@ impl FeatureAccumulator {
             let p0 = pixels[0];
             let (x0, y0) = (p0 % w, p0 / w);
             let row = &counts[p0..p0 + LANES];
-            let sums = &self.sums[p0..p0 + LANES];
+            let heads = &self.heads[p0..p0 + LANES];
+            let rests = &self.rests[p0..p0 + LANES];
             for l in 0..LANES {
                 (g.x[l], g.y[l]) = ((x0 + l) as u32, y0 as u32);
                 if row[l] != 0 {
-                    take(&mut g, l, row[l], &sums[l]);
+                    take(&mut g, l, row[l], &heads[l], &rests[l]);
                 }
             }
         } else {
@@ -952,7 +989,7 @@ impl FeatureAccumulator {
                 let [sum, max, n] = neighbourhood(counts, w, h, x, y);
                 (g.around[0][l], g.around[1][l], g.around[2][l]) = (sum, max, n);
                 if counts[p] != 0 {
-                    take(&mut g, l, counts[p], &self.sums[p]);
+                    take(&mut g, l, counts[p], &self.heads[p], &self.rests[p]);
                 }
             }
         }
@@ -1101,7 +1138,7 @@ mod tests {
                     head: [key(next()), key(next())],
                     ..PixelSums::of_key(key(next()), table)
                 };
-                from_keys.take_keys(l, count, &stale);
+                from_keys.take_keys(l, count, &stale.head);
                 from_sums.take_settled(l, count, &stale.settled(count, table));
             }
             from_keys.settle_keys(table);
