@@ -150,6 +150,97 @@ fn features_of_known_layers_by_hand() {
     assert_eq!(feature(&maps, 5, "alpha_max"), 1.0);
 }
 
+/// Pixels of one and of two fragments, whose features the counting pass forms from the
+/// fragments' keys rather than from running sums: by hand, like three.
+#[test]
+fn features_of_one_and_two_layers_by_hand() {
+    let (a0, a1) = (128.0 / 255.0, 64.0 / 255.0);
+    let (near, mid) = (window_depth(1.6), window_depth(2.1));
+    let nearest = |scene: Scene, n: usize| Scene {
+        objects: scene.objects[3 - n..].to_vec(),
+        ..scene
+    };
+    // The red quad in front of the green one (drawn first).
+    let (_, maps) = features(
+        &nearest(layers([128, 64, 204]), 2),
+        Budget::SceneShare(0.5),
+        1,
+    );
+    let frame = maps.frame().unwrap();
+    assert_eq!((frame.total, frame.covered), (96, 48));
+    for p in [0usize, 7, 21, 47] {
+        let want = [
+            ("count", 2.0),
+            ("depth_min", near),
+            ("depth_max", mid),
+            ("scene_depth_min", near),
+            ("scene_depth_max", mid),
+            ("mean_r", 0.5),
+            ("mean_g", 0.5),
+            ("mean_b", 0.0),
+            ("nearest_r", 1.0),
+            ("nearest_g", 0.0),
+            ("nearest_alpha", a0),
+            ("alpha_sum", a0 + a1),
+            ("alpha_max", a0),
+            ("transmittance", (1.0 - a0) * (1.0 - a1)),
+            ("opaque_count", 0.0),
+            // Red and green are each 1 in one fragment of two (1/2 − 1/4), blue is 0.
+            ("color_variance", (0.25 + 0.25) / 3.0),
+            ("count_mean_3x3", 2.0),
+            ("count_max_3x3", 2.0),
+            ("contrast", 0.5f32.sqrt()),
+            ("nearest_contrast", 1.0),
+        ];
+        for (name, value) in want {
+            let got = feature(&maps, p, name);
+            assert!(
+                close(got, value),
+                "two layers, pixel {p} {name}: {got}, expected {value}"
+            );
+        }
+    }
+    // An opaque far layer.
+    let (_, maps) = features(
+        &nearest(layers([128, 255, 204]), 2),
+        Budget::SceneShare(0.5),
+        1,
+    );
+    assert_eq!(feature(&maps, 5, "opaque_count"), 1.0);
+    assert_eq!(feature(&maps, 5, "transmittance"), 0.0);
+    assert_eq!(feature(&maps, 5, "alpha_max"), 1.0);
+    // The red quad alone.
+    let (_, maps) = features(
+        &nearest(layers([128, 64, 204]), 1),
+        Budget::SceneShare(0.5),
+        1,
+    );
+    for p in [0usize, 47] {
+        let want = [
+            ("count", 1.0),
+            ("depth_min", near),
+            ("depth_max", near),
+            ("mean_r", 1.0),
+            ("mean_g", 0.0),
+            ("nearest_r", 1.0),
+            ("nearest_alpha", a0),
+            ("alpha_sum", a0),
+            ("alpha_max", a0),
+            ("transmittance", 1.0 - a0),
+            ("opaque_count", 0.0),
+            ("color_variance", 0.0),
+            ("contrast", 1.0),
+        ];
+        for (name, value) in want {
+            let got = feature(&maps, p, name);
+            assert!(
+                close(got, value),
+                "one layer, pixel {p} {name}: {got}, expected {value}"
+            );
+        }
+    }
+}
+
 #[test]
 fn uncovered_pixels_and_invariants_on_a_built_in_scene() {
     let s = scene("mixed", 96, 54);

@@ -35,8 +35,9 @@
 //!
 //!    Fragments of a pixel arrive in primitive order from the one thread that owns the pixel's
 //!    strip, so the float sums are the same for any thread count. The sums are never cleared: a
-//!    pixel's start afresh at its first fragment (its count goes from 0 to 1), and nothing reads
-//!    the sums of a pixel whose count is 0. Each strip's sink also keeps the depth range of its
+//!    pixel's entries start afresh with its fragments (its key at the first, its second key at
+//!    the second, its `rests` entry at the third), and nothing reads what its count does not
+//!    cover. Each strip's sink also keeps the depth range of its
 //!    fragments, and sums its counts into its `N` and `C` when the strip ends (not two counters
 //!    a fragment); these give the frame values ([`FrameFeatures::of`]) without a pass over the
 //!    pixels.
@@ -303,7 +304,9 @@ impl PixelSums {
 
 /// Per-pixel order-independent sums of one frame's fragments; see the module docs.
 ///
-/// A pixel's sums are valid while its count is not 0: the counting pass starts them afresh at
+/// A pixel's entries are valid while its count is not 0 (its `heads` entry from its first
+/// fragment, its second key from its second, its `rests` entry from its third): the counting
+/// pass starts them afresh at
 /// the pixel's first fragment, so they are never cleared between frames (the counts are).
 #[derive(Debug, Default)]
 pub struct FeatureAccumulator {
@@ -368,9 +371,10 @@ impl FeatureAccumulator {
         let n = width as usize * height as usize;
         (self.width, self.height) = (width, height);
         self.strips.clear();
-        if self.heads.len() != n {
+        if self.heads.len() != n || self.rests.len() != n {
+            // Both or neither: a failed allocation leaves the sums empty, to be tried again.
             (self.heads, self.rests) = (Vec::new(), Vec::new());
-            self.heads = try_alloc(
+            let heads = try_alloc(
                 n,
                 || format!("{n} per-pixel feature sums (heads)"),
                 "render a smaller image",
@@ -380,6 +384,7 @@ impl FeatureAccumulator {
                 || format!("{n} per-pixel feature sums"),
                 "render a smaller image",
             )?;
+            self.heads = heads;
         }
         Ok(())
     }
@@ -428,7 +433,8 @@ fn nearest_key(fragment: &Fragment) -> u64 {
 }
 
 /// Counts and accumulates the features of one frame: the counting pass of a variable k-buffer
-/// that also gathers [`FeatureAccumulator`] sums. Clear both before rasterizing into it.
+/// that also gathers [`FeatureAccumulator`] sums. Clear both before a frame's first call
+/// (a frame may be counted in several calls, its counts and sums carried over).
 #[derive(Debug)]
 pub struct FeatureCapture<'a> {
     /// The fragment counters (as [`FragmentCounts`] alone would count).
