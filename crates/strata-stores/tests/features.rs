@@ -347,13 +347,23 @@ fn count_into(
     sums: &mut strata_stores::kbuffer::features::FeatureAccumulator,
     threads: usize,
 ) -> u64 {
-    use strata_stores::kbuffer::features::FeatureCapture;
     counts.clear(s.width, s.height).unwrap();
     sums.clear(s.width, s.height).unwrap();
-    let input = FrameInput::from_scene(s, 0);
+    count_more(&FrameInput::from_scene(s, 0), counts, sums, threads)
+}
+
+/// Counts `input` into `counts` and `sums` as they are (one call of a chunked capture);
+/// returns the fragments it added.
+fn count_more(
+    input: &FrameInput<'_>,
+    counts: &mut strata_stores::count::FragmentCounts,
+    sums: &mut strata_stores::kbuffer::features::FeatureAccumulator,
+    threads: usize,
+) -> u64 {
+    use strata_stores::kbuffer::features::FeatureCapture;
     pool(threads).install(|| {
         Rasterizer::default()
-            .prepare(&input)
+            .prepare(input)
             .rasterize(&mut FeatureCapture { counts, sums })
             .fragments
     })
@@ -417,7 +427,7 @@ fn one_pixel_at_a_time_matches_the_maps_and_the_frame_values_the_pixels() {
 #[test]
 fn a_frame_counted_in_several_calls_is_counted_once() {
     use strata_stores::count::FragmentCounts;
-    use strata_stores::kbuffer::features::{FeatureAccumulator, FeatureCapture};
+    use strata_stores::kbuffer::features::FeatureAccumulator;
     let s = scene("mixed", 80, 45);
     let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
     let whole = count_into(&s, &mut counts, &mut sums, 2);
@@ -429,19 +439,22 @@ fn a_frame_counted_in_several_calls_is_counted_once() {
         let (mut counts, mut sums) = (FragmentCounts::new(), FeatureAccumulator::new());
         counts.clear(s.width, s.height).unwrap();
         sums.clear(s.width, s.height).unwrap();
-        let mut n = 0;
+        let (mut n, mut spanning) = (0, 0);
         for k in 0..parts {
+            let before: Vec<u32> = counts.counts().to_vec();
             let part = input.triangle_range(total * k / parts..total * (k + 1) / parts);
-            n += pool(2).install(|| {
-                Rasterizer::default()
-                    .prepare(&part)
-                    .rasterize(&mut FeatureCapture {
-                        counts: &mut counts,
-                        sums: &mut sums,
-                    })
-                    .fragments
-            });
+            n += count_more(&part, &mut counts, &mut sums, 2);
+            // Pixels this call added to after an earlier one: their sums carry over.
+            spanning += before
+                .iter()
+                .zip(counts.counts())
+                .filter(|&(&b, &a)| b > 0 && a > b)
+                .count();
         }
+        assert!(
+            spanning > 100,
+            "{parts} calls: {spanning} pixels span calls"
+        );
         assert_eq!(n, whole, "{parts} calls");
         let mut maps = FeatureMaps::new();
         let frame = maps.compute(&sums, counts.counts(), whole / 2, s.background);

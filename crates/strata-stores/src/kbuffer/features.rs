@@ -816,10 +816,9 @@ struct Gathered {
     around: [[u32; LANES]; 3],
     x: [u32; LANES],
     y: [u32; LANES],
-    /// 1 where the fields above were copied from settled sums (three fragments or more); else
-    /// they follow from the keys below, in lanes (`PixelSums::settled`'s values).
-    settled: [u32; LANES],
-    /// A pixel of one or two fragments: its keys (the first twice for one); zeros elsewhere.
+    /// A pixel of one or two fragments: the fields above follow from its keys (in lanes,
+    /// `PixelSums::settled`'s values); one of three or more has them copied from its settled
+    /// sums. Its keys (the first twice for one); zeros elsewhere.
     keys: [[u64; LANES]; 2],
 }
 
@@ -846,7 +845,6 @@ impl Gathered {
         };
         self.opaque[l] = s.rest.opaque;
         self.spread[l] = spread(count, sum_sq, s.rest.sum);
-        self.settled[l] = 1;
     }
 
     /// Lane `l` from the keys in `head` of a pixel of one or two fragments; its values follow in
@@ -866,7 +864,7 @@ impl Gathered {
     #[inline(always)]
     fn settle_keys(&mut self, log_t: &[u64; 256]) {
         for l in 0..LANES {
-            if self.settled[l] != 0 {
+            if self.count[l] > 2 {
                 continue;
             }
             let [k0, k1] = [self.keys[0][l], self.keys[1][l]];
