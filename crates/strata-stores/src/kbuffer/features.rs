@@ -655,25 +655,59 @@ impl FeatureMaps {
                 tasks[t].push(part);
             }
         }
-        tasks.into_par_iter().enumerate().for_each(|(t, mut out)| {
-            let first_row = t * ROWS_PER_TASK;
-            let first = first_row * w;
-            let end = ((first_row + ROWS_PER_TASK) * w).min(n);
-            let mut block = [[0.0; LANES]; FEATURE_COUNT];
-            let mut pixels = [0; LANES];
-            for start in (first..end).step_by(LANES) {
-                let lanes = LANES.min(end - start);
-                for (l, p) in pixels[..lanes].iter_mut().enumerate() {
-                    *p = start + l;
-                }
-                sums.block_features(counts, &frame, &pixels[..lanes], &mut block);
-                for (plane, f) in out.iter_mut().zip(&block) {
-                    plane[start - first..start - first + lanes].copy_from_slice(&f[..lanes]);
-                }
-            }
+        // Dispatched like the importance pass, so the features' lane loops (and their fused
+        // multiply-adds) are compiled for the CPU's instruction set.
+        let arch = pulp::Arch::new();
+        tasks.into_par_iter().enumerate().for_each(|(t, out)| {
+            let first = t * ROWS_PER_TASK * w;
+            let end = (first + ROWS_PER_TASK * w).min(n);
+            arch.dispatch(PlaneRows {
+                sums,
+                counts,
+                frame: &frame,
+                pixels: first..end,
+                out,
+            });
         });
         self.frame = Some(frame);
         frame
+    }
+}
+
+/// One task of [`FeatureMaps::compute`]: the features of `pixels` into `out`, one slice a plane.
+struct PlaneRows<'a> {
+    sums: &'a FeatureAccumulator,
+    counts: &'a [u32],
+    frame: &'a FrameFeatures,
+    pixels: std::ops::Range<usize>,
+    out: Vec<&'a mut [f32]>,
+}
+
+impl pulp::WithSimd for PlaneRows<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let PlaneRows {
+            sums,
+            counts,
+            frame,
+            pixels: range,
+            mut out,
+        } = self;
+        let mut block = [[0.0; LANES]; FEATURE_COUNT];
+        let mut pixels = [0; LANES];
+        for start in range.clone().step_by(LANES) {
+            let lanes = LANES.min(range.end - start);
+            for (l, p) in pixels[..lanes].iter_mut().enumerate() {
+                *p = start + l;
+            }
+            sums.block_features(counts, frame, &pixels[..lanes], &mut block);
+            let at = start - range.start;
+            for (plane, f) in out.iter_mut().zip(&block) {
+                plane[at..at + lanes].copy_from_slice(&f[..lanes]);
+            }
+        }
     }
 }
 
