@@ -690,6 +690,42 @@ mod tests {
         assert_eq!(k, vec![0, 0, 1, 1]);
     }
 
+    /// A candidate's share at a level by hand, and at the ends of `f64`: where the quotient
+    /// overflows every fragment is above the level, where it underflows the first still is.
+    #[test]
+    fn shares_at_a_level_by_hand() {
+        // Worths 1, 0.5, 0, −0.5: two above 0 (0 is not above itself), all four far below.
+        let c = Curve {
+            log_first: 1.0,
+            log_fall: -0.5,
+        };
+        assert_eq!(c.extra_above(0.0, 4), 2);
+        assert_eq!(c.extra_above(-0.25, 4), 3);
+        assert_eq!(c.extra_above(-10.0, 4), 4);
+        assert_eq!(c.extra_above(1.0, 4), 0);
+        assert_eq!(c.extra_above(f64::NAN, 4), 0);
+        assert_eq!(c.extra_above(0.9, 1), 1);
+        let flat = Curve {
+            log_first: 1.0,
+            log_fall: -1e-300,
+        };
+        assert_eq!(flat.extra_above(-1e300, 7), 7, "the quotient overflows");
+        let steep = Curve {
+            log_first: 5e-324,
+            log_fall: -50.0,
+        };
+        assert_eq!(steep.extra_above(0.0, 3), 1, "the quotient underflows");
+        // The lanes count the same, singles and others.
+        let candidates = candidate_lists(&[(1.0, 1e-300, 7), (5e-324, 50.0, 3), (5e-324, 50.0, 1)]);
+        assert_lanes_count_like_one_at_a_time(&candidates, 0.0);
+        assert_lanes_count_like_one_at_a_time(&candidates, -1e300);
+        let lanes = pulp::Arch::new().dispatch(ExtraAt {
+            level: 0.0,
+            candidates: &candidates,
+        });
+        assert_eq!(lanes, 7 + 1 + 1);
+    }
+
     #[test]
     fn worthless_fragments_still_use_the_budget() {
         // Opaque layers (t = 0) and an empty-contrast pixel: nothing beyond the first is worth
