@@ -7,8 +7,8 @@
 //! A fused multiply-add rounds once, by definition, so these give the same bits on every machine
 //! and for every vector width: the FMA instruction where the code is compiled for an instruction
 //! set that has one (pulp's AVX2 and AVX-512 sets, NEON; the lane loops that call these are
-//! dispatched to them), the C library's `fmaf` elsewhere (an SSE2-only CPU, the trainer's
-//! scalar code), which is exact and slower. On the full dragon's importance pass the fused
+//! dispatched to them), a correctly rounded library `fmaf` (Rust's compiler-builtins)
+//! elsewhere (an SSE2-only CPU, the trainer's scalar code), which is exact and slower. On the full dragon's importance pass the fused
 //! polynomials and network took 14.4–14.7 → 13.1–13.3 ms on one thread (AMD EPYC with
 //! AVX-512, alternated runs).
 

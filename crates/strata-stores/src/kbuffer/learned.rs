@@ -135,7 +135,8 @@ impl Transform {
     }
 
     /// Applies the transform (`log1p` through [`fast_ln`], so training and inference compute
-    /// the very same bits on every machine, without a library call per input).
+    /// the very same bits on every machine; in code not compiled for an instruction set with
+    /// fused multiply-adds, such as the trainer's, its polynomial's are library calls).
     #[inline]
     pub fn apply(self, x: f32) -> f32 {
         match self {
