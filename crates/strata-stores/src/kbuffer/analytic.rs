@@ -221,14 +221,13 @@ struct Candidates {
 
 /// One chunk's candidates with room for one fragment beyond the first (pixels of two
 /// fragments: most of a closed mesh's; all but 48,004 of the full dragon's 415,085), in pixel
-/// order: pixel `pixel[i]`'s second fragment is worth `ln g = first[i]`, and it keeps it
-/// (`given[i]` = 1) at a level below that. Their count at a level is a comparison, without
-/// the division the others need ([`ExtraAt`]).
+/// order: pixel `pixel[i]`'s second fragment is worth `ln g = first[i]`, and it keeps it at a
+/// level below that (its share follows from the level, so it is not stored). Their count at a
+/// level is a comparison, without the division the others need ([`ExtraAt`]).
 #[derive(Debug, Default)]
 struct Singles {
     first: Vec<f64>,
     pixel: Vec<u32>,
-    given: Vec<u32>,
 }
 
 impl Candidates {
@@ -240,7 +239,6 @@ impl Candidates {
         self.given.clear();
         self.singles.first.clear();
         self.singles.pixel.clear();
-        self.singles.given.clear();
     }
 
     /// Room for `singles` candidates of room 1 and `more` of room 2 or more in every list.
@@ -252,7 +250,6 @@ impl Candidates {
         self.given.reserve_exact(more);
         self.singles.first.reserve_exact(singles);
         self.singles.pixel.reserve_exact(singles);
-        self.singles.given.reserve_exact(singles);
     }
 
     fn push(&mut self, c: Candidate) {
@@ -286,7 +283,7 @@ impl Candidates {
             + self.fall.capacity() * 8
             + (self.room.capacity() + self.pixel.capacity() + self.given.capacity()) * 4
             + singles.first.capacity() * 8
-            + (singles.pixel.capacity() + singles.given.capacity()) * 4) as u64
+            + singles.pixel.capacity() * 4) as u64
     }
 }
 
@@ -463,12 +460,10 @@ pub fn analytic_k_reusing(
             .map(|(chunk, (k, candidates))| {
                 let first = chunk * PIXELS_PER_TASK;
                 let mut sum = 0u64;
-                let singles = &mut candidates.singles;
-                singles.given.clear();
+                let singles = &candidates.singles;
                 for (&f, &p) in singles.first.iter().zip(&singles.pixel) {
                     let n = u32::from(f > level);
                     k[p as usize - first] += n;
-                    singles.given.push(n);
                     sum += u64::from(n);
                 }
                 candidates.given.clear();
@@ -497,9 +492,10 @@ pub fn analytic_k_reusing(
                     .par_iter()
                     .map(|c| {
                         let singles = &c.singles;
-                        // A single with room left has none given: its next is its second.
+                        // A single with room left was given nothing (its second is not above
+                        // the level): its next is its second.
                         let singles = (0..singles.first.len())
-                            .filter(|&i| singles.given[i] == 0)
+                            .filter(|&i| singles.first[i] <= level)
                             .map(|i| (TotalF64(singles.first[i]), singles.pixel[i] as usize));
                         (0..c.len())
                             .filter(|&i| c.given[i] < c.room[i])
