@@ -47,9 +47,10 @@
 //!   room[i]             count − 1 (at least 2), the fragments it may get beyond its first
 //!   pixel[i]            its pixel index
 //!   given[i]            its share at the level the bisection found (step 3 reads it)
-//!   singles             the candidates of room 1 (two fragments): first[i], pixel[i],
-//!                       given[i] only; a single keeps its second fragment at a level below
-//!                       its first[i], a comparison without the others' division
+//!   singles             the candidates of room 1 (two fragments): first[i] and pixel[i]
+//!                       only; a single keeps its second fragment at a level below its
+//!                       first[i], a comparison without the others' division (so its share
+//!                       follows from the level and is not stored)
 //! ```
 //!
 //! Most candidates of a closed mesh are singles (the full dragon at 50 %: all but 48,004 of
