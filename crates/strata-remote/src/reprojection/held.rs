@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId};
 
-use super::lanes::LANES;
+use super::lanes::{Flush, LANES, Pending};
 use super::view::View;
 use super::{BAND_ROWS, sort_entries};
 
@@ -155,7 +155,8 @@ impl Held {
     /// thread:
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
-    ///    (`View::project_batch`, a batch of one object's consecutive entries at a time), and
+    ///    (`View::project_batch`, batches of one object's entries gathered by `lanes::Pending`),
+    ///    and
     ///    how many land in each destination band;
     /// 2. (serial, over bands × bands) where each source band's share of each destination band
     ///    starts in the bucket list;
@@ -199,23 +200,21 @@ impl Held {
                 .zip(shares.par_iter_mut())
                 .for_each(|((band, (s, src)), share)| {
                     let first = band_pixels(s, w, h).start;
-                    let mut batch = Batch::default();
+                    let mut pending = Pending::default();
+                    let mut flush = MoveFlush { view, band };
                     for (k, o) in src.offsets.windows(2).enumerate() {
                         let p = (first + k) as u32;
                         for i in o[0] as usize..o[1] as usize {
                             let e = &src.entries[i];
                             let object = e.fragment.object;
                             if unchanged.get(object.0 as usize) == Some(&true) {
-                                band[i] = (p, e.fragment);
+                                flush.band[i] = (p, e.fragment);
                                 continue;
                             }
-                            if batch.len == LANES || (batch.len > 0 && batch.object != object) {
-                                batch.flush(view, band);
-                            }
-                            batch.push(object, i, e.surfel);
+                            pending.push(object, i, e.surfel, &mut flush);
                         }
                     }
-                    batch.flush(view, band);
+                    pending.finish(&mut flush);
                     share.clear();
                     share.resize(dst_bands, 0);
                     for &(p, _) in band.iter() {
@@ -624,38 +623,28 @@ impl Moved<'_> {
     }
 }
 
-/// Up to [`LANES`] consecutive entries of one object waiting to be moved together.
-#[derive(Default)]
-struct Batch {
-    object: ObjectId,
-    len: usize,
-    index: [usize; LANES],
-    surfels: [Surfel; LANES],
+/// [`Held::move_to`]'s batches: each moved to `view` into `band`, its source band's share of the
+/// moved list; an item goes to `band[i]`.
+struct MoveFlush<'a> {
+    view: &'a View,
+    band: &'a mut [(u32, Fragment)],
 }
 
-impl Batch {
-    #[inline]
-    fn push(&mut self, object: ObjectId, index: usize, surfel: Surfel) {
-        self.object = object;
-        self.index[self.len] = index;
-        self.surfels[self.len] = surfel;
-        self.len += 1;
-    }
-
-    /// Moves the batch to `view`, into `band` (its source band's share of the moved list).
-    #[inline]
-    fn flush(&mut self, view: &View, band: &mut [(u32, Fragment)]) {
-        let n = self.len;
-        if n == 0 {
-            return;
-        }
+impl Flush<usize, Surfel> for MoveFlush<'_> {
+    #[inline(always)]
+    fn flush(
+        &mut self,
+        object: ObjectId,
+        to: &[usize; LANES],
+        surfels: &[Surfel; LANES],
+        len: usize,
+    ) {
         let mut moved = [(u32::MAX, Fragment::default()); LANES];
-        // Lanes past `n` hold earlier batches' surfels: moved, and not written back.
-        view.project_batch(self.object, &self.surfels, &mut moved);
-        for (&i, m) in self.index[..n].iter().zip(moved) {
-            band[i] = m;
+        // Lanes past `len` hold earlier surfels: moved, and not written back.
+        self.view.project_batch(object, surfels, &mut moved);
+        for (&i, m) in to[..len].iter().zip(moved) {
+            self.band[i] = m;
         }
-        self.len = 0;
     }
 }
 

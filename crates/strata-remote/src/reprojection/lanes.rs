@@ -16,6 +16,10 @@
 //! are padding and are not written back. The loops are compiled once per instruction set and
 //! chosen at run time ([`pulp::Arch::dispatch`]): on AVX2 a lane array is one register.
 //!
+//! Batches are gathered by [`Pending`]: up to eight fill at once, one per object, so that a
+//! pixel's run through several objects (the back and front of a transparent sphere behind
+//! another's) still fills whole batches. Each item carries where its result goes.
+//!
 //! # Same bits
 //!
 //! Every lane performs, operation for operation, what the one-fragment definitions perform:
@@ -46,6 +50,128 @@ fn lanes(f: impl Fn(usize) -> f32) -> Lane {
         *o = f(i);
     }
     out
+}
+
+/// Batches open at once, one object each.
+const OPEN: usize = 8;
+
+/// Items waiting to go through the lanes in batches of [`LANES`] of one object. A pixel's run
+/// through several transparent objects alternates between them (the `spheres` scene: six
+/// objects, seven fragments a pixel on average), so batching only consecutive items of one
+/// object sent most batches through the lanes with one or two lanes used. Here up to [`OPEN`]
+/// batches fill at once, one per object, the oldest flushed to make room for a new object's.
+/// Lanes are independent (each lane's result depends on its own input and its object's
+/// constants only) and every item carries where its result goes (`to`), so the order batches
+/// are computed in changes no result.
+///
+/// A batch keeps its items as two arrays, where they go and what the lanes read, so that the
+/// lanes read the second as it is. An item of the last item's object (in a one-object scene,
+/// every item) goes straight to that batch.
+pub(crate) struct Pending<To, In> {
+    batches: [Batch<To, In>; OPEN],
+    /// Batches in use, `batches[..open]`.
+    open: usize,
+    /// The batch of the last item's object.
+    current: usize,
+    /// That object.
+    object: ObjectId,
+    /// The batch to flush and give to a new object when all are in use.
+    evict: usize,
+}
+
+/// Up to [`LANES`] items of one object.
+#[derive(Clone, Copy)]
+struct Batch<To, In> {
+    object: ObjectId,
+    len: usize,
+    to: [To; LANES],
+    input: [In; LANES],
+}
+
+impl<To: Copy + Default, In: Copy + Default> Default for Pending<To, In> {
+    fn default() -> Self {
+        let batch = Batch {
+            object: ObjectId::default(),
+            len: 0,
+            to: [To::default(); LANES],
+            input: [In::default(); LANES],
+        };
+        Pending {
+            batches: [batch; OPEN],
+            open: 1,
+            current: 0,
+            object: ObjectId::default(),
+            evict: 0,
+        }
+    }
+}
+
+/// What a batch is handed to: its object, where each item's result goes, the lanes' input and
+/// how many items it holds (the lanes past them hold earlier items, possibly of another object,
+/// to be computed and not written back).
+pub(crate) trait Flush<To, In> {
+    fn flush(&mut self, object: ObjectId, to: &[To; LANES], input: &[In; LANES], len: usize);
+}
+
+impl<To: Copy, In: Copy> Pending<To, In> {
+    /// Adds an item of `object`; `f` gets every batch that fills, and every batch flushed to
+    /// make room.
+    #[inline(always)]
+    pub(crate) fn push(&mut self, object: ObjectId, to: To, input: In, f: &mut impl Flush<To, In>) {
+        if self.object != object {
+            self.switch(object, f);
+        }
+        let b = &mut self.batches[self.current];
+        b.to[b.len] = to;
+        b.input[b.len] = input;
+        b.len += 1;
+        if b.len == LANES {
+            f.flush(object, &b.to, &b.input, LANES);
+            b.len = 0;
+        }
+    }
+
+    /// Makes `object`'s batch the current one: the one open for it, an empty or unused one, or
+    /// the oldest, flushed.
+    #[inline(never)]
+    fn switch(&mut self, object: ObjectId, f: &mut impl Flush<To, In>) {
+        let open = &self.batches[..self.open];
+        let k = match open.iter().position(|b| b.object == object) {
+            Some(k) => k,
+            None => {
+                let k = match open.iter().position(|b| b.len == 0) {
+                    Some(k) => k,
+                    None if self.open < OPEN => {
+                        self.open += 1;
+                        self.open - 1
+                    }
+                    None => {
+                        let k = self.evict;
+                        self.evict = (k + 1) % OPEN;
+                        let b = &mut self.batches[k];
+                        f.flush(b.object, &b.to, &b.input, b.len);
+                        b.len = 0;
+                        k
+                    }
+                };
+                self.batches[k].object = object;
+                k
+            }
+        };
+        self.current = k;
+        self.object = object;
+    }
+
+    /// Flushes every batch with items left.
+    #[inline(always)]
+    pub(crate) fn finish(&mut self, f: &mut impl Flush<To, In>) {
+        for b in &mut self.batches[..self.open] {
+            if b.len > 0 {
+                f.flush(b.object, &b.to, &b.input, b.len);
+            }
+            b.len = 0;
+        }
+    }
 }
 
 /// `m · (x, y, z, 1)` in lanes, as glam's `Mat4::transform_point3` adds: x, then y, z, w.
@@ -275,7 +401,8 @@ impl View {
 
     /// [`View::entry`] of [`LANES`] normal fragments of `object` rendered at pixel columns and
     /// rows `at`, into `out`; `false` (and `out` untouched) if `object` is unknown, where
-    /// `entry` gives `None`. Every fragment's object must be `object`.
+    /// `entry` gives `None`. Every fragment is converted as one of `object`: a lane holding a
+    /// fragment of another object (padding past a batch's items) gives a meaningless entry.
     #[inline]
     pub(crate) fn entry_batch(
         &self,
@@ -284,7 +411,6 @@ impl View {
         fragments: &[Fragment; LANES],
         out: &mut [Entry; LANES],
     ) -> bool {
-        debug_assert!(fragments.iter().all(|f| f.object == object));
         let Some(o) = self.object(object) else {
             return false;
         };
@@ -299,12 +425,49 @@ impl View {
     }
 }
 
+/// [`View::row_entries`]' batches: each through the lanes, into the row's entries.
+struct RowFlush<'a> {
+    view: &'a View,
+    row: u32,
+    out: &'a mut [Entry],
+    known: &'a mut [bool],
+}
+
+impl Flush<[u32; 2], Fragment> for RowFlush<'_> {
+    #[inline(always)]
+    fn flush(
+        &mut self,
+        object: ObjectId,
+        to: &[[u32; 2]; LANES],
+        fragments: &[Fragment; LANES],
+        len: usize,
+    ) {
+        // `to`: each fragment's index in the row's fragments, and its column.
+        let at = to.map(|[_, x]| [x, self.row]);
+        let mut entries = [Entry::default(); LANES];
+        if !self.view.entry_batch(object, &at, fragments, &mut entries) {
+            return;
+        }
+        let first = to[0][0] as usize;
+        if to[len - 1][0] as usize == first + len - 1 {
+            // Consecutive fragments (always, where the row shows one object).
+            self.out[first..first + len].copy_from_slice(&entries[..len]);
+            self.known[first..first + len].fill(true);
+        } else {
+            for (&[k, _], e) in to[..len].iter().zip(&entries) {
+                self.out[k as usize] = *e;
+                self.known[k as usize] = true;
+            }
+        }
+    }
+}
+
 impl View {
     /// [`View::entry`] of every normal fragment of row `row` of `frame` (rendered at this
     /// view), in the frame's order: `out[k]` is fragment `first + k`'s entry, where `first` is
     /// the row's first fragment, and `known[k]` says whether its object is known (`entry`
-    /// gives `Some`); `out[k]` is meaningless where it is not. Consecutive fragments of one
-    /// object go through [`View::entry_batch`] together.
+    /// gives `Some`); `out[k]` is meaningless where it is not. Fragments of one object go
+    /// through [`View::entry_batch`] together ([`Pending`]).
     pub(crate) fn row_entries(
         &self,
         frame: &DeepFrame,
@@ -320,28 +483,15 @@ impl View {
         known.clear();
         known.resize(last - first, false);
         let (depths, colors, objects) = (frame.depths(), frame.colors(), frame.objects());
-        let mut at = [[0u32; 2]; LANES];
-        let mut fragments = [Fragment::default(); LANES];
-        let mut entries = [Entry::default(); LANES];
-        let mut len = 0;
-        let mut start = first;
-        let mut flush =
-            |len: usize, start: usize, at: &[[u32; 2]; LANES], fragments: &[Fragment; LANES]| {
-                if len == 0 {
-                    return;
-                }
-                let object = fragments[0].object;
-                // Lanes past `len` hold earlier fragments of this object or none: computed and
-                // not written back.
-                let mut f = *fragments;
-                for x in &mut f[len..] {
-                    x.object = object;
-                }
-                if self.entry_batch(object, at, &f, &mut entries) {
-                    out[start - first..start - first + len].copy_from_slice(&entries[..len]);
-                    known[start - first..start - first + len].fill(true);
-                }
-            };
+        let mut flush = RowFlush {
+            view: self,
+            row: row as u32,
+            out,
+            known,
+        };
+        // Where a fragment's entry goes: its index in the row's fragments, with its column; the
+        // lanes' input: the fragment.
+        let mut pending = Pending::<[u32; 2], Fragment>::default();
         for x in 0..w {
             let p = row * w + x;
             for k in offsets[p] as usize..offsets[p + 1] as usize {
@@ -350,18 +500,9 @@ impl View {
                     color: colors[k],
                     object: objects[k],
                 };
-                if len == LANES || (len > 0 && fragments[0].object != f.object) {
-                    flush(len, start, &at, &fragments);
-                    len = 0;
-                }
-                if len == 0 {
-                    start = k;
-                }
-                at[len] = [x as u32, row as u32];
-                fragments[len] = f;
-                len += 1;
+                pending.push(f.object, [(k - first) as u32, x as u32], f, &mut flush);
             }
         }
-        flush(len, start, &at, &fragments);
+        pending.finish(&mut flush);
     }
 }

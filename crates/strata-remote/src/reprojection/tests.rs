@@ -703,3 +703,60 @@ fn the_band_digest_changes_with_any_run_length_fragment_position_or_order() {
     b[2].surfel.position[1] = f32::from_bits(0x7fc0_1234);
     assert_eq!(digest(4, &a, &counts), digest(4, &b, &counts));
 }
+
+/// Records every batch [`lanes::Pending`] hands over.
+#[derive(Default)]
+struct Batches(Vec<(ObjectId, Vec<(u32, u32)>)>);
+
+impl lanes::Flush<u32, u32> for Batches {
+    fn flush(
+        &mut self,
+        object: ObjectId,
+        to: &[u32; lanes::LANES],
+        input: &[u32; lanes::LANES],
+        len: usize,
+    ) {
+        let items = to.iter().zip(input).take(len).map(|(&t, &i)| (t, i));
+        self.0.push((object, items.collect()));
+    }
+}
+
+#[test]
+fn pending_batches_hand_over_every_item_once_with_its_own_object() {
+    // Few objects (every batch stays open), as many as fit, and more than fit (batches are
+    // flushed early to make room), in runs of one object and interleaved item by item.
+    for objects in [1u32, 3, 8, 9, 40] {
+        for run in [1usize, 3, 50] {
+            let mut values = Awkward(0x5EED ^ u64::from(objects) << 8 ^ run as u64);
+            let mut pending = lanes::Pending::<u32, u32>::default();
+            let mut out = Batches::default();
+            let mut items = Vec::new();
+            let mut object = ObjectId(0);
+            for n in 0..5_000u32 {
+                if (n as usize).is_multiple_of(run) {
+                    object = ObjectId(values.bits() % objects);
+                }
+                // The input names the item's object, to check the batch it lands in.
+                pending.push(object, n, object.0, &mut out);
+                items.push(n);
+            }
+            pending.finish(&mut out);
+            let mut seen = Vec::new();
+            for (object, batch) in &out.0 {
+                assert!((1..=lanes::LANES).contains(&batch.len()));
+                for &(to, input) in batch {
+                    assert_eq!(input, object.0, "item {to} in a batch of another object");
+                    seen.push(to);
+                }
+            }
+            seen.sort_unstable();
+            assert_eq!(seen, items, "{objects} objects, runs of {run}");
+            // Runs of one object fill whole batches: only the last of each object's can be
+            // short, plus those flushed to make room when more objects interleave than fit.
+            let short = out.0.iter().filter(|(_, b)| b.len() < lanes::LANES).count();
+            if objects <= 8 {
+                assert!(short <= objects as usize, "{short} short batches");
+            }
+        }
+    }
+}
