@@ -59,7 +59,8 @@ const OPEN: usize = 8;
 /// through several transparent objects alternates between them (the `spheres` scene: six
 /// objects, seven fragments a pixel on average), so batching only consecutive items of one
 /// object sent most batches through the lanes with one or two lanes used. Here up to [`OPEN`]
-/// batches fill at once, one per object, the oldest flushed to make room for a new object's.
+/// batches fill at once, one per object; when all hold items, one is flushed in turn (round
+/// robin) to make room for a new object's.
 /// Lanes are independent (each lane's result depends on its own input and its object's
 /// constants only) and every item carries where its result goes (`to`), so the order batches
 /// are computed in changes no result.
@@ -132,7 +133,7 @@ impl<To: Copy, In: Copy> Pending<To, In> {
     }
 
     /// Makes `object`'s batch the current one: the one open for it, an empty or unused one, or
-    /// the oldest, flushed.
+    /// the next in turn, flushed.
     #[inline(never)]
     fn switch(&mut self, object: ObjectId, f: &mut impl Flush<To, In>) {
         let open = &self.batches[..self.open];
@@ -444,6 +445,7 @@ impl Flush<[u32; 2], Fragment> for RowFlush<'_> {
     ) {
         // `to`: each fragment's index in the row's fragments, and its column.
         let at = to.map(|[_, x]| [x, self.row]);
+        debug_assert!(fragments[..len].iter().all(|f| f.object == object));
         let mut entries = [Entry::default(); LANES];
         if !self.view.entry_batch(object, &at, fragments, &mut entries) {
             return;

@@ -483,8 +483,13 @@ fn surfels_moved_in_lanes_are_those_moved_one_at_a_time_bit_for_bit() {
 fn entries_made_in_lanes_are_those_made_one_at_a_time_bit_for_bit() {
     let (s, ids) = lit_and_unlit();
     let mut values = Awkward(0xD1CE);
-    let unknown = ObjectId(ids.iter().map(|o| o.0).max().unwrap() + 7);
-    let objects: Vec<ObjectId> = ids.iter().copied().chain([unknown]).collect();
+    // Unknown objects besides the scene's, more objects than `lanes::Pending` keeps batches
+    // open for, so that batches of known objects are also flushed early to make room.
+    let max = ids.iter().map(|o| o.0).max().unwrap();
+    let objects: Vec<ObjectId> = (ids.iter().copied())
+        .chain((7..13).map(|k| ObjectId(max + k)))
+        .collect();
+    assert!(objects.len() > 8);
     let counts: Vec<u32> = (0..W * H).map(|_| values.bits() % 5).collect();
     // Runs of random length, objects, depths and normal bits (the "no normal" pattern
     // included); sorted, as a DeepFrame's runs are.
