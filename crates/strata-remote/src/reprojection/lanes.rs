@@ -480,7 +480,9 @@ impl View {
         let w = frame.width() as usize;
         let offsets = frame.offsets();
         let (first, last) = (offsets[row * w] as usize, offsets[(row + 1) * w] as usize);
-        out.clear();
+        // Only `known` is cleared: an entry is written wherever its flag is set, and the
+        // others are meaningless, so the last row's entries may stay (clearing them was a
+        // memset of 36 bytes a fragment, 34 MB a dragon frame).
         out.resize(last - first, Entry::default());
         known.clear();
         known.resize(last - first, false);
