@@ -156,8 +156,7 @@ impl Held {
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
     ///    (`View::project_batch`, batches of one object's entries gathered by `lanes::Pending`),
-    ///    and
-    ///    how many land in each destination band;
+    ///    and how many land in each destination band;
     /// 2. (serial, over bands × bands) where each source band's share of each destination band
     ///    starts in the bucket list;
     /// 3. per source band: the indices of its entries that stay in view, appended to their

@@ -74,8 +74,6 @@ pub(crate) struct Pending<To, In> {
     open: usize,
     /// The batch of the last item's object.
     current: usize,
-    /// That object.
-    object: ObjectId,
     /// The batch to flush and give to a new object when all are in use.
     evict: usize,
 }
@@ -101,7 +99,6 @@ impl<To: Copy + Default, In: Copy + Default> Default for Pending<To, In> {
             batches: [batch; OPEN],
             open: 1,
             current: 0,
-            object: ObjectId::default(),
             evict: 0,
         }
     }
@@ -119,7 +116,7 @@ impl<To: Copy, In: Copy> Pending<To, In> {
     /// make room.
     #[inline(always)]
     pub(crate) fn push(&mut self, object: ObjectId, to: To, input: In, f: &mut impl Flush<To, In>) {
-        if self.object != object {
+        if self.batches[self.current].object != object {
             self.switch(object, f);
         }
         let b = &mut self.batches[self.current];
@@ -160,7 +157,6 @@ impl<To: Copy, In: Copy> Pending<To, In> {
             }
         };
         self.current = k;
-        self.object = object;
     }
 
     /// Flushes every batch with items left.
