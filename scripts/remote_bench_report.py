@@ -172,7 +172,7 @@ def aggregate():
         cmp_keys = list(dict.fromkeys((r["scene"], r["size"], r["transfer"], r["link"])
                                       for r in sorted(cmp, key=sort_key)))
         codecs = list(dict.fromkeys(r["codec"] for r in runs if r["codec"] != main_codec))
-        order = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd"]
+        order = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd", "deep-huff"]
         codecs = sorted(set(codecs) | {main_codec}, key=lambda c: (order.index(c.split(":")[0]) if c.split(":")[0] in order else 9, c))
         link = cmp_keys[0][3]
         md.append(f"## Codecs — bytes per frame at {cmp_keys[0][1]} (Figure 6.1's LZ4 saving; {link} link)\n")

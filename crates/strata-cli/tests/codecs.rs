@@ -66,13 +66,13 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
             "for scale: LZ4 on the plain layout",
         ],
     );
-    let names = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd"];
+    let names = ["raw", "lz4", "zstd", "deep-lz4", "deep-zstd", "deep-huff"];
     for name in names {
         let cols = row(&stdout, name);
         assert!(cols.len() >= 12, "{name}: {cols:?}");
     }
     // The deep rows break their bytes down by section.
-    for name in ["deep-lz4", "deep-zstd"] {
+    for name in ["deep-lz4", "deep-zstd", "deep-huff"] {
         assert_mentions(
             &row(&stdout, name).join(" "),
             &["counts", "depth", "color", "object"],
@@ -99,7 +99,15 @@ fn codecs_on_spheres_prints_every_codec_and_writes_consistent_json() {
         u64s(&c["bytes_per_frame"])
     };
     let (raw, lz4, deep_zstd) = (bytes("raw"), bytes("lz4"), bytes("deep-zstd"));
+    let (deep_lz4, deep_huff) = (bytes("deep-lz4"), bytes("deep-huff"));
     for i in 0..2 {
+        // Huffman blocks take the noisy residual planes below what LZ4 keeps of them.
+        assert!(
+            deep_huff[i] < deep_lz4[i],
+            "frame {i}: deep-huff {} deep-lz4 {}",
+            deep_huff[i],
+            deep_lz4[i]
+        );
         assert!(
             deep_zstd[i] < lz4[i] && lz4[i] < raw[i],
             "frame {i}: deep-zstd {} lz4 {} raw {}",

@@ -670,7 +670,7 @@ fn a_remote_page_shows_its_nodes_through_its_camera_and_outlives_a_dead_node() {
     let hello = text(next(&mut ws).expect("hello"));
     assert_eq!(hello["remote"]["nodes"], json!([a.addr, b.addr]));
     assert_eq!(hello["remote"]["transfer"], "difference");
-    assert_eq!(hello["remote"]["codec"], "deep-lz4");
+    assert_eq!(hello["remote"]["codec"], "deep-huff");
 
     let settings = |id: u64, eye: [f32; 3], width: u32| {
         let camera = json!({"eye": eye, "target": [0, 0, 0], "up": [0, 1, 0],

@@ -65,7 +65,7 @@ use crate::removals::Removals;
 /// The four bytes every message starts with.
 pub const MAGIC: [u8; 4] = *b"STRW";
 /// The format version this crate writes and reads.
-pub const VERSION: u16 = 4;
+pub const VERSION: u16 = 5;
 /// Bytes in the prefix.
 pub const PREFIX_LEN: usize = 20;
 /// Offset of the prefix's `type` byte.
@@ -593,7 +593,7 @@ pub fn parse_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Prefix, Wir
             "flags",
             7,
             format!("{flags:#04x}"),
-            "no flags are defined in version 4",
+            "no flags are defined in version 5",
         ));
     }
     let body_len = r.u64("body_len")?;

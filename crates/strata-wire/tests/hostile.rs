@@ -623,19 +623,19 @@ fn cases() -> Vec<Case> {
             needles: &["magic", "byte 0", "STRW"],
         },
         Case {
-            what: "version 3 (the previous format)",
-            edit: |b| b[4] = 3,
-            needles: &["version 3", "byte 4", "reads version 4"],
+            what: "version 4 (the previous format)",
+            edit: |b| b[4] = 4,
+            needles: &["version 4", "byte 4", "reads version 5"],
         },
         Case {
             what: "version 1",
             edit: |b| b[4] = 1,
-            needles: &["version 1", "byte 4", "reads version 4"],
+            needles: &["version 1", "byte 4", "reads version 5"],
         },
         Case {
-            what: "version 5",
-            edit: |b| b[4] = 5,
-            needles: &["version 5", "byte 4"],
+            what: "version 6",
+            edit: |b| b[4] = 6,
+            needles: &["version 6", "byte 4"],
         },
         Case {
             what: "version u16::MAX",
@@ -747,8 +747,8 @@ fn cases() -> Vec<Case> {
             needles: &["transfer_flags", "byte 45"],
         },
         Case {
-            what: "codec 5",
-            edit: |b| b[46] = 5,
+            what: "codec 6",
+            edit: |b| b[46] = 6,
             needles: &["codec", "byte 46", "unknown codec"],
         },
         Case {

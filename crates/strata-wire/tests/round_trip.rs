@@ -1115,6 +1115,77 @@ fn leb128(mut v: u32, out: &mut Vec<u8>) {
     }
 }
 
+/// A `blocks` payload decoded as docs/wire-format.md describes it, slowly and independently of
+/// the crate's decoder: block headers, then a Huffman block's canonical code read a bit at a
+/// time (a stream's bits from each byte's least significant bit up, a code's first bit first).
+fn blocks_by_the_spec(payload: &[u8]) -> Vec<u8> {
+    let u32_at = |b: &[u8], i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap()) as usize;
+    let mut out = Vec::new();
+    let mut at = 0;
+    while at < payload.len() {
+        let (kind, decoded, encoded) = (
+            payload[at],
+            u32_at(payload, at + 1),
+            u32_at(payload, at + 5),
+        );
+        let body = &payload[at + 9..at + 9 + encoded];
+        at += 9 + encoded;
+        match kind {
+            0 => out.extend_from_slice(body),
+            1 => out.extend(std::iter::repeat_n(body[0], decoded)),
+            2 => out.extend(lz4_flex::block::decompress(body, decoded).unwrap()),
+            3 => {
+                let lengths: Vec<u8> = (0..256)
+                    .map(|v| body[v / 2] >> (4 * (v % 2)) & 15)
+                    .collect();
+                // Canonical codes: by length, then value.
+                let mut by_code = std::collections::HashMap::new();
+                let mut code = 0u32;
+                for len in 1..=11u8 {
+                    for v in (0..256).filter(|&v| lengths[v] == len) {
+                        by_code.insert((len, code), v as u8);
+                        code += 1;
+                    }
+                    code <<= 1;
+                }
+                let sizes = [u32_at(body, 128), u32_at(body, 132), u32_at(body, 136)];
+                let mut streams = Vec::new();
+                let mut s = 140;
+                for size in sizes {
+                    streams.push(&body[s..s + size]);
+                    s += size;
+                }
+                streams.push(&body[s..]);
+                let q = decoded / 4;
+                for (j, stream) in streams.iter().enumerate() {
+                    let symbols = if j == 3 { decoded - 3 * q } else { q };
+                    let mut bit = 0;
+                    for _ in 0..symbols {
+                        let (mut len, mut code) = (0u8, 0u32);
+                        let v = loop {
+                            code = code << 1 | u32::from(stream[bit / 8] >> (bit % 8) & 1);
+                            bit += 1;
+                            len += 1;
+                            if let Some(&v) = by_code.get(&(len, code)) {
+                                break v;
+                            }
+                            assert!(len < 11, "no code");
+                        };
+                        out.push(v);
+                    }
+                    assert_eq!(
+                        bit.div_ceil(8),
+                        stream.len(),
+                        "stream {j} ends in its last byte"
+                    );
+                }
+            }
+            k => panic!("block kind {k}"),
+        }
+    }
+    out
+}
+
 #[test]
 fn messages_are_laid_out_as_specified() {
     let s = scene("spheres", &SearchPath::default(), 96, 54);
@@ -1134,7 +1205,7 @@ fn messages_are_laid_out_as_specified() {
         // Prefix.
         assert_eq!(&bytes[0..4], b"STRW");
         assert_eq!(&bytes[4..6], &VERSION.to_le_bytes());
-        assert_eq!(&bytes[4..8], &[4, 0, 1, 0]);
+        assert_eq!(&bytes[4..8], &[5, 0, 1, 0]);
         assert_eq!(&bytes[8..16], &((bytes.len() - 20) as u64).to_le_bytes());
         assert_eq!(&bytes[16..20], &crc32fast::hash(&bytes[20..]).to_le_bytes());
         // Frame header.
@@ -1158,6 +1229,7 @@ fn messages_are_laid_out_as_specified() {
                 0 => payload.to_vec(),
                 1 => lz4_flex::block::decompress(payload, decoded_len).unwrap(),
                 2 => zstd::bulk::decompress(payload, decoded_len).unwrap(),
+                3 => blocks_by_the_spec(payload),
                 b => panic!("compression byte {b}"),
             };
             assert_eq!(plain.len(), decoded_len);
@@ -1315,7 +1387,7 @@ fn squeeze(text: &str) -> String {
 
 /// The `raw` message of the worked example, as printed in the document.
 const WORKED_EXAMPLE_RAW: &str = "
-    53 54 52 57 04 00 01 00 e8 00 00 00 00 00 00 00
+    53 54 52 57 05 00 01 00 e8 00 00 00 00 00 00 00
     3c 43 ec 42 07 00 00 00 00 00 00 00 01 00 00 00
     02 00 00 00 01 00 00 00 03 00 00 00 00 00 00 00
     00 00 00 00 00 00 00 00 00 00 80 3f 00 00 00 00
@@ -1334,7 +1406,7 @@ const WORKED_EXAMPLE_RAW: &str = "
 ";
 /// The `deep-lz4` message of the worked example (every section stored: too small to shrink).
 const WORKED_EXAMPLE_DEEP_LZ4: &str = "
-    53 54 52 57 04 00 01 00 19 01 00 00 00 00 00 00
+    53 54 52 57 05 00 01 00 19 01 00 00 00 00 00 00
     88 17 bd dc 07 00 00 00 00 00 00 00 01 00 00 00
     02 00 00 00 01 00 00 00 03 00 00 00 00 00 03 00
     00 00 00 00 00 00 00 00 00 00 80 3f 00 00 00 00

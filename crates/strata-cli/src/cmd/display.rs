@@ -108,8 +108,10 @@ pub(crate) struct LinkArgs {
     #[arg(long)]
     pub(crate) tolerance: Option<u8>,
 
-    /// Codec the nodes encode with: raw, lz4, zstd or zstd:LEVEL, deep-lz4, deep-zstd or deep-zstd:LEVEL.
-    #[arg(long, default_value = "deep-lz4")]
+    /// Codec the nodes encode with: raw, lz4, zstd or zstd:LEVEL, deep-lz4, deep-zstd or
+    /// deep-zstd:LEVEL, deep-huff (the default: the deep layout in Huffman or LZ4 blocks; see
+    /// `strata codecs`).
+    #[arg(long, default_value = "deep-huff")]
     pub(crate) codec: Codec,
 
     /// Frames requested ahead of the one being composed, so nodes render while frames travel.

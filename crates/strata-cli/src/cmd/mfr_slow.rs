@@ -33,8 +33,8 @@ pub(crate) struct Args {
     #[arg(long, value_parser = crate::options::parse_size)]
     pub(crate) size: Option<(u32, u32)>,
 
-    /// How DeepFrames are encoded: raw, lz4, zstd, deep-lz4, deep-zstd (see `strata codecs`).
-    #[arg(long, default_value = "deep-lz4")]
+    /// How DeepFrames are encoded: raw, lz4, zstd, deep-lz4, deep-zstd, deep-huff (see `strata codecs`).
+    #[arg(long, default_value = "deep-huff")]
     pub(crate) codec: String,
 
     /// Pace sending to emulate a slower network: `gigabit` (90 MB/s, what gigabit Ethernet

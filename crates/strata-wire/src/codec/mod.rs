@@ -10,12 +10,15 @@
 //! | `zstd` | 2 | [`seed`] | zstd, level configurable (default 3) |
 //! | `deep-lz4` | 3 | [`deep`]: counts, depth, colour, object sections after prediction | LZ4 block |
 //! | `deep-zstd` | 4 | [`deep`] | zstd (default level 1) |
+//! | `deep-huff` | 5 | [`deep`] | blocks: Huffman, LZ4, fill or stored, the smallest, per block of at most 128 KiB |
 //!
 //! Sections are compressed independently (and in parallel); a section that would not shrink is
 //! stored (`compression = none`), which the decoder accepts for any codec.
 
+pub(crate) mod blocks;
 pub mod compress;
 pub mod deep;
+pub(crate) mod huffman;
 pub(crate) mod lz4_block;
 pub mod seed;
 
@@ -54,11 +57,13 @@ pub enum Codec {
         /// zstd level, -128..=22.
         level: i32,
     },
+    /// DeepFrame-aware layout in blocks, each Huffman-coded or LZ4 (whichever is smaller).
+    DeepHuff,
 }
 
 impl Codec {
     /// Every codec at its default settings, baseline first.
-    pub const ALL: [Codec; 5] = [
+    pub const ALL: [Codec; 6] = [
         Codec::Raw,
         Codec::Lz4,
         Codec::Zstd {
@@ -68,10 +73,11 @@ impl Codec {
         Codec::DeepZstd {
             level: DEFAULT_DEEP_ZSTD_LEVEL,
         },
+        Codec::DeepHuff,
     ];
 
     /// The name used on the command line and in reports (`raw`, `lz4`, `zstd`, `deep-lz4`,
-    /// `deep-zstd`).
+    /// `deep-zstd`, `deep-huff`).
     pub fn name(self) -> &'static str {
         match self {
             Codec::Raw => "raw",
@@ -79,6 +85,7 @@ impl Codec {
             Codec::Zstd { .. } => "zstd",
             Codec::DeepLz4 => "deep-lz4",
             Codec::DeepZstd { .. } => "deep-zstd",
+            Codec::DeepHuff => "deep-huff",
         }
     }
 
@@ -90,6 +97,7 @@ impl Codec {
             Codec::Zstd { .. } => 2,
             Codec::DeepLz4 => 3,
             Codec::DeepZstd { .. } => 4,
+            Codec::DeepHuff => 5,
         }
     }
 
@@ -113,6 +121,7 @@ impl Codec {
             (2, _) => Codec::Zstd { level },
             (3, 0) => Codec::DeepLz4,
             (4, _) => Codec::DeepZstd { level },
+            (5, 0) => Codec::DeepHuff,
             _ => return None,
         };
         codec.validate().ok().map(|()| codec)
@@ -124,6 +133,7 @@ impl Codec {
             Codec::Raw => Compression::None,
             Codec::Lz4 | Codec::DeepLz4 => Compression::Lz4,
             Codec::Zstd { .. } | Codec::DeepZstd { .. } => Compression::Zstd,
+            Codec::DeepHuff => Compression::Blocks,
         }
     }
 
@@ -138,7 +148,7 @@ impl Codec {
     pub fn sections(self) -> &'static [SectionTag] {
         match self {
             Codec::Raw | Codec::Lz4 | Codec::Zstd { .. } => &[SectionTag::Seed],
-            Codec::DeepLz4 | Codec::DeepZstd { .. } => &[
+            Codec::DeepLz4 | Codec::DeepZstd { .. } | Codec::DeepHuff => &[
                 SectionTag::Counts,
                 SectionTag::Depth,
                 SectionTag::Color,
@@ -173,14 +183,16 @@ impl fmt::Display for Codec {
 
 /// A codec name that does not parse.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown codec '{0}': expected raw, lz4, zstd[:LEVEL], deep-lz4 or deep-zstd[:LEVEL]")]
+#[error(
+    "unknown codec '{0}': expected raw, lz4, zstd[:LEVEL], deep-lz4, deep-zstd[:LEVEL] or deep-huff"
+)]
 pub struct UnknownCodec(pub String);
 
 impl FromStr for Codec {
     type Err = UnknownCodec;
 
-    /// Parses `raw`, `lz4`, `zstd`, `zstd:LEVEL`, `deep-lz4`, `deep-zstd`, `deep-zstd:LEVEL`
-    /// (`deep` is short for `deep-zstd`).
+    /// Parses `raw`, `lz4`, `zstd`, `zstd:LEVEL`, `deep-lz4`, `deep-zstd`, `deep-zstd:LEVEL`,
+    /// `deep-huff` (`deep` is short for `deep-zstd`).
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let bad = || UnknownCodec(s.to_owned());
         let (name, level) = match s.split_once(':') {
@@ -191,6 +203,7 @@ impl FromStr for Codec {
             ("raw", None) => Codec::Raw,
             ("lz4", None) => Codec::Lz4,
             ("deep-lz4", None) => Codec::DeepLz4,
+            ("deep-huff", None) => Codec::DeepHuff,
             ("zstd", l) => Codec::Zstd {
                 level: l.unwrap_or(DEFAULT_ZSTD_LEVEL),
             },
@@ -379,7 +392,7 @@ impl EncodeScratch {
                 let [raw] = self.push([SectionTag::Seed]);
                 seed::encode_into(frame, raw);
             }
-            Codec::DeepLz4 | Codec::DeepZstd { .. } => {
+            Codec::DeepLz4 | Codec::DeepZstd { .. } | Codec::DeepHuff => {
                 deep::encode_into(frame, self.push(deep::SECTIONS));
             }
         }
@@ -393,7 +406,12 @@ impl EncodeScratch {
         self.slots[..self.used]
             .par_iter_mut()
             .map(|slot| {
-                let (compression, payload) = slot.packer.pack(&slot.raw, method, level)?;
+                // The deep layout's byte planes.
+                let planes = match slot.tag {
+                    SectionTag::Depth | SectionTag::Color => 4,
+                    _ => 1,
+                };
+                let (compression, payload) = slot.packer.pack(&slot.raw, method, level, planes)?;
                 Ok(EncodedSection {
                     info: SectionInfo {
                         tag: slot.tag,
@@ -581,7 +599,7 @@ pub(crate) fn decode_sections(
             sections[0].offset,
             columns,
         ),
-        Codec::DeepLz4 | Codec::DeepZstd { .. } => {
+        Codec::DeepLz4 | Codec::DeepZstd { .. } | Codec::DeepHuff => {
             let offsets: Vec<u64> = sections.iter().map(|s| s.offset).collect();
             deep::decode(width, height, fragments, decoded, &offsets, columns)
         }
@@ -605,7 +623,8 @@ mod tests {
         assert!("zstd:99".parse::<Codec>().is_err());
         assert!("lz4:3".parse::<Codec>().is_err());
         assert!("gzip".parse::<Codec>().is_err());
-        assert_eq!(Codec::from_bytes(5, 0), None);
+        assert_eq!(Codec::from_bytes(6, 0), None);
+        assert_eq!(Codec::from_bytes(5, 1), None);
         // A parameter where none is defined, or a level the encoder refuses, names no codec.
         assert_eq!(Codec::from_bytes(0, 1), None);
         assert_eq!(Codec::from_bytes(3, 0xff), None);
