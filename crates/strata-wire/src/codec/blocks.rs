@@ -21,7 +21,8 @@
 //! ```
 //!
 //! `decoded_len` is 1 to [`MAX_BLOCK`]; the blocks' decoded lengths add up to the section
-//! table's, and the last block ends where the payload does.
+//! table's, and the last block ends where the payload does. The decoder reads every header
+//! before it sizes the output, then decodes the blocks in parallel.
 //!
 //! # Choosing a block's coding
 //!
@@ -30,8 +31,8 @@
 //! take below a bit a byte; on a dragon frame's planes the fraction is 0.92–1.0 for the counts
 //! and the high depth bytes and 0.04–0.47 for the noisy planes): LZ4 is tried, and kept at once
 //! if it is under a bit a byte. Otherwise the block's byte values are counted, a Huffman code
-//! built, its size computed from the counts, and the smallest of LZ4 (if tried), Huffman and
-//! the bytes themselves is kept. The choice depends only on the block's bytes, so the output is
+//! built, its size bounded from the counts (exact but for each stream's padding, at most three
+//! bytes), and the smallest of LZ4 (if tried), that bound and the bytes themselves is kept. The choice depends only on the block's bytes, so the output is
 //! the same for any thread count.
 
 use rayon::prelude::*;
@@ -189,11 +190,14 @@ struct Found<'a> {
     at: usize,
 }
 
-/// Decodes a `blocks` payload into `out`, whose length is the section's decoded length. `what`
-/// turns a message into the section's error.
+/// Decodes a `blocks` payload into `out`, resized to the section's `decoded_len` once every
+/// block header has been read and found to add up to it (so a lying payload costs no memory;
+/// only what the buffer grows by is zeroed, and the blocks write every byte). `what` turns a
+/// message into the section's error.
 pub(crate) fn decode_into(
     payload: &[u8],
-    out: &mut [u8],
+    decoded_len: usize,
+    out: &mut Vec<u8>,
     what: &(dyn Fn(String) -> WireError + Sync),
 ) -> Result<(), WireError> {
     let mut found = Vec::new();
@@ -232,10 +236,9 @@ pub(crate) fn decode_into(
             )));
         }
         total += decoded;
-        if total > out.len() {
+        if total > decoded_len {
             return Err(what(format!(
-                "blocks decode to more than the {} bytes the section table says",
-                out.len()
+                "blocks decode to more than the {decoded_len} bytes the section table says"
             )));
         }
         found.push(Found {
@@ -246,14 +249,14 @@ pub(crate) fn decode_into(
         });
         at = body + encoded;
     }
-    if total != out.len() {
+    if total != decoded_len {
         return Err(what(format!(
-            "blocks decode to {total} bytes, the section table says {}",
-            out.len()
+            "blocks decode to {total} bytes, the section table says {decoded_len}"
         )));
     }
+    out.resize(decoded_len, 0);
     let mut slices = Vec::with_capacity(found.len());
-    let mut rest = out;
+    let mut rest = &mut out[..];
     for f in &found {
         let (head, tail) = rest.split_at_mut(f.decoded);
         slices.push(head);
@@ -299,8 +302,8 @@ mod tests {
     fn round_trip(data: &[u8], planes: usize) -> Vec<u8> {
         let mut packed = Vec::new();
         BlockPacker::default().pack(data, planes, &mut packed);
-        let mut out = vec![0u8; data.len()];
-        decode_into(&packed, &mut out, &err).expect("decodes");
+        let mut out = vec![0x5au8; 3];
+        decode_into(&packed, data.len(), &mut out, &err).expect("decodes");
         assert_eq!(out, data);
         packed
     }
@@ -360,26 +363,49 @@ mod tests {
     }
 
     #[test]
+    fn any_thread_count_gives_the_same_bytes() {
+        let mut data = noise(3 * MAX_BLOCK + 77, 4, 11);
+        data.extend((0..MAX_BLOCK).map(|i| (i / 300 % 2) as u8));
+        let pack = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool");
+            let mut out = Vec::new();
+            pool.install(|| BlockPacker::default().pack(&data, 1, &mut out));
+            out
+        };
+        let one = pack(1);
+        assert!(one.len() < data.len());
+        for threads in [2, 3] {
+            assert_eq!(pack(threads), one, "{threads} threads");
+        }
+    }
+
+    #[test]
     fn broken_payloads_are_errors_not_panics() {
         let mut data = noise(50_000, 3, 9);
         data.extend(std::iter::repeat_n(0u8, 50_000));
         let packed = round_trip(&data, 2);
-        let mut out = vec![0u8; data.len()];
+        let n = data.len();
+        let mut out = Vec::new();
         for cut in 0..packed.len() {
             assert!(
-                decode_into(&packed[..cut], &mut out, &err).is_err(),
+                decode_into(&packed[..cut], n, &mut out, &err).is_err(),
                 "cut at {cut}"
             );
+            // Rejected before the output buffer was sized.
+            assert!(out.is_empty());
         }
         for at in 0..packed.len().min(400) {
             let mut bad = packed.clone();
             bad[at] = bad[at].wrapping_add(1);
             // Any outcome but a panic; a header change is always caught.
-            let r = decode_into(&bad, &mut out, &err);
+            let r = decode_into(&bad, n, &mut out, &err);
             assert!(at >= BLOCK_HEADER || r.is_err(), "byte {at}");
         }
         // Too long for the section, and too short.
-        assert!(decode_into(&packed, &mut vec![0u8; data.len() - 1], &err).is_err());
-        assert!(decode_into(&packed, &mut vec![0u8; data.len() + 1], &err).is_err());
+        assert!(decode_into(&packed, n - 1, &mut out, &err).is_err());
+        assert!(decode_into(&packed, n + 1, &mut out, &err).is_err());
     }
 }

@@ -23,9 +23,13 @@
 //! - LZ4 cannot expand more than 255:1 — a match costs 3 bytes (token, offset) for up to 19 bytes
 //!   and one more byte per further 255 — so `decoded <= 255 * encoded + 255`;
 //! - zstd cannot expand more than 32768:1 — a block yields at most 128 KiB and costs at least
-//!   4 bytes (3-byte block header plus one RLE byte) — so `decoded <= 32768 * encoded`.
+//!   4 bytes (3-byte block header plus one RLE byte) — so `decoded <= 32768 * encoded`;
+//! - blocks cannot expand more than 13,108:1 — a block yields at most 128 KiB and costs at least
+//!   10 bytes (its 9-byte header and the byte of a fill) — so `decoded <= 13108 * encoded`.
 //!
-//! LZ4 then decompresses into an exact-size buffer (at most 256× the payload). zstd, whose bound
+//! LZ4 then decompresses into an exact-size buffer (at most 256× the payload). Blocks read every
+//! block header first and size the buffer only once the headers add up to the announced length,
+//! so a payload whose headers do not cost no memory. zstd, whose bound
 //! is loose, decompresses into a buffer sized from the payload (at most 64×) and, past that, grows
 //! the buffer only as real output arrives, up to the announced length: an announced length that the
 //! payload does not actually produce costs no memory.
@@ -245,11 +249,9 @@ pub(crate) fn decompress_into(
                 Lz4Failure::Broken(m) => WireError::section(section, offset, format!("lz4: {m}")),
             })
         }
-        Compression::Blocks => {
-            // Zeroes only what the buffer grows by; the blocks write every byte.
-            out.resize(decoded_len, 0);
-            super::blocks::decode_into(payload, out, &|m| WireError::section(section, offset, m))
-        }
+        Compression::Blocks => super::blocks::decode_into(payload, decoded_len, out, &|m| {
+            WireError::section(section, offset, m)
+        }),
         Compression::Zstd => {
             let initial = decoded_len.min(payload.len().saturating_mul(ZSTD_PREALLOC_RATIO));
             if initial == decoded_len {

@@ -31,9 +31,10 @@
 //! Decoding a symbol needs the bit position the previous symbol left, so one stream is one
 //! dependency chain of table lookups and shifts. Four streams decoded in one loop are four
 //! independent chains the CPU overlaps. Each stream's bit buffer is refilled with one 8-byte
-//! load (`refill`: Giesen's branch-free refill, keeping 56–63 bits), enough for five symbols of
-//! at most 11 bits. Near a stream's end the loads read zero bytes past it, and the decoder checks
-//! at the end that each stream's codes ended in its last byte.
+//! load (`Bits::refill_fast`: Giesen's branch-free refill, keeping 56–63 bits), enough for five
+//! symbols of at most 11 bits. Near a stream's end the loads read zero bytes past it, and the
+//! decoder checks at the end that each stream's codes ended in its last byte and that the bits
+//! after them in that byte are zero.
 //!
 //! Lengths are limited to 11 bits so the decoding table (2,048 entries of two bytes) stays in
 //! L1; lengths above that are folded in as deflate encoders do (counting codes by length,
@@ -374,12 +375,19 @@ pub(crate) fn decode(
         }
     }
     for (j, r) in readers.iter().enumerate() {
-        let used = r.consumed().div_ceil(8);
+        let bits = r.consumed();
+        let used = bits.div_ceil(8);
         if used != sizes[j] {
             return Err(what(format!(
                 "Huffman stream {j} of {} symbols holds {} bytes but its codes take {used}",
                 stream_range(n, j).len(),
                 sizes[j]
+            )));
+        }
+        // The padding after the last code: zero bits.
+        if bits % 8 != 0 && r.src[bits / 8] >> (bits % 8) != 0 {
+            return Err(what(format!(
+                "Huffman stream {j} has non-zero padding bits after its last code"
             )));
         }
     }
@@ -561,6 +569,19 @@ mod tests {
         }
         // Changed lengths break the code; a changed stream byte usually changes where its codes end.
         assert!(errors > 0);
+        // Padding: two values of one bit each, 17 bytes, so stream 3 codes 5 bytes in 5 bits
+        // and its byte ends in 3 padding bits.
+        let two: Vec<u8> = (0..17).map(|i| (i % 2) as u8).collect();
+        let mut coded = round_trip(&two);
+        let last = coded.len() - 1;
+        coded[last] ^= 0x80;
+        let mut out = vec![0u8; two.len()];
+        let e = decode(&coded, &mut out, &err).expect_err("a padding bit set");
+        assert!(e.to_string().contains("padding"), "{e}");
+        coded[last] ^= 0x80;
+        decode(&coded, &mut out, &err).expect("the padding cleared again");
+        let mut out = vec![0u8; data.len()];
+        let coded = round_trip(&data);
         // Incomplete and over-full codes.
         let mut bad = coded.clone();
         bad[..128].fill(0);
