@@ -917,13 +917,13 @@ pub enum ScEvent {
 }
 
 impl ScServer {
-    /// An SC for `scene`: the FC's size, `deep-lz4`, no pacing, one thread per core, normal
+    /// An SC for `scene`: the FC's size, `deep-huff`, no pacing, one thread per core, normal
     /// priority, an FC silent for 10 s taken for gone.
     pub fn new(scene: Arc<Scene>) -> Self {
         ScServer {
             scene,
             size: None,
-            codec: Codec::DeepLz4,
+            codec: Codec::DeepHuff,
             link_bytes_per_s: None,
             threads: 0,
             priority: ScPriority::Normal,

@@ -33,7 +33,7 @@ pub(crate) struct Args {
     pub(crate) frames: u32,
 
     /// Codecs to measure, comma-separated (`raw`, `lz4`, `zstd[:LEVEL]`, `deep-lz4`,
-    /// `deep-zstd[:LEVEL]`); default: all, at their default levels.
+    /// `deep-zstd[:LEVEL]`, `deep-huff`); default: all, at their default levels.
     #[arg(long, value_delimiter = ',')]
     pub(crate) codecs: Vec<Codec>,
 

@@ -293,6 +293,7 @@ fn decode_block(
 
 #[cfg(test)]
 mod tests {
+    use super::super::huffman::tests::noise;
     use super::*;
 
     fn err(m: String) -> WireError {
@@ -306,18 +307,6 @@ mod tests {
         decode_into(&packed, data.len(), &mut out, &err).expect("decodes");
         assert_eq!(out, data);
         packed
-    }
-
-    fn noise(n: usize, seed: u64, spread: u32) -> Vec<u8> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((s >> 33) as u32 % spread) as u8
-            })
-            .collect()
     }
 
     #[test]

@@ -12,7 +12,7 @@
 //!   others by lz4_flex.
 //! - **zstd**: one standard zstd frame (`zstd::bulk::compress`, content size recorded).
 //! - **blocks**: blocks of at most 128 KiB, each coded with a canonical Huffman code, LZ4, as one
-//!   repeated byte or stored, whichever is smallest of those tried ([`super::blocks`]); blocks
+//!   repeated byte or stored, whichever is smallest of those tried (`codec/blocks.rs`); blocks
 //!   are coded and decoded in parallel.
 //!
 //! # Expansion bounds
@@ -50,7 +50,7 @@ pub enum Compression {
     /// One zstd frame.
     Zstd = 2,
     /// Blocks of at most 128 KiB, each Huffman-coded, LZ4, a repeated byte or stored
-    /// ([`super::blocks`]).
+    /// (`codec/blocks.rs`, docs/wire-format.md §5).
     Blocks = 3,
 }
 

@@ -439,7 +439,7 @@ fn fill_table(lengths: &[u8; 256], table: &mut [u16; TABLE]) -> Result<(), Strin
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     fn round_trip(data: &[u8]) -> Vec<u8> {
@@ -457,8 +457,9 @@ mod tests {
         coded
     }
 
-    /// A reproducible byte source.
-    fn noise(n: usize, seed: u64, spread: u32) -> Vec<u8> {
+    /// A reproducible byte source: residuals within `spread` of 0, mod 256 (the colour planes'
+    /// shape); near-uniform bytes for a spread of 256.
+    pub(crate) fn noise(n: usize, seed: u64, spread: u32) -> Vec<u8> {
         let mut s = seed;
         (0..n)
             .map(|_| {
