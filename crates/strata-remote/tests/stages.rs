@@ -238,7 +238,7 @@ fn a_replaying_node_answers_what_it_did_not_record_with_an_error_that_says_so() 
     assert_ne!(r.per_frame[0].nodes[0].status, NodeStatus::Ok);
     let what = &r.incidents.first().expect("an incident").what;
     assert!(
-        what.contains(&format!("holds no answer to the request for frame 0 (render (reset), Full, codec deep-lz4, {}x{H}", W + 1)),
+        what.contains(&format!("holds no answer to the request for frame 0 (render (reset), Full, codec deep-huff, {}x{H}", W + 1)),
         "{what}"
     );
 }

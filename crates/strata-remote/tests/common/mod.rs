@@ -65,8 +65,9 @@ where
     (addr, runtime)
 }
 
-/// A display of `frames` frames of `scene` at `size` from `nodes`: `deep-lz4`, two frames in
-/// flight, a 10 s timeout, holding a missing node's last frame.
+/// A display of `frames` frames of `scene` at `size` from `nodes`: `deep-huff` (what `strata
+/// display` asks for by default), two frames in flight, a 10 s timeout, holding a missing
+/// node's last frame.
 pub(crate) fn display_config(
     scene: &Arc<Scene>,
     nodes: Vec<String>,
@@ -78,7 +79,7 @@ pub(crate) fn display_config(
         scene: scene.clone(),
         nodes,
         transfer,
-        codec: Codec::DeepLz4,
+        codec: Codec::DeepHuff,
         tolerance: 0,
         first_frame: 0,
         frames,
