@@ -1118,7 +1118,7 @@ fn leb128(mut v: u32, out: &mut Vec<u8>) {
 /// A `blocks` payload decoded as docs/wire-format.md describes it, slowly and independently of
 /// the crate's decoder: block headers, then a Huffman block's canonical code read a bit at a
 /// time (a stream's bits from each byte's least significant bit up, a code's first bit first).
-fn blocks_by_the_spec(payload: &[u8]) -> Vec<u8> {
+fn blocks_by_the_spec(payload: &[u8], kinds: &mut Vec<u8>) -> Vec<u8> {
     let u32_at = |b: &[u8], i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap()) as usize;
     let mut out = Vec::new();
     let mut at = 0;
@@ -1130,6 +1130,7 @@ fn blocks_by_the_spec(payload: &[u8]) -> Vec<u8> {
         );
         let body = &payload[at + 9..at + 9 + encoded];
         at += 9 + encoded;
+        kinds.push(kind);
         match kind {
             0 => out.extend_from_slice(body),
             1 => out.extend(std::iter::repeat_n(body[0], decoded)),
@@ -1215,6 +1216,8 @@ fn messages_are_laid_out_as_specified() {
         let sections = codec.sections();
         assert_eq!(&bytes[184..188], &[sections.len() as u8, 0, 0, 0]);
         // Section table, then the payloads back to back; decompressed independently.
+        // Block kinds read from `blocks` sections.
+        let mut kinds = Vec::new();
         let mut at = FRAME_HEADER_LEN + SECTION_ENTRY_LEN * sections.len();
         let mut decoded = Vec::new();
         for (i, tag) in sections.iter().enumerate() {
@@ -1229,11 +1232,19 @@ fn messages_are_laid_out_as_specified() {
                 0 => payload.to_vec(),
                 1 => lz4_flex::block::decompress(payload, decoded_len).unwrap(),
                 2 => zstd::bulk::decompress(payload, decoded_len).unwrap(),
-                3 => blocks_by_the_spec(payload),
+                3 => blocks_by_the_spec(payload, &mut kinds),
                 b => panic!("compression byte {b}"),
             };
             assert_eq!(plain.len(), decoded_len);
             decoded.push(plain);
+        }
+        if codec == Codec::DeepHuff {
+            // The spec decoder above really read Huffman and LZ4 blocks (the colour planes are
+            // noise, the counts runs), not only stored sections.
+            assert!(
+                kinds.contains(&3) && kinds.contains(&2),
+                "{codec}: block kinds {kinds:?}"
+            );
         }
         assert_eq!(at, bytes.len());
         match codec {

@@ -32,8 +32,9 @@
 //! and the high depth bytes and 0.04–0.47 for the noisy planes): LZ4 is tried, and kept at once
 //! if it is under a bit a byte. Otherwise the block's byte values are counted, a Huffman code
 //! built, its size bounded from the counts (exact but for each stream's padding, at most three
-//! bytes), and the smallest of LZ4 (if tried), that bound and the bytes themselves is kept. The choice depends only on the block's bytes, so the output is
-//! the same for any thread count.
+//! bytes), and the smallest of LZ4 (if tried), that bound and the bytes themselves is kept.
+//! The choice depends only on the block's bytes, so the output is the same for any thread
+//! count.
 
 use rayon::prelude::*;
 
