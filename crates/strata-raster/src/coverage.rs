@@ -381,6 +381,15 @@ impl Batch {
         self.code_or[lane] = u32::from(codes[0] | codes[1] | codes[2]);
     }
 
+    /// Copies the positions and outcodes [`Batch::set`] put in `from`'s lanes.
+    #[inline(always)]
+    pub fn take_input(&mut self, from: &Batch) {
+        self.x = from.x;
+        self.y = from.y;
+        self.code_and = from.code_and;
+        self.code_or = from.code_or;
+    }
+
     /// Classifies the first `lanes` lanes for a `width` × `height` image, given the outcode bits
     /// `view` (culled if all three vertices share one) and `clip` (clipped if any vertex has
     /// one); see [`Verdict`].

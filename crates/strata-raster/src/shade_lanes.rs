@@ -223,13 +223,22 @@ impl MicroShader {
             first: [0; LANES],
             width,
         };
+        // Small loops of one kind each, on local arrays, so that each is one vector operation
+        // (with the count in the loop below, LLVM stored the counts a lane at a time and the
+        // packed passes stalled reading them back as a vector).
         for l in 0..LANES {
             mask[l] = if micro >> l & 1 != 0 {
                 lanes.mask[l]
             } else {
                 0
             };
-            self.counts[l] = mask[l].count_ones();
+        }
+        let mut counts = [0u32; LANES];
+        for l in 0..LANES {
+            counts[l] = mask[l].count_ones();
+        }
+        self.counts = counts;
+        for l in 0..LANES {
             cx.inv_area[l] = 1.0 / lanes.area[l] as f32;
             cx.first[l] = (lanes.y0[l] as u32)
                 .wrapping_mul(width as u32)
@@ -249,16 +258,16 @@ impl MicroShader {
             Packing::Packed(v3) => {
                 // The samples in primitive order: every sample of lane 0, then of lane 1, …;
                 // lane `l`'s are outputs `first[l]..end[l]`.
-                let mut end = [0u32; LANES];
-                let mut n = 0u32;
+                let end = prefix_sum(&counts);
+                let mut first = [0u32; LANES];
                 for l in 0..LANES {
-                    self.first[l] = n;
-                    n += self.counts[l];
-                    end[l] = n;
+                    first[l] = end[l] - counts[l];
                 }
+                self.first = first;
+                let n = end[LANES - 1];
                 self.stride = 1;
                 self.samples = n;
-                let rounds = *self.counts.iter().max().unwrap_or(&0);
+                let rounds = counts.into_iter().max().unwrap_or(0);
                 let packing = Packed {
                     mask: &mask,
                     first: &self.first,
@@ -423,6 +432,21 @@ impl SpanShader {
         }
         pushed
     }
+}
+
+/// The inclusive prefix sum of `counts`.
+#[inline(always)]
+fn prefix_sum(counts: &[u32; LANES]) -> [u32; LANES] {
+    let mut sum = *counts;
+    let mut step = 1;
+    while step < LANES {
+        let before = sum;
+        for l in 0..LANES {
+            sum[l] = before[l] + if l >= step { before[l - step] } else { 0 };
+        }
+        step *= 2;
+    }
+    sum
 }
 
 /// The next round of a batch: the lowest remaining sample of every lane of `mask` (which loses
