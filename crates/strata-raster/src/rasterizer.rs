@@ -357,9 +357,7 @@ impl<S: FragmentSink> pulp::WithSimd for StripScan<'_, '_, '_, S> {
 /// Pushes micro-triangle fragments into the sink.
 #[inline(always)]
 fn replay<S: FragmentSink>(frags: &[PixelFragment], object: ObjectId, sink: &mut S) -> u64 {
-    for f in frags {
-        sink.push(f.pixel, f.fragment(object));
-    }
+    sink.push_records(frags, object);
     frags.len() as u64
 }
 

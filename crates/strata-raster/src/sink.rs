@@ -8,7 +8,9 @@
 
 use std::ops::Range;
 
-use strata_core::Fragment;
+use strata_core::{Fragment, ObjectId};
+
+use crate::setup::PixelFragment;
 
 /// The image cut into bands of full-width rows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,6 +64,17 @@ impl StripLayout {
 pub trait FragmentSink {
     /// One fragment at row-major pixel index `pixel`, which lies in this sink's strip.
     fn push(&mut self, pixel: u32, fragment: Fragment);
+
+    /// Every record of `records` in order, at its pixel, made by `object`: the micro-triangle
+    /// fragments setup recorded for this strip. The same as a [`FragmentSink::push`] each (the
+    /// default); a sink may instead keep its cursors in registers for the run, where through
+    /// `&mut self` each push loads and stores them again (the node stores might alias them).
+    #[inline(always)]
+    fn push_records(&mut self, records: &[PixelFragment], object: ObjectId) {
+        for r in records {
+            self.push(r.pixel, r.fragment(object));
+        }
+    }
 
     /// Called once after the strip's last fragment (flush counters, release reservations).
     fn finish(&mut self) {}

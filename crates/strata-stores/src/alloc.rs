@@ -71,6 +71,19 @@ impl BlockCursor {
         Some(index)
     }
 
+    /// The entries left in the current block, `cur..end`, for a caller that steps through them
+    /// in registers ([`BlockCursor::set_bounds`] gives them back).
+    #[inline(always)]
+    pub(crate) fn bounds(&self) -> (u32, u32) {
+        (self.cur, self.end)
+    }
+
+    /// Sets what [`BlockCursor::bounds`] gave, advanced.
+    #[inline(always)]
+    pub(crate) fn set_bounds(&mut self, cur: u32, end: u32) {
+        (self.cur, self.end) = (cur, end);
+    }
+
     /// Reserves the next block; false once the pool is exhausted.
     #[cold]
     fn refill(&mut self, counter: &AtomicU32, capacity: u32, block: u32) -> bool {

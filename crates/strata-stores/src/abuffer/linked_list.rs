@@ -78,6 +78,7 @@ use strata_core::{
     DeepFrame, DeepFrameError, DepthStats, Fragment, GatherWriter, GatheredPixels, ObjectId,
     PassTimings, PixelRect, Rgb8Image, Rgba8, RunLimit, composite,
 };
+use strata_raster::setup::PixelFragment;
 use strata_raster::{CaptureTarget, FragmentSink, FrameInput, Prepared, Rasterizer, StripLayout};
 
 use crate::alloc::{BlockCursor, block_size, capacity_for};
@@ -353,6 +354,38 @@ impl FragmentSink for LinkedListSink<'_> {
         self.nodes[index as usize].store(fragment, *head);
         *head = index;
         self.n_stored += 1;
+    }
+
+    /// [`FragmentSink::push`] for a run of records, with the block cursor and the counts in
+    /// locals: pushed one at a time, each reloads and stores them, since the node stores might
+    /// alias them.
+    #[inline(always)]
+    fn push_records(&mut self, records: &[PixelFragment], object: ObjectId) {
+        let (heads, nodes, first) = (&mut *self.heads, self.nodes, self.first_pixel);
+        let capacity = nodes.len() as u32;
+        let (mut cur, mut end) = self.block.bounds();
+        let mut stored = 0u64;
+        for r in records {
+            let index = if cur != end {
+                cur += 1;
+                cur - 1
+            } else {
+                // A new block (rare): through the cursor itself.
+                self.block.set_bounds(cur, end);
+                let Some(index) = self.block.next(self.next_free, capacity, self.block_size) else {
+                    continue;
+                };
+                (cur, end) = self.block.bounds();
+                index
+            };
+            let head = &mut heads[(r.pixel - first) as usize];
+            nodes[index as usize].store(r.fragment(object), *head);
+            *head = index;
+            stored += 1;
+        }
+        self.block.set_bounds(cur, end);
+        self.n_stored += stored;
+        self.n_dropped += records.len() as u64 - stored;
     }
 
     /// Ends the strip; in a fused pass, resolves or gathers its pixels now, on this thread,
