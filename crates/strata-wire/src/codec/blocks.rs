@@ -21,8 +21,11 @@
 //! ```
 //!
 //! `decoded_len` is 1 to [`MAX_BLOCK`]; the blocks' decoded lengths add up to the section
-//! table's, and the last block ends where the payload does. The decoder reads every header
-//! before it sizes the output, then decodes the blocks in parallel.
+//! table's, and the last block ends where the payload does. A section of `n` bytes has at most
+//! `n / MAX_BLOCK + 5` blocks (the encoder cuts at most 4 planes into near-equal blocks), and an
+//! LZ4 block has at least 2 coded bytes (a token and a literal), so a payload's headers cannot
+//! make the decoder keep more than a few entries a 128 KiB of output. The decoder reads every
+//! header before it sizes the output, then decodes the blocks in parallel.
 //!
 //! # Choosing a block's coding
 //!
@@ -120,6 +123,12 @@ fn cuts(n: usize, planes: usize) -> Vec<std::ops::Range<usize>> {
     out
 }
 
+/// The most blocks a section of `n` bytes may have: [`cuts`] makes at most 4 planes of
+/// `⌈(n / planes) / MAX_BLOCK⌉` blocks each, fewer than `n / MAX_BLOCK + 5`.
+fn max_blocks(n: usize) -> usize {
+    n / MAX_BLOCK + 5
+}
+
 /// Writes a block header at the start of `buf`.
 fn header(buf: &mut [u8], kind: Kind, decoded: usize, encoded: usize) {
     buf[0] = kind as u8;
@@ -203,7 +212,14 @@ pub(crate) fn decode_into(
 ) -> Result<(), WireError> {
     let mut found = Vec::new();
     let (mut at, mut total) = (0usize, 0usize);
+    let most = max_blocks(decoded_len);
     while at < payload.len() {
+        if found.len() == most {
+            return Err(what(format!(
+                "more than {most} blocks for {decoded_len} bytes (the most a section of that \
+                 length is cut into)"
+            )));
+        }
         let Some(h) = payload.get(at..at + BLOCK_HEADER) else {
             return Err(what(format!(
                 "block at byte {at} of the payload: {} bytes left, a block header takes {BLOCK_HEADER}",
@@ -228,7 +244,11 @@ pub(crate) fn decode_into(
         let fits = match kind {
             Kind::Stored => encoded == decoded,
             Kind::Fill => encoded == 1,
-            Kind::Lz4 => decoded as u64 <= 255 * encoded as u64 + 255,
+            Kind::Lz4 => {
+                encoded >= 2
+                    && decoded as u64
+                        <= super::compress::Compression::Lz4.max_decoded(encoded as u64)
+            }
             Kind::Huffman => encoded >= huffman::HEADER,
         };
         if !fits {
@@ -339,6 +359,24 @@ mod tests {
         assert_eq!(c.len(), 4 * 3);
         assert!(c.iter().all(|r| r.len() <= MAX_BLOCK && r.len() >= 99_999));
         assert!(c.windows(2).all(|w| w[0].end == w[1].start));
+        // The decoder's bound on the number of blocks holds for what the encoder cuts.
+        for n in [
+            0,
+            1,
+            4,
+            5,
+            4 * MAX_BLOCK,
+            4 * MAX_BLOCK + 4,
+            9 * MAX_BLOCK + 3,
+            1 << 24,
+        ] {
+            for planes in [1, 4] {
+                assert!(
+                    cuts(n, planes).len() <= max_blocks(n),
+                    "{n} bytes, {planes} planes"
+                );
+            }
+        }
         assert_eq!(c[3].start, 300_000);
         for n in [
             1,
@@ -370,6 +408,70 @@ mod tests {
         for threads in [2, 3] {
             assert_eq!(pack(threads), one, "{threads} threads");
         }
+    }
+
+    #[test]
+    fn changed_bytes_anywhere_in_a_payload_of_every_kind_are_errors_or_decode_never_panic() {
+        // Huffman, LZ4, fill and stored blocks, as `every_kind_is_chosen_where_it_is_smallest`.
+        let n = 6_000;
+        let mut data = noise(n, 5, 7);
+        data.extend((0..n).map(|i| (i / 500 % 3) as u8));
+        data.extend(std::iter::repeat_n(9u8, n));
+        data.extend(noise(n, 6, 256));
+        let packed = round_trip(&data, 4);
+        // Where each block's header is, and its kind.
+        let (mut headers, mut kinds, mut at) = (Vec::new(), Vec::new(), 0);
+        while at < packed.len() {
+            headers.push(at..at + BLOCK_HEADER);
+            kinds.push(packed[at]);
+            let len = u32::from_le_bytes(packed[at + 5..at + 9].try_into().expect("4 bytes"));
+            at += BLOCK_HEADER + len as usize;
+        }
+        assert_eq!(kinds, [3, 2, 1, 0]);
+        let mut out = Vec::new();
+        let mut body_errors = 0;
+        for at in 0..packed.len() {
+            for flip in [0x01u8, 0x80, 0xff] {
+                let mut bad = packed.clone();
+                bad[at] ^= flip;
+                let in_header = headers.iter().any(|h| h.contains(&at));
+                match decode_into(&bad, data.len(), &mut out, &err) {
+                    Err(_) => body_errors += usize::from(!in_header),
+                    // A changed header never passes; a changed body byte may still decode (in
+                    // stored bytes, an LZ4 literal, a Huffman code of the same length), to
+                    // other bytes of the same length.
+                    Ok(()) => {
+                        assert!(!in_header, "byte {at} ^ {flip:#x} of a header passed");
+                        assert_eq!(out.len(), data.len());
+                    }
+                }
+            }
+        }
+        // The Huffman and LZ4 bodies do catch changes.
+        assert!(body_errors > 100, "{body_errors} body errors");
+    }
+
+    #[test]
+    fn headers_that_cost_memory_without_bytes_are_refused() {
+        // A run of header-only LZ4 blocks claiming 255 bytes each: refused at its first block.
+        let mut bad = Vec::new();
+        for _ in 0..1000 {
+            bad.extend([Kind::Lz4 as u8, 255, 0, 0, 0, 0, 0, 0, 0]);
+        }
+        let mut out = Vec::new();
+        let e = decode_into(&bad, 255_000, &mut out, &err).expect_err("no coded bytes");
+        assert!(e.to_string().contains("cannot decode"), "{e}");
+        // Fills of one byte each: valid blocks, but more than a section of that length has.
+        let mut bad = Vec::new();
+        for _ in 0..100 {
+            bad.extend([Kind::Fill as u8, 1, 0, 0, 0, 1, 0, 0, 0, 7]);
+        }
+        let e = decode_into(&bad, 100, &mut out, &err).expect_err("too many blocks");
+        assert!(e.to_string().contains("more than 5 blocks"), "{e}");
+        assert!(out.is_empty());
+        // Five are allowed.
+        decode_into(&bad[..50], 5, &mut out, &err).expect("five fills");
+        assert_eq!(out, [7; 5]);
     }
 
     #[test]

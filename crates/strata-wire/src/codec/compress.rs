@@ -29,7 +29,7 @@
 //!
 //! LZ4 then decompresses into an exact-size buffer (at most 256× the payload). Blocks read every
 //! block header first and size the buffer only once the headers add up to the announced length,
-//! so a payload whose headers do not cost no memory. zstd, whose bound
+//! so a payload whose headers do not add up costs no memory. zstd, whose bound
 //! is loose, decompresses into a buffer sized from the payload (at most 64×) and, past that, grows
 //! the buffer only as real output arrives, up to the announced length: an announced length that the
 //! payload does not actually produce costs no memory.

@@ -100,8 +100,13 @@ pub(crate) fn code_lengths(counts: &[u32; 256]) -> [u8; 256] {
     order.sort_unstable();
     let n = order.len();
     let mut lengths = [0u8; 256];
-    debug_assert!(n >= 2, "a Huffman block has two values or more");
     if n < 2 {
+        // One value (or none): a code of two one-bit words, the value's and another's, so that
+        // what `encode` writes is a complete code `decode` accepts. (Blocks code such input as
+        // a fill; this keeps the code valid for any input.)
+        let v = order.first().map_or(0, |&(_, v)| v);
+        lengths[usize::from(v)] = 1;
+        lengths[usize::from(v == 0)] = 1;
         return lengths;
     }
     // Huffman's tree by the two-queue method: leaves in `order`, internal nodes in creation
@@ -454,6 +459,7 @@ pub(crate) mod tests {
         assert!(coded.len() >= HEADER + bits.div_ceil(8) as usize);
         let mut out = vec![0u8; data.len()];
         decode(&coded, &mut out, &|m| WireError::Encode(m)).expect("decodes");
+        assert_eq!(out, data);
         coded
     }
 
@@ -591,5 +597,22 @@ pub(crate) mod tests {
         assert!(decode(&bad, &mut out, &err).is_err());
         bad[0] = 0x0c;
         assert!(decode(&bad, &mut out, &err).is_err());
+        // Incomplete: two words of two bits; one word; none.
+        bad[..128].fill(0);
+        bad[0] = 0x22;
+        assert!(decode(&bad, &mut out, &err).is_err());
+        bad[0] = 0x01;
+        assert!(decode(&bad, &mut out, &err).is_err());
+        bad[0] = 0;
+        assert!(decode(&bad, &mut out, &err).is_err());
+    }
+
+    #[test]
+    fn one_value_or_none_still_makes_a_complete_code() {
+        for v in [0u8, 1, 200] {
+            round_trip(&vec![v; 300]);
+        }
+        let lengths = code_lengths(&histogram(&[]));
+        assert_eq!(lengths.iter().filter(|&&l| l == 1).count(), 2);
     }
 }

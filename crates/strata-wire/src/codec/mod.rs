@@ -57,7 +57,8 @@ pub enum Codec {
         /// zstd level, -128..=22.
         level: i32,
     },
-    /// DeepFrame-aware layout in blocks, each Huffman-coded or LZ4 (whichever is smaller).
+    /// DeepFrame-aware layout in blocks, each Huffman-coded, LZ4, one repeated byte or stored
+    /// (whichever is smallest).
     DeepHuff,
 }
 
