@@ -46,8 +46,9 @@
 //! that cover something, large triangles, triangles to clip) are then visited, in primitive
 //! order. A batch's positions and outcodes are gathered a lane at a time (scalar stores), one
 //! batch ahead of the batch being classified, so that those stores have drained by the time
-//! `classify` reads them back as vectors. The whole chunk is compiled once per instruction set and chosen at run time
-//! ([`pulp::Arch::dispatch`]), so on AVX2 a batch quantity is one register.
+//! `classify` reads them back as vectors. The whole chunk is compiled once per instruction set
+//! and chosen at run time ([`pulp::Arch::dispatch`]), so on AVX2 a batch quantity is one
+//! register.
 //!
 //! Nothing here allocates per triangle: all lists keep their capacity from frame to frame.
 

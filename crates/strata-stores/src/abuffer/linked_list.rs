@@ -340,6 +340,15 @@ struct StripReport {
     time: Duration,
 }
 
+/// Puts `fragment` in pool node `index` and makes it the head of the strip's pixel `local`'s
+/// list, in front of the old head.
+#[inline(always)]
+fn link(heads: &mut [u32], nodes: &[Node], local: u32, index: u32, fragment: Fragment) {
+    let head = &mut heads[local as usize];
+    nodes[index as usize].store(fragment, *head);
+    *head = index;
+}
+
 impl FragmentSink for LinkedListSink<'_> {
     #[inline(always)]
     fn push(&mut self, pixel: u32, fragment: Fragment) {
@@ -350,9 +359,13 @@ impl FragmentSink for LinkedListSink<'_> {
             self.n_dropped += 1;
             return;
         };
-        let head = &mut self.heads[(pixel - self.first_pixel) as usize];
-        self.nodes[index as usize].store(fragment, *head);
-        *head = index;
+        link(
+            self.heads,
+            self.nodes,
+            pixel - self.first_pixel,
+            index,
+            fragment,
+        );
         self.n_stored += 1;
     }
 
@@ -378,9 +391,7 @@ impl FragmentSink for LinkedListSink<'_> {
                 (cur, end) = self.block.bounds();
                 index
             };
-            let head = &mut heads[(r.pixel - first) as usize];
-            nodes[index as usize].store(r.fragment(object), *head);
-            *head = index;
+            link(heads, nodes, r.pixel - first, index, r.fragment(object));
             stored += 1;
         }
         self.block.set_bounds(cur, end);
