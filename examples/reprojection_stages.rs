@@ -13,7 +13,9 @@
 //! worker threads (default 1), as a render node serving the reprojection transfer does, but
 //! without sockets or a second thread: the stages run one after the other, so each is timed
 //! alone. Prints the median of each stage over the frames after the first (which sends
-//! everything), the fragments held and inserted and the message's bytes in the last frame.
+//! everything), the fragments held and inserted and the message's bytes in the last frame, and
+//! a hash of every frame's message (the same for any thread count, and across builds that
+//! change only speed).
 //! `strata node` runs the stages side by side on the same worker threads.
 
 use std::time::Instant;
@@ -57,6 +59,8 @@ fn main() -> Result<()> {
     let mut message = Vec::new();
     let (mut render_ms, mut encode_ms, mut wire_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut held, mut inserted) = (0, 0);
+    // FNV-1a over every message, in order.
+    let mut messages_hash = 0xcbf2_9ce4_8422_2325u64;
     let mut reuse = None;
     pool.install(|| -> Result<()> {
         for frame in 0..frames as u32 {
@@ -102,6 +106,9 @@ fn main() -> Result<()> {
                 Codec::DeepLz4,
             )?;
             wire_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            for &b in &message {
+                messages_hash = (messages_hash ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
             (held, inserted) = (delta.held, delta.inserts.fragment_count());
             // As the node does: the next frame is exported into this one's buffers, and the
             // next delta built in this one's.
@@ -118,7 +125,7 @@ fn main() -> Result<()> {
     println!(
         "{scene_name} {width}x{height}, {threads} thread(s), median of {} frames: render {:.2} ms, \
          encode {:.2} ms, wire {:.2} ms; last frame held {held} fragments, inserted {inserted}, \
-         {} bytes on the wire (deep-lz4)",
+         {} bytes on the wire (deep-lz4); messages' hash {messages_hash:016x}",
         frames - 1,
         median(&render_ms),
         median(&encode_ms),
