@@ -245,10 +245,17 @@ impl BandOut {
                 let s = &mut self.pixel;
                 s.truth.clear();
                 let row_run = run.start - row_first..run.end - row_first;
-                s.truth
-                    .extend(row_run.clone().filter(|&k| self.known[k]).map(|k| k as u32));
+                for k in row_run.clone() {
+                    if self.known[k] {
+                        s.truth.push(k as u32);
+                    }
+                }
                 let row = &self.row_entries;
-                sort_stably_by_key(&mut s.truth, |&k| row[k as usize].fragment.order_key());
+                // The rendered run is in depth order, and its entries mostly in theirs.
+                let key = |k: &u32| row[*k as usize].fragment.order_key();
+                if !s.truth.is_sorted_by_key(key) {
+                    sort_stably_by_key(&mut s.truth, key);
+                }
                 let start = entries.len();
                 let e = match_pixel(view, tolerance, held, row, s, entries);
                 self.depth_error = self.depth_error.max(e);
@@ -263,7 +270,9 @@ impl BandOut {
                 // The inserted fragments as rendered, in the rendered run's order, which is
                 // the wire's (the truth is in the entries' order, which differs where depths
                 // tie).
-                s.inserted.sort_unstable();
+                if !s.inserted.is_sorted() {
+                    s.inserted.sort_unstable();
+                }
                 s.wire.clear();
                 let r = rendered.run(p);
                 s.wire
@@ -300,13 +309,16 @@ fn match_pixel(
     // Most often each rendered fragment is the projected entry at its own position: the
     // search below would match them one to one, and the run stays as it was projected.
     let mut depth_error = 0f32;
+    // The colours first: they are what differs where a pixel changes.
     if held.len() == s.truth.len()
         && held.iter().zip(&s.truth).all(|(h, &k)| {
             let n = &row[k as usize];
+            if !close(&h.fragment, &n.fragment, tolerance) {
+                return false;
+            }
             let z = view.eye_depth(n.fragment.depth);
             depth_error = depth_error.max((h.fragment.depth - n.fragment.depth).abs());
-            close(&h.fragment, &n.fragment, tolerance)
-                && (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
+            (view.eye_depth(h.fragment.depth) - z).abs() <= DEPTH_SLACK * z
         })
     {
         out.extend_from_slice(held);

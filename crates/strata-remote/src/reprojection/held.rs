@@ -603,10 +603,11 @@ impl Moved<'_> {
                 let (p, f) = moved[i as usize];
                 let o = &mut offs[p as usize - first_pixel];
                 *o -= 1;
-                entries[(*o - base) as usize] = Entry {
-                    fragment: f,
-                    surfel: source[i as usize - start].surfel,
-                };
+                // Field by field: an `Entry` built first went through the stack, and its
+                // wide reloads waited for the narrower stores that built it.
+                let e = &mut entries[(*o - base) as usize];
+                e.fragment = f;
+                e.surfel = source[i as usize - start].surfel;
             }
             end -= n;
         }

@@ -113,31 +113,35 @@ pub(crate) fn sort_stably_by_key<T: Copy, K: Ord>(run: &mut [T], key: impl Fn(&T
 /// merged with the sorted `inserts`; on equal keys the projected entry comes first. Both ends
 /// call exactly this, so their runs agree bit for bit.
 pub fn merge_pixel(projected: &[Entry], removed: &[u32], inserts: &[Entry], out: &mut Vec<Entry>) {
-    let mut r = removed.iter().peekable();
-    let mut ins = inserts.iter().peekable();
+    // Plain indices, not peekable iterators: this runs for every touched pixel on both ends.
+    let (mut r, mut n) = (0, 0);
     for (i, e) in projected.iter().enumerate() {
-        if r.peek() == Some(&&(i as u32)) {
-            r.next();
+        if removed.get(r) == Some(&(i as u32)) {
+            r += 1;
             continue;
         }
-        while let Some(n) = ins.peek() {
-            if n.fragment.order_key() < e.fragment.order_key() {
-                out.push(**n);
-                ins.next();
-            } else {
-                break;
-            }
+        let key = e.fragment.order_key();
+        while let Some(next) = inserts.get(n)
+            && next.fragment.order_key() < key
+        {
+            out.push(*next);
+            n += 1;
         }
         out.push(*e);
     }
-    out.extend(ins.copied());
+    out.extend_from_slice(&inserts[n..]);
 }
 
-/// True if `a` stands for `b`: same object, same alpha, RGB within `tolerance` steps.
-#[inline]
+/// True if `a` stands for `b`: same object, same alpha, RGB within `tolerance` steps. The five
+/// tests are combined without branches: this runs for every pair a pixel's matching compares.
+#[inline(always)]
 pub(crate) fn close(a: &Fragment, b: &Fragment, tolerance: u8) -> bool {
     let (x, y) = (a.color.0, b.color.0);
-    a.object == b.object && x[3] == y[3] && (0..3).all(|c| x[c].abs_diff(y[c]) <= tolerance)
+    (a.object == b.object)
+        & (x[3] == y[3])
+        & (x[0].abs_diff(y[0]) <= tolerance)
+        & (x[1].abs_diff(y[1]) <= tolerance)
+        & (x[2].abs_diff(y[2]) <= tolerance)
 }
 
 #[cfg(test)]
