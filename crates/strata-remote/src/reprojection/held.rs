@@ -151,21 +151,21 @@ impl Held {
     /// Every held entry moved to `view` and bucketed by the band of [`BAND_ROWS`] rows it lands
     /// in, in `scratch`'s buffers; the bands are then sorted one by one, by whoever consumes
     /// them ([`Moved::sort_band`]), so the sorted runs need not pass through memory as a whole
-    /// list. Three parallel passes and a small serial one, none over the whole list on one
-    /// thread:
+    /// list. One parallel pass and a small serial one, none over the whole list on one thread:
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
     ///    (`View::project_batch`, batches of one object's entries gathered by `lanes::Pending`),
-    ///    and how many land in each destination band;
-    /// 2. (serial, over bands × bands) where each source band's share of each destination band
-    ///    starts in the bucket list;
-    /// 3. per source band: the indices of its entries that stay in view, appended to their
-    ///    destination band's bucket in source order;
-    /// 4. (per destination band, by [`Moved::sort_band_into`]) a counting sort of its bucket by
-    ///    pixel, then each run sorted front to back.
+    ///    then, while the band's moved entries are still in cache, the indices of those that
+    ///    stay in view grouped by destination band in the source band's own stretch of the
+    ///    bucket list (a counting sort by destination band, so each group keeps source order);
+    /// 2. (serial, over bands × bands) how many entries land in each destination band;
+    /// 3. (per destination band, by [`Moved::sort_band_into`]) a counting sort of its groups,
+    ///    source band by source band, by pixel, then each run sorted front to back.
     ///
-    /// Buckets keep source order and the counting sort is stable, so the result is the stable
+    /// Groups keep source order and the counting sort is stable, so the result is the stable
     /// sort of the whole list by pixel, then by fragment order, whatever the thread count.
+    /// (The groups used to be gathered by destination band in a pass of their own over the
+    /// whole moved list, reading it back from memory.)
     pub(super) fn move_to<'a>(&'a self, view: &View, scratch: &'a mut Scratch) -> Moved<'a> {
         let (width, height) = view.size();
         let (new_w, new_h) = (width as usize, height as usize);
@@ -176,28 +176,31 @@ impl Held {
             None => Vec::new(),
         };
         let dst_bands = new_h.div_ceil(BAND_ROWS);
-        let band_of = |p: u32| p as usize / new_w / BAND_ROWS;
+        let band_size = new_w * BAND_ROWS;
         let Scratch {
             moved,
             bucket,
-            shares,
+            groups,
             sorted,
         } = scratch;
-        // Every element is written in pass 1: no need to clear what the last frame left.
+        // Every element is written in pass 1 (the bucket's up to each band's entries in view,
+        // and only those are read): no need to clear what the last frame left.
         moved.resize(self.len(), (u32::MAX, Fragment::default()));
+        bucket.resize(self.len(), 0);
         let (w, h) = (self.width as usize, self.height as usize);
         let src_bands = self.bands.len();
-        shares.resize_with(src_bands, Vec::new);
+        groups.resize_with(src_bands, Vec::new);
         let src_starts = self.band_starts();
 
-        // 1. Move every entry; count where each source band's entries land.
+        // 1. Move every entry; group the indices of those in view by destination band.
         {
-            let lens = self.bands.iter().map(|b| b.entries.len());
-            split_lens(moved, lens)
+            let lens = || self.bands.iter().map(|b| b.entries.len());
+            split_lens(moved, lens())
                 .into_par_iter()
+                .zip(split_lens(bucket, lens()))
                 .zip(self.bands.par_iter().enumerate())
-                .zip(shares.par_iter_mut())
-                .for_each(|((band, (s, src)), share)| {
+                .zip(groups.par_iter_mut())
+                .for_each(|(((band, grouped), (s, src)), group)| {
                     let first = band_pixels(s, w, h).start;
                     let mut pending = Pending::default();
                     let mut flush = MoveFlush { view, band };
@@ -214,66 +217,43 @@ impl Held {
                         }
                     }
                     pending.finish(&mut flush);
-                    share.clear();
-                    share.resize(dst_bands, 0);
+                    // Counts per destination band, then their starts (`group[d]`), then the
+                    // indices placed, each group's start stepping to its end (which is the
+                    // next group's start), so a shift leaves the starts again.
+                    group.clear();
+                    group.resize(dst_bands + 1, 0);
                     for &(p, _) in band.iter() {
                         if p != u32::MAX {
-                            share[band_of(p)] += 1;
+                            group[p as usize / band_size + 1] += 1;
                         }
                     }
-                });
-        }
-
-        // 2. Where each (destination band, source band) share starts in the bucket list, and
-        // each destination band's first entry.
-        let mut band_starts = Vec::with_capacity(dst_bands + 1);
-        let mut total = 0usize;
-        for d in 0..dst_bands {
-            band_starts.push(total);
-            total += shares.iter().map(|s| s[d] as usize).sum::<usize>();
-        }
-        band_starts.push(total);
-        bucket.resize(total, 0);
-
-        // 3. Each source band appends its entries' indices to the destination buckets.
-        {
-            // Cut the bucket list into (destination, source) shares, then hand each source
-            // band its row of them.
-            let mut per_source: Vec<Vec<&mut [u32]>> = (0..src_bands)
-                .map(|_| Vec::with_capacity(dst_bands))
-                .collect();
-            let mut rest = bucket.as_mut_slice();
-            for d in 0..dst_bands {
-                for (s, share) in shares.iter().enumerate() {
-                    let (piece, tail) = std::mem::take(&mut rest).split_at_mut(share[d] as usize);
-                    per_source[s].push(piece);
-                    rest = tail;
-                }
-            }
-            let moved = &*moved;
-            let src_starts = &src_starts;
-            per_source
-                .into_par_iter()
-                .enumerate()
-                .for_each(|(s, mut pieces)| {
-                    let (first, last) = (src_starts[s], src_starts[s + 1]);
-                    let mut fill = vec![0usize; dst_bands];
-                    for (i, &(p, _)) in (first..last).zip(&moved[first..last]) {
+                    for d in 0..dst_bands {
+                        group[d + 1] += group[d];
+                    }
+                    let index = src_starts[s] as u32;
+                    for (k, &(p, _)) in band.iter().enumerate() {
                         if p != u32::MAX {
-                            let d = band_of(p);
-                            pieces[d][fill[d]] = i as u32;
-                            fill[d] += 1;
+                            let at = &mut group[p as usize / band_size];
+                            grouped[*at as usize] = index + k as u32;
+                            *at += 1;
                         }
                     }
+                    group.copy_within(..dst_bands, 1);
+                    group[0] = 0;
                 });
         }
+
+        // 2. How many entries land in each destination band.
+        let band_lens = (0..dst_bands)
+            .map(|d| groups.iter().map(|g| (g[d + 1] - g[d]) as usize).sum())
+            .collect();
         Moved {
             held: self,
             moved,
             bucket,
-            band_starts,
+            band_lens,
             src_starts,
-            shares,
+            groups,
             sorted,
             width: new_w,
             height: new_h,
@@ -468,10 +448,12 @@ fn split_lens<T>(items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut
 pub struct Scratch {
     /// Per held entry, its pixel and fragment in the new view (`u32::MAX`: out of view).
     moved: Vec<(u32, Fragment)>,
-    /// Indices of the entries that stay in view, grouped by destination band.
+    /// Indices of the entries that stay in view: each source band's in its own stretch (from
+    /// its first entry on), grouped by destination band.
     bucket: Vec<u32>,
-    /// Per source band, how many of its entries land in each destination band.
-    shares: Vec<Vec<u32>>,
+    /// Per source band, where its group for each destination band starts in its stretch of
+    /// `bucket`, and where the last ends (one more than the destination bands).
+    groups: Vec<Vec<u32>>,
     /// Sorted bands' buffers, lent to band tasks ([`Moved::sort_band`]).
     sorted: BandPool,
 }
@@ -527,14 +509,13 @@ pub(super) struct Moved<'a> {
     held: &'a Held,
     moved: &'a [(u32, Fragment)],
     bucket: &'a [u32],
-    /// `band_starts[d]..band_starts[d + 1]` indexes `bucket` for destination band `d`.
-    band_starts: Vec<usize>,
+    /// Entries landing in each destination band.
+    band_lens: Vec<usize>,
     /// Each source band's first entry in `moved` (and in the bucket's indices), and the
     /// list's length after them.
     src_starts: Vec<usize>,
-    /// Per source band, how many of its entries land in each destination band: the pieces a
-    /// destination band's bucket is made of, in source order.
-    shares: &'a [Vec<u32>],
+    /// Per source band, its groups in `bucket` by destination band ([`Scratch::groups`]).
+    groups: &'a [Vec<u32>],
     sorted: &'a BandPool,
     width: usize,
     height: usize,
@@ -543,12 +524,12 @@ pub(super) struct Moved<'a> {
 impl Moved<'_> {
     /// Destination bands.
     pub(super) fn band_count(&self) -> usize {
-        self.band_starts.len() - 1
+        self.band_lens.len()
     }
 
     /// Fragments landing in band `d`.
     pub(super) fn band_len(&self, d: usize) -> usize {
-        self.band_starts[d + 1] - self.band_starts[d]
+        self.band_lens[d]
     }
 
     /// Band `d`'s pixels, row-major indices into the new view.
@@ -581,25 +562,28 @@ impl Moved<'_> {
     /// bucket by pixel, then each run sorted front to back.
     fn sort_band_into(&self, d: usize, base: u32, offs: &mut [u32], entries: &mut [Entry]) {
         let first_pixel = self.band_pixels(d).start;
-        let items = &self.bucket[self.band_starts[d]..self.band_starts[d + 1]];
         let (moved, held) = (self.moved, self.held);
+        // Source band `s`'s group for this band: indices into `moved`, in source order.
+        let group = |s: usize| {
+            let (g, at) = (&self.groups[s], self.src_starts[s]);
+            &self.bucket[at + g[d] as usize..at + g[d + 1] as usize]
+        };
         // Counts, then each pixel's end; filling backwards leaves each pixel's start.
         offs.fill(0);
-        for &i in items {
-            offs[moved[i as usize].0 as usize - first_pixel] += 1;
+        for s in 0..self.groups.len() {
+            for &i in group(s) {
+                offs[moved[i as usize].0 as usize - first_pixel] += 1;
+            }
         }
         let mut end = base;
         for o in offs.iter_mut() {
             end += *o;
             *o = end;
         }
-        // The bucket holds each source band's share in turn: walked backwards, share by
-        // share, each entry's surfel is found in its source band.
-        let mut end = items.len();
-        for (s, share) in self.shares.iter().enumerate().rev() {
-            let n = share[d] as usize;
+        // Walked backwards, group by group, each entry's surfel is found in its source band.
+        for s in (0..self.groups.len()).rev() {
             let (source, start) = (&held.bands[s].entries, self.src_starts[s]);
-            for &i in items[end - n..end].iter().rev() {
+            for &i in group(s).iter().rev() {
                 let (p, f) = moved[i as usize];
                 let o = &mut offs[p as usize - first_pixel];
                 *o -= 1;
@@ -609,7 +593,6 @@ impl Moved<'_> {
                 e.fragment = f;
                 e.surfel = source[i as usize - start].surfel;
             }
-            end -= n;
         }
         for (k, &start) in offs.iter().enumerate() {
             let stop = offs
