@@ -219,24 +219,52 @@ impl Held {
                     pending.finish(&mut flush);
                     // Counts per destination band, then their starts (`group[d]`), then the
                     // indices placed, each group's start stepping to its end (which is the
-                    // next group's start), so a shift leaves the starts again.
+                    // next group's start), so a shift leaves the starts again. Neighbouring
+                    // entries mostly land in one band: its count or cursor stays in a register
+                    // until an entry lands elsewhere (a counter stepped in memory made every
+                    // entry wait for the last one's store), and the band is found by a
+                    // division only then.
                     group.clear();
                     group.resize(dst_bands + 1, 0);
+                    let bs = band_size as u32;
+                    let (mut cur, mut lo, mut n) = (None, 0u32, 0u32);
                     for &(p, _) in band.iter() {
-                        if p != u32::MAX {
-                            group[p as usize / band_size + 1] += 1;
+                        if p == u32::MAX {
+                            continue;
                         }
+                        if cur.is_none() || p.wrapping_sub(lo) >= bs {
+                            if let Some(d) = cur {
+                                group[d + 1] += n;
+                            }
+                            let d = (p / bs) as usize;
+                            (cur, lo, n) = (Some(d), d as u32 * bs, 0);
+                        }
+                        n += 1;
+                    }
+                    if let Some(d) = cur {
+                        group[d + 1] += n;
                     }
                     for d in 0..dst_bands {
                         group[d + 1] += group[d];
                     }
                     let index = src_starts[s] as u32;
+                    let (mut cur, mut lo, mut at) = (None, 0u32, 0u32);
                     for (k, &(p, _)) in band.iter().enumerate() {
-                        if p != u32::MAX {
-                            let at = &mut group[p as usize / band_size];
-                            grouped[*at as usize] = index + k as u32;
-                            *at += 1;
+                        if p == u32::MAX {
+                            continue;
                         }
+                        if cur.is_none() || p.wrapping_sub(lo) >= bs {
+                            if let Some(d) = cur {
+                                group[d] = at;
+                            }
+                            let d = (p / bs) as usize;
+                            (cur, lo, at) = (Some(d), d as u32 * bs, group[d]);
+                        }
+                        grouped[at as usize] = index + k as u32;
+                        at += 1;
+                    }
+                    if let Some(d) = cur {
+                        group[d] = at;
                     }
                     group.copy_within(..dst_bands, 1);
                     group[0] = 0;
