@@ -1033,6 +1033,37 @@ impl GatherWriter {
         Ok(())
     }
 
+    /// Appends pixel `pixel` of `frame` with only the fragments at positions `keep` of its run
+    /// (ascending; positions past the run are ignored): what [`GatherWriter::push_run`]
+    /// appends for those fragments, cut to the writer's limit, without checking or sorting
+    /// them again. A frame's depths are valid and its runs sorted, and a subsequence of a
+    /// sorted run is sorted. A reprojection node sends some of the fragments it rendered at a
+    /// pixel this way.
+    ///
+    /// # Panics
+    /// If `pixel` is not a pixel of `frame`.
+    #[inline]
+    pub fn push_from_frame(&mut self, frame: &DeepFrame, pixel: usize, keep: &[u32]) {
+        let run = frame.offsets[pixel] as usize..frame.offsets[pixel + 1] as usize;
+        let (depth, color, object) = (
+            &frame.depth[run.clone()],
+            &frame.color[run.clone()],
+            &frame.object[run.clone()],
+        );
+        // Ascending, so the positions in the run are a prefix of `keep`.
+        let keep = &keep[..keep.partition_point(|&k| (k as usize) < run.len())];
+        let keep = &keep[..self.limit.keep(keep.len(), |i| color[keep[i] as usize].0[3])];
+        let g = &mut self.gathered;
+        // At most the run's length, which fits a `u32` as the frame's offsets do.
+        g.counts.push(keep.len() as u32);
+        for &k in keep {
+            let k = k as usize;
+            g.depth.push(depth[k]);
+            g.color.push(color[k]);
+            g.object.push(object[k]);
+        }
+    }
+
     /// The pixels and fragments pushed.
     pub fn finish(self) -> GatheredPixels {
         self.gathered
@@ -1267,6 +1298,47 @@ mod tests {
                 frag(0.5, [3, 3, 3, 3], 0),
             ],
         ]
+    }
+
+    #[test]
+    fn pushing_some_of_a_frames_run_equals_pushing_those_fragments_as_a_run() {
+        // Runs of up to five fragments, with ties in depth between objects and colours.
+        let mut lists = sample();
+        lists.push(vec![
+            frag(0.4, [9, 9, 9, 200], 1),
+            frag(0.4, [9, 9, 9, 200], 0),
+            frag(0.4, [8, 9, 9, 60], 0),
+            frag(0.2, [7, 7, 7, 255], 3),
+            frag(0.8, [6, 6, 6, 100], 2),
+        ]);
+        lists.push(vec![frag(1.0, [5, 5, 5, 5], 0), frag(0.0, [4, 4, 4, 4], 0)]);
+        let frame = DeepFrame::from_pixel_lists(3, 2, &lists).unwrap();
+        for limit in [
+            RunLimit::NONE,
+            RunLimit::new(2, None),
+            RunLimit::new(4, Some(0.7)),
+        ] {
+            for p in 0..6 {
+                let run = frame.run(p);
+                let n = run.len() as u32;
+                // Every subset of the run's positions, ascending, and positions past it.
+                for subset in 0..1u32 << n {
+                    let mut keep: Vec<u32> = (0..n).filter(|k| subset >> k & 1 == 1).collect();
+                    keep.extend([n, n + 2]);
+                    let mut direct = GatherWriter::new(1, 8).with_limit(limit);
+                    direct.push_from_frame(&frame, p, &keep);
+                    let mut chosen: Vec<Fragment> =
+                        keep.iter().filter_map(|&k| run.get(k as usize)).collect();
+                    let mut checked = GatherWriter::new(1, 8).with_limit(limit);
+                    checked.push_run(p, &mut chosen).unwrap();
+                    assert_eq!(
+                        direct.finish(),
+                        checked.finish(),
+                        "pixel {p}, {keep:?}, {limit:?}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! reprojected one, keep what shades within the tolerance, remove the rest by position, insert
 //! what is missing, and check the merged run (see the module docs of `reprojection`).
 
-use strata_core::{DeepFrame, Fragment, GatherWriter, GatheredPixels};
+use strata_core::{DeepFrame, GatherWriter, GatheredPixels};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
 use strata_wire::{MaskBuilder, PixelMask, Removals};
 
@@ -66,8 +66,6 @@ struct BandOut {
     /// band's share of the inserts frame ([`DeepFrame::from_gathered_reusing`]); its buffers
     /// serve frame after frame.
     gathered: GatheredPixels,
-    /// False if a run could not be gathered (which rendered fragments cannot cause).
-    gathered_ok: bool,
     /// One pixel's work: what was rendered there, and what matching decided.
     pixel: PixelScratch,
     /// One row's rendered fragments as entries ([`View::row_entries`]).
@@ -88,8 +86,6 @@ struct PixelScratch {
     /// The inserted fragments, as indices into the row's entries (which follow the rendered
     /// run's order).
     inserted: Vec<u32>,
-    /// The inserted fragments as rendered, in the wire's order.
-    wire: Vec<Fragment>,
 }
 
 impl ReprojEncoder {
@@ -184,12 +180,9 @@ impl ReprojEncoder {
         // The bands' inserts, assembled in parallel. They are rendered fragments of this frame's
         // size, so this cannot fail; were it to, the empty frame would make the display's
         // digest differ and the link reset, not lose fragments silently.
-        let gathered: Option<Vec<&GatheredPixels>> = (self.bands.iter())
-            .map(|o| o.gathered_ok.then_some(&o.gathered))
-            .collect();
-        let inserts = gathered
-            .and_then(|g| DeepFrame::from_gathered_reusing(width, height, g, reuse).ok())
-            .unwrap_or_else(|| DeepFrame::empty(width, height));
+        let gathered: Vec<&GatheredPixels> = self.bands.iter().map(|o| &o.gathered).collect();
+        let inserts = DeepFrame::from_gathered_reusing(width, height, gathered, reuse)
+            .unwrap_or_else(|_| DeepFrame::empty(width, height));
         let count = held.len() as u64;
         self.held = Some(held);
         Ok(ReprojDelta {
@@ -227,7 +220,6 @@ impl BandOut {
         let offsets = rendered.offsets();
         // The inserts go into the last frame's buffers.
         let mut inserts = GatherWriter::reusing(std::mem::take(&mut self.gathered));
-        let mut ok = true;
         let mut empty = 0;
         for row in rows {
             // Each row's entries are made first, in lanes.
@@ -269,24 +261,21 @@ impl BandOut {
                 self.removed.extend_from_slice(&s.removed);
                 // The inserted fragments as rendered, in the rendered run's order, which is
                 // the wire's (the truth is in the entries' order, which differs where depths
-                // tie).
+                // tie): their positions in the run, ascending.
                 if !s.inserted.is_sorted() {
                     s.inserted.sort_unstable();
                 }
-                s.wire.clear();
-                let r = rendered.run(p);
-                s.wire
-                    .extend((s.inserted.iter()).filter_map(|&k| r.get(k as usize - row_run.start)));
+                for k in &mut s.inserted {
+                    *k -= row_run.start as u32;
+                }
                 inserts.push_empty(empty);
                 empty = 0;
-                // Rendered fragments are in range: this cannot fail.
-                ok &= inserts.push_run(p, &mut s.wire).is_ok();
+                inserts.push_from_frame(rendered, p, &s.inserted);
             }
         }
         inserts.push_empty(empty);
         self.digest = band_digest(b, entries, counts);
         self.gathered = inserts.finish();
-        self.gathered_ok = ok;
     }
 }
 
