@@ -68,14 +68,26 @@ const OPEN: usize = 8;
 /// A batch keeps its items as two arrays, where they go and what the lanes read, so that the
 /// lanes read the second as it is. An item of the last item's object (in a one-object scene,
 /// every item) goes straight to that batch.
+///
+/// **A full batch waits for the next.** Items are stored one at a time, and the lanes read a
+/// batch back as whole arrays: read at once, the last items' stores are still on their way to
+/// the cache, and a wide load cannot take its data from several narrower stores in flight, so
+/// it waits for them to drain (`perf` put about a tenth of each lane function on that first
+/// load). So each open batch has two buffers: when one fills, the batch that filled before it
+/// (of any object) is handed over, and this one waits in its place while the other buffer
+/// fills.
 pub(crate) struct Pending<To, In> {
-    batches: [Batch<To, In>; OPEN],
-    /// Batches in use, `batches[..open]`.
+    /// Two buffers per open batch: batch `k` fills `buffers[2k + side[k]]`.
+    buffers: [Batch<To, In>; 2 * OPEN],
+    side: [usize; OPEN],
+    /// Batches in use, `0..open`.
     open: usize,
     /// The batch of the last item's object.
     current: usize,
     /// The batch to flush and give to a new object when all are in use.
     evict: usize,
+    /// The buffer that filled last and is not yet handed over.
+    full: Option<usize>,
 }
 
 /// Up to [`LANES`] items of one object.
@@ -96,10 +108,12 @@ impl<To: Copy + Default, In: Copy + Default> Default for Pending<To, In> {
             input: [In::default(); LANES],
         };
         Pending {
-            batches: [batch; OPEN],
+            buffers: [batch; 2 * OPEN],
+            side: [0; OPEN],
             open: 1,
             current: 0,
             evict: 0,
+            full: None,
         }
     }
 }
@@ -112,32 +126,54 @@ pub(crate) trait Flush<To, In> {
 }
 
 impl<To: Copy, In: Copy> Pending<To, In> {
-    /// Adds an item of `object`; `f` gets every batch that fills, and every batch flushed to
-    /// make room.
+    /// The buffer batch `k` fills.
+    #[inline(always)]
+    fn filling(&self, k: usize) -> usize {
+        2 * k + self.side[k]
+    }
+
+    /// Adds an item of `object`; `f` gets every batch that fills (one fill later), and every
+    /// batch flushed to make room.
     #[inline(always)]
     pub(crate) fn push(&mut self, object: ObjectId, to: To, input: In, f: &mut impl Flush<To, In>) {
-        if self.batches[self.current].object != object {
+        if self.buffers[self.filling(self.current)].object != object {
             self.switch(object, f);
         }
-        let b = &mut self.batches[self.current];
+        let k = self.current;
+        let i = self.filling(k);
+        let b = &mut self.buffers[i];
         b.to[b.len] = to;
         b.input[b.len] = input;
         b.len += 1;
         if b.len == LANES {
-            f.flush(object, &b.to, &b.input, LANES);
+            self.filled(k, i, f);
+        }
+    }
+
+    /// Buffer `i` of batch `k` is full: the one full before it is handed over (its stores
+    /// have long drained), and `k` goes on in its other buffer, which is empty (a batch's two
+    /// buffers are never both full: the older is handed over when the newer fills).
+    #[inline(always)]
+    fn filled(&mut self, k: usize, i: usize, f: &mut impl Flush<To, In>) {
+        if let Some(j) = self.full.replace(i) {
+            let b = &mut self.buffers[j];
+            f.flush(b.object, &b.to, &b.input, LANES);
             b.len = 0;
         }
+        self.side[k] ^= 1;
+        let object = self.buffers[i].object;
+        self.buffers[self.filling(k)].object = object;
     }
 
     /// Makes `object`'s batch the current one: the one open for it, an empty or unused one, or
     /// the next in turn, flushed.
     #[inline(never)]
     fn switch(&mut self, object: ObjectId, f: &mut impl Flush<To, In>) {
-        let open = &self.batches[..self.open];
-        let k = match open.iter().position(|b| b.object == object) {
+        let open = 0..self.open;
+        let k = match open.clone().find(|&k| self.buffers[self.filling(k)].object == object) {
             Some(k) => k,
             None => {
-                let k = match open.iter().position(|b| b.len == 0) {
+                let k = match open.clone().find(|&k| self.buffers[self.filling(k)].len == 0) {
                     Some(k) => k,
                     None if self.open < OPEN => {
                         self.open += 1;
@@ -146,23 +182,30 @@ impl<To: Copy, In: Copy> Pending<To, In> {
                     None => {
                         let k = self.evict;
                         self.evict = (k + 1) % OPEN;
-                        let b = &mut self.batches[k];
+                        let b = &mut self.buffers[self.filling(k)];
                         f.flush(b.object, &b.to, &b.input, b.len);
                         b.len = 0;
                         k
                     }
                 };
-                self.batches[k].object = object;
+                let i = self.filling(k);
+                self.buffers[i].object = object;
                 k
             }
         };
         self.current = k;
     }
 
-    /// Flushes every batch with items left.
+    /// Hands over the full batch waiting, then every batch with items left.
     #[inline(always)]
     pub(crate) fn finish(&mut self, f: &mut impl Flush<To, In>) {
-        for b in &mut self.batches[..self.open] {
+        if let Some(j) = self.full.take() {
+            let b = &mut self.buffers[j];
+            f.flush(b.object, &b.to, &b.input, LANES);
+            b.len = 0;
+        }
+        for k in 0..self.open {
+            let b = &mut self.buffers[2 * k + self.side[k]];
             if b.len > 0 {
                 f.flush(b.object, &b.to, &b.input, b.len);
             }
@@ -184,17 +227,15 @@ fn transform_point(m: &Mat4, [x, y, z]: &[Lane; 3]) -> [Lane; 3] {
 }
 
 /// `m · (x, y, z, 1)` in lanes, as glam's `Mat4 * Vec4` adds: x, y, z, then w: the x, y, z
-/// and w rows.
+/// and w rows. Written as [`transform_point`] is, with a fourth row: IEEE addition is
+/// commutative, so `d + (c·z + (b·y + a·x))` is `((a·x + b·y) + c·z) + d·1` bit for bit.
 #[inline(always)]
-fn mul_point4(m: &Mat4, [x, y, z]: &[Lane; 3]) -> [Lane; 4] {
+fn mul_point4(m: &Mat4, p: &[Lane; 3]) -> [Lane; 4] {
+    let [x, y, z] = transform_point(m, p);
     let (c0, c1, c2, c3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
-    let row = |a: f32, b: f32, c: f32, d: f32| lanes(|i| a * x[i] + b * y[i] + c * z[i] + d * 1.0);
-    [
-        row(c0.x, c1.x, c2.x, c3.x),
-        row(c0.y, c1.y, c2.y, c3.y),
-        row(c0.z, c1.z, c2.z, c3.z),
-        row(c0.w, c1.w, c2.w, c3.w),
-    ]
+    let [px, py, pz] = p;
+    let w = lanes(|i| c3.w + (c2.w * pz[i] + (c1.w * py[i] + c0.w * px[i])));
+    [x, y, z, w]
 }
 
 /// `m · (x, y, z)` in lanes, as glam's `Mat3 * Vec3` adds: x, then y, then z.
@@ -277,30 +318,36 @@ impl pulp::WithSimd for ProjectJob<'_> {
         let wy = lanes(|i| (0.5 - cy[i] * iw[i] * 0.5) * height);
         let wz = lanes(|i| cz[i] * iw[i] * 0.5 + 0.5);
         let colour = shade(o, &mul_mat3(&o.normal, &column(|s| s.normal)), &eye);
-        for (i, out) in self.out.iter_mut().enumerate() {
+        // `View::project`'s tests, written so that NaN fails every one. Every lane computes
+        // them and its pixel, and the result is selected without a branch: with a branch a
+        // lane, LLVM sank the lanes' arithmetic above into it, one lane at a time.
+        let inside: [bool; LANES] = std::array::from_fn(|i| {
             let (x, y, z) = (wx[i], wy[i], wz[i]);
-            // `View::project`'s tests, written so that NaN fails every one.
-            let inside = cw[i] > 0.0
-                && x >= 0.0
-                && x < width
-                && y >= 0.0
-                && y < height
-                && (0.0..=1.0).contains(&z);
-            *out = if inside {
-                let (px, py) = (
-                    (x as u32).min(view.width - 1),
-                    (y as u32).min(view.height - 1),
-                );
-                (
-                    py * view.width + px,
-                    Fragment {
-                        depth: if z > 0.0 { z } else { 0.0 },
-                        color: colour[i],
-                        object: self.object,
-                    },
-                )
+            (cw[i] > 0.0)
+                & (x >= 0.0)
+                & (x < width)
+                & (y >= 0.0)
+                & (y < height)
+                & (0.0..=1.0).contains(&z)
+        });
+        // Saturating casts: meaningless outside, and exact inside (`0 ≤ x < width`).
+        let pixel: [u32; LANES] = std::array::from_fn(|i| {
+            let px = (wx[i] as u32).min(view.width - 1);
+            let py = (wy[i] as u32).min(view.height - 1);
+            py.wrapping_mul(view.width).wrapping_add(px)
+        });
+        let outside = Fragment::default();
+        for (i, out) in self.out.iter_mut().enumerate() {
+            let z = wz[i];
+            let moved = Fragment {
+                depth: if z > 0.0 { z } else { 0.0 },
+                color: colour[i],
+                object: self.object,
+            };
+            *out = if inside[i] {
+                (pixel[i], moved)
             } else {
-                (u32::MAX, Fragment::default())
+                (u32::MAX, outside)
             };
         }
     }
