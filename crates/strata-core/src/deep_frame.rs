@@ -1052,7 +1052,9 @@ impl GatherWriter {
         );
         // Ascending, so the positions in the run are a prefix of `keep`.
         let keep = &keep[..keep.partition_point(|&k| (k as usize) < run.len())];
-        let keep = &keep[..self.limit.keep(keep.len(), |i| color[keep[i] as usize].0[3])];
+        let keep = &keep[..self
+            .limit
+            .keep(keep.len(), |i| color[keep[i] as usize].0[3])];
         let g = &mut self.gathered;
         // At most the run's length, which fits a `u32` as the frame's offsets do.
         g.counts.push(keep.len() as u32);

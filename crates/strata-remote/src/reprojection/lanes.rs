@@ -170,10 +170,16 @@ impl<To: Copy, In: Copy> Pending<To, In> {
     #[inline(never)]
     fn switch(&mut self, object: ObjectId, f: &mut impl Flush<To, In>) {
         let open = 0..self.open;
-        let k = match open.clone().find(|&k| self.buffers[self.filling(k)].object == object) {
+        let k = match open
+            .clone()
+            .find(|&k| self.buffers[self.filling(k)].object == object)
+        {
             Some(k) => k,
             None => {
-                let k = match open.clone().find(|&k| self.buffers[self.filling(k)].len == 0) {
+                let k = match open
+                    .clone()
+                    .find(|&k| self.buffers[self.filling(k)].len == 0)
+                {
                     Some(k) => k,
                     None if self.open < OPEN => {
                         self.open += 1;
