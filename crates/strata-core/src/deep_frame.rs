@@ -1041,9 +1041,11 @@ impl GatherWriter {
     /// pixel this way.
     ///
     /// # Panics
-    /// If `pixel` is not a pixel of `frame`.
+    /// If `pixel` is not a pixel of `frame`, or `keep` is not ascending (the run would not be
+    /// sorted).
     #[inline]
     pub fn push_from_frame(&mut self, frame: &DeepFrame, pixel: usize, keep: &[u32]) {
+        assert!(keep.is_sorted(), "positions to keep must be ascending");
         let run = frame.offsets[pixel] as usize..frame.offsets[pixel + 1] as usize;
         let (depth, color, object) = (
             &frame.depth[run.clone()],
@@ -1341,6 +1343,11 @@ mod tests {
                 }
             }
         }
+        // Positions out of order would make a run out of order: refused.
+        let out_of_order = std::panic::catch_unwind(|| {
+            GatherWriter::new(1, 8).push_from_frame(&frame, 4, &[2, 0]);
+        });
+        assert!(out_of_order.is_err());
     }
 
     #[test]

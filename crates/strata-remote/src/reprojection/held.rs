@@ -226,18 +226,20 @@ impl Held {
                     // division only then.
                     group.clear();
                     group.resize(dst_bands + 1, 0);
-                    let bs = band_size as u32;
-                    let (mut cur, mut lo, mut n) = (None, 0u32, 0u32);
+                    // In 64 bits, so that no frame size can wrap the band's bounds.
+                    let bs = band_size as u64;
+                    let (mut cur, mut lo, mut n) = (None, 0u64, 0u32);
                     for &(p, _) in band.iter() {
                         if p == u32::MAX {
                             continue;
                         }
+                        let p = u64::from(p);
                         if cur.is_none() || p.wrapping_sub(lo) >= bs {
                             if let Some(d) = cur {
                                 group[d + 1] += n;
                             }
                             let d = (p / bs) as usize;
-                            (cur, lo, n) = (Some(d), d as u32 * bs, 0);
+                            (cur, lo, n) = (Some(d), d as u64 * bs, 0);
                         }
                         n += 1;
                     }
@@ -248,17 +250,18 @@ impl Held {
                         group[d + 1] += group[d];
                     }
                     let index = src_starts[s] as u32;
-                    let (mut cur, mut lo, mut at) = (None, 0u32, 0u32);
+                    let (mut cur, mut lo, mut at) = (None, 0u64, 0u32);
                     for (k, &(p, _)) in band.iter().enumerate() {
                         if p == u32::MAX {
                             continue;
                         }
+                        let p = u64::from(p);
                         if cur.is_none() || p.wrapping_sub(lo) >= bs {
                             if let Some(d) = cur {
                                 group[d] = at;
                             }
                             let d = (p / bs) as usize;
-                            (cur, lo, at) = (Some(d), d as u32 * bs, group[d]);
+                            (cur, lo, at) = (Some(d), d as u64 * bs, group[d]);
                         }
                         grouped[at as usize] = index + k as u32;
                         at += 1;

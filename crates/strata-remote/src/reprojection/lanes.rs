@@ -336,10 +336,11 @@ impl pulp::WithSimd for ProjectJob<'_> {
                 & (y < height)
                 & (0.0..=1.0).contains(&z)
         });
-        // Saturating casts: meaningless outside, and exact inside (`0 ≤ x < width`).
+        // Saturating casts: meaningless outside, and exact inside (`0 ≤ x < width`). Every lane
+        // runs this, in a view of no pixels too (where no lane is inside).
         let pixel: [u32; LANES] = std::array::from_fn(|i| {
-            let px = (wx[i] as u32).min(view.width - 1);
-            let py = (wy[i] as u32).min(view.height - 1);
+            let px = (wx[i] as u32).min(view.width.saturating_sub(1));
+            let py = (wy[i] as u32).min(view.height.saturating_sub(1));
             py.wrapping_mul(view.width).wrapping_add(px)
         });
         let outside = Fragment::default();

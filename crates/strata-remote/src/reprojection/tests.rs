@@ -602,6 +602,9 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
         sized(9, (W / 2 + 3, H / 2 + 5)),
         sized(6, (W * 2, H + 17)),
         sized(5, (1, 1)),
+        // No pixel at all: everything leaves the view.
+        sized(7, (0, H)),
+        sized(8, (W, 0)),
     ];
     let mut out = Held::empty(0, 0);
     let mut scratch = Scratch::default();
