@@ -330,22 +330,32 @@ mod tests {
         packed
     }
 
-    #[test]
-    fn every_kind_is_chosen_where_it_is_smallest() {
-        let n = 40_000;
-        // Plane 0 noise (Huffman), 1 runs (LZ4), 2 one value (fill), 3 uniform bytes (stored).
-        let mut data = noise(n, 1, 7);
+    /// Four planes of `n` bytes, one for each block kind: noise (Huffman), runs (LZ4), one
+    /// value (fill), uniform bytes (stored); `seed` varies the noise.
+    fn one_plane_of_each_kind(n: usize, seed: u64) -> Vec<u8> {
+        let mut data = noise(n, seed, 7);
         data.extend((0..n).map(|i| (i / 500 % 3) as u8));
         data.extend(std::iter::repeat_n(9u8, n));
-        data.extend(noise(n, 2, 256));
-        let packed = round_trip(&data, 4);
-        let mut kinds = Vec::new();
+        data.extend(noise(n, seed + 1, 256));
+        data
+    }
+
+    /// Each block's header (where it lies in `packed`) and kind, in order.
+    fn block_headers(packed: &[u8]) -> Vec<(std::ops::Range<usize>, u8)> {
+        let mut headers = Vec::new();
         let mut at = 0;
         while at < packed.len() {
-            kinds.push(packed[at]);
+            headers.push((at..at + BLOCK_HEADER, packed[at]));
             let len = u32::from_le_bytes(packed[at + 5..at + 9].try_into().expect("4 bytes"));
             at += BLOCK_HEADER + len as usize;
         }
+        headers
+    }
+
+    #[test]
+    fn every_kind_is_chosen_where_it_is_smallest() {
+        let packed = round_trip(&one_plane_of_each_kind(40_000, 1), 4);
+        let kinds: Vec<u8> = block_headers(&packed).into_iter().map(|(_, k)| k).collect();
         assert_eq!(kinds, [3, 2, 1, 0]);
     }
 
@@ -412,21 +422,10 @@ mod tests {
 
     #[test]
     fn changed_bytes_anywhere_in_a_payload_of_every_kind_are_errors_or_decode_never_panic() {
-        // Huffman, LZ4, fill and stored blocks, as `every_kind_is_chosen_where_it_is_smallest`.
-        let n = 6_000;
-        let mut data = noise(n, 5, 7);
-        data.extend((0..n).map(|i| (i / 500 % 3) as u8));
-        data.extend(std::iter::repeat_n(9u8, n));
-        data.extend(noise(n, 6, 256));
+        // Huffman, LZ4, fill and stored blocks.
+        let data = one_plane_of_each_kind(6_000, 5);
         let packed = round_trip(&data, 4);
-        // Where each block's header is, and its kind.
-        let (mut headers, mut kinds, mut at) = (Vec::new(), Vec::new(), 0);
-        while at < packed.len() {
-            headers.push(at..at + BLOCK_HEADER);
-            kinds.push(packed[at]);
-            let len = u32::from_le_bytes(packed[at + 5..at + 9].try_into().expect("4 bytes"));
-            at += BLOCK_HEADER + len as usize;
-        }
+        let (headers, kinds): (Vec<_>, Vec<u8>) = block_headers(&packed).into_iter().unzip();
         assert_eq!(kinds, [3, 2, 1, 0]);
         let mut out = Vec::new();
         let mut body_errors = 0;
