@@ -589,8 +589,8 @@ impl Moved<'_> {
     }
 
     /// Band `d`'s entries into `entries` (`band_len(d)` of them) and each pixel's first
-    /// entry, plus `base`, into `offs` (one per pixel of the band): a counting sort of its
-    /// bucket by pixel, then each run sorted front to back.
+    /// entry, plus `base`, into `offs` (one per pixel of the band): a counting sort by pixel of
+    /// its groups, source band by source band, then each run sorted front to back.
     fn sort_band_into(&self, d: usize, base: u32, offs: &mut [u32], entries: &mut [Entry]) {
         let first_pixel = self.band_pixels(d).start;
         let (moved, held) = (self.moved, self.held);

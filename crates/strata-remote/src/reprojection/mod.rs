@@ -56,9 +56,9 @@
 //!   rendered normal fragment to a surfel), shading;
 //! - `lanes`: eq. 5.9 and 5.10 with their shading for eight fragments of one object at a time,
 //!   the same bits as `view`'s one-fragment forms (what both ends run);
-//! - `held`: the per-pixel runs both ends hold, reprojection (in parallel: move and count per
-//!   source band, bucket by destination band, counting sort per destination band in the task
-//!   that consumes it), the digest;
+//! - `held`: the per-pixel runs both ends hold, reprojection (in parallel: move each source
+//!   band and group its entries by destination band while they are in cache, then a counting
+//!   sort per destination band in the task that consumes it), the digest;
 //! - `encoder`: the node's side — matching, removals and inserts;
 //! - `copy`: the display's side — applying a frame, and which pixels need a fixup.
 
