@@ -84,7 +84,8 @@ struct PixelScratch {
     /// Entries inserted, in the entries' order.
     inserts: Vec<Entry>,
     /// The inserted fragments, as indices into the row's entries (which follow the rendered
-    /// run's order).
+    /// run's order); once the pixel is decided, turned in place into their positions in its
+    /// rendered run, ascending, for [`GatherWriter::push_from_frame`].
     inserted: Vec<u32>,
 }
 
