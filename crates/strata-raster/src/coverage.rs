@@ -316,9 +316,6 @@ impl Micro {
     }
 }
 
-/// Triangles classified together by [`Batch`], one per SIMD lane.
-pub const LANES: usize = 8;
-
 /// What [`Batch::classify`] decided for each lane, as lane bitmasks (bit `l` for lane `l`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Verdict {
@@ -341,35 +338,58 @@ impl Verdict {
     }
 }
 
-/// Up to [`LANES`] consecutive triangles, classified and — for micro-triangles — set up and
-/// covered together, lane by lane, without branches.
+/// Up to `L` consecutive triangles, classified and — for micro-triangles — set up and
+/// covered together, lane by lane, without branches. `L` is the lane width of the instruction
+/// set setup runs on ([`crate::lanes`]: 16 with AVX-512, else 8), at most 32 (a [`Verdict`]
+/// holds a bit a lane).
 ///
-/// Layout: structure of arrays, one `[_; LANES]` per quantity, so every step of
+/// Layout: structure of arrays, one `[_; L]` per quantity, so every step of
 /// `Micro::new` and [`Micro::coverage`] is one vector operation over the batch (LLVM
-/// vectorises the lane loops; compiled for AVX2, a lane array is one register). Lanes whose
+/// vectorises the lane loops; a lane array is one register of the instruction set). Lanes whose
 /// triangles turn out not to be micro-triangles compute garbage with wrapping arithmetic, and
 /// their results are never read. A micro-triangle's values are exactly those of `Micro::new`,
 /// so which setup ran is invisible downstream (tested against it below).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Batch {
-    x: [[i32; LANES]; 3],
-    y: [[i32; LANES]; 3],
-    code_and: [u32; LANES],
-    code_or: [u32; LANES],
+#[derive(Clone, Copy, Debug)]
+pub struct Batch<const L: usize> {
+    x: [[i32; L]; 3],
+    y: [[i32; L]; 3],
+    code_and: [u32; L],
+    code_or: [u32; L],
     // Micro-triangle set-up, valid in `Verdict::micro` lanes.
-    swapped: [bool; LANES],
-    area: [i32; LANES],
-    bounds: [[i32; LANES]; 4],
-    e: [[i32; LANES]; 3],
-    dx: [[i32; LANES]; 3],
-    dy: [[i32; LANES]; 3],
-    bias: [[i32; LANES]; 3],
+    swapped: [bool; L],
+    area: [i32; L],
+    bounds: [[i32; L]; 4],
+    e: [[i32; L]; 3],
+    dx: [[i32; L]; 3],
+    dy: [[i32; L]; 3],
+    bias: [[i32; L]; 3],
     /// `e + bias`: the edge values themselves, from which a sample's weights are stepped.
-    e_unbiased: [[i32; LANES]; 3],
-    mask: [u32; LANES],
+    e_unbiased: [[i32; L]; 3],
+    mask: [u32; L],
 }
 
-impl Batch {
+impl<const L: usize> Default for Batch<L> {
+    fn default() -> Self {
+        const { assert!(L > 0 && L <= 32, "a Verdict holds a bit a lane") };
+        Batch {
+            x: [[0; L]; 3],
+            y: [[0; L]; 3],
+            code_and: [0; L],
+            code_or: [0; L],
+            swapped: [false; L],
+            area: [0; L],
+            bounds: [[0; L]; 4],
+            e: [[0; L]; 3],
+            dx: [[0; L]; 3],
+            dy: [[0; L]; 3],
+            bias: [[0; L]; 3],
+            e_unbiased: [[0; L]; 3],
+            mask: [0; L],
+        }
+    }
+}
+
+impl<const L: usize> Batch<L> {
     /// Puts a triangle's window positions and vertex outcodes in `lane`.
     #[inline(always)]
     pub fn set(&mut self, lane: usize, pos: [ScreenPos; 3], codes: [u8; 3]) {
@@ -383,7 +403,7 @@ impl Batch {
 
     /// Copies the positions and outcodes [`Batch::set`] put in `from`'s lanes.
     #[inline(always)]
-    pub fn take_input(&mut self, from: &Batch) {
+    pub fn take_input(&mut self, from: &Batch<L>) {
         self.x = from.x;
         self.y = from.y;
         self.code_and = from.code_and;
@@ -402,12 +422,12 @@ impl Batch {
         view: u8,
         clip: u8,
     ) -> Verdict {
-        let mut outside = [false; LANES];
-        let mut clipped = [false; LANES];
-        let mut large = [false; LANES];
-        let mut micro = [false; LANES];
+        let mut outside = [false; L];
+        let mut clipped = [false; L];
+        let mut large = [false; L];
+        let mut micro = [false; L];
         let [[ax, bx0, cx0], [ay, by0, cy0]] = [self.x, self.y];
-        for l in 0..LANES {
+        for l in 0..L {
             outside[l] = self.code_and[l] & u32::from(view) != 0;
             clipped[l] = !outside[l] && self.code_or[l] & u32::from(clip) != 0;
             // pixel_bounds, lane by lane.
@@ -495,7 +515,7 @@ impl Batch {
         }
         // Every lane's flag, then only the batch's lanes: no iterator bound to test each lane.
         let valid = (1u32 << lanes) - 1;
-        let bits = |flags: [bool; LANES]| {
+        let bits = |flags: [bool; L]| {
             let mut m = 0u32;
             for (l, &f) in flags.iter().enumerate() {
                 m |= u32::from(f) << l;
@@ -513,7 +533,7 @@ impl Batch {
     /// The micro-triangle set-up of every lane, read in place by
     /// [`crate::shade_lanes::MicroShader`] (valid in [`Verdict::micro`] lanes).
     #[inline(always)]
-    pub(crate) fn micro_lanes(&self) -> MicroLanes<'_> {
+    pub(crate) fn micro_lanes(&self) -> MicroLanes<'_, L> {
         MicroLanes {
             swapped: &self.swapped,
             area: &self.area,
@@ -560,20 +580,20 @@ impl Batch {
 /// A [`Batch`]'s micro-triangle set-up, lane arrays borrowed in place
 /// ([`Batch::micro_lanes`]).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct MicroLanes<'a> {
+pub(crate) struct MicroLanes<'a, const L: usize> {
     /// Vertices 1 and 2 exchanged to orient the triangle ([`Micro::order`] is `[0, 2, 1]`).
-    pub swapped: &'a [bool; LANES],
+    pub swapped: &'a [bool; L],
     /// Twice the area, > 0.
-    pub area: &'a [i32; LANES],
+    pub area: &'a [i32; L],
     /// The first pixel of the bounding box.
-    pub x0: &'a [i32; LANES],
-    pub y0: &'a [i32; LANES],
+    pub x0: &'a [i32; L],
+    pub y0: &'a [i32; L],
     /// Edge values at the first pixel's centre (without the top-left bias) and their steps.
-    pub e: &'a [[i32; LANES]; 3],
-    pub dx: &'a [[i32; LANES]; 3],
-    pub dy: &'a [[i32; LANES]; 3],
+    pub e: &'a [[i32; L]; 3],
+    pub dx: &'a [[i32; L]; 3],
+    pub dy: &'a [[i32; L]; 3],
     /// Coverage within the block.
-    pub mask: &'a [u32; LANES],
+    pub mask: &'a [u32; L],
 }
 
 /// Bits of the samples inside a box of `(last_x + 1) × (last_y + 1)` pixels.
@@ -640,6 +660,12 @@ mod tests {
 
     #[test]
     fn batch_classifies_and_covers_exactly_like_one_triangle_at_a_time() {
+        // Both widths setup runs at (crate::lanes), whatever this CPU has.
+        classify_like_one_at_a_time::<8>();
+        classify_like_one_at_a_time::<16>();
+    }
+
+    fn classify_like_one_at_a_time<const L: usize>() {
         use crate::vertex::outcode;
         let mut seed = 0x2545_f491_4f6c_dd1du64;
         let mut rand = |n: u32| {
@@ -650,9 +676,9 @@ mod tests {
         };
         let (w, h) = (40, 30);
         let mut counts = [0usize; 5];
-        let mut batch = Batch::default();
+        let mut batch = Batch::<L>::default();
         for _ in 0..4000 {
-            let lanes = 1 + rand(LANES as u32) as usize;
+            let lanes = 1 + rand(L as u32) as usize;
             let mut expected = Vec::new();
             for l in 0..lanes {
                 // Mostly micro-sized triangles near the image (some off its edges, some between
@@ -778,7 +804,7 @@ mod tests {
                         pos(2.7, top - 0.1 * k as f32),
                         pos(2.9 + 0.3 * k as f32, top + height),
                     ];
-                    let mut batch = Batch::default();
+                    let mut batch = Batch::<8>::default();
                     batch.set(0, t, [0; 3]);
                     let v = batch.classify(1, w, h, outcode::VIEW, outcode::CLIP);
                     // One triangle at a time: coverage from whichever setup it gets.

@@ -23,8 +23,8 @@
 //! 2. **setup + bin** ([`setup`]): triangles in chunks of consecutive primitives of one object.
 //!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
 //!    culled; one that crosses the near plane or the guard band is clipped exactly in clip space
-//!    ([`clip`]). Triangles are classified eight at a time in SIMD lanes
-//!    ([`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres,
+//!    ([`clip`]). Triangles are classified in SIMD lanes, 16 at a time on AVX-512 and 8
+//!    elsewhere ([`lanes`], [`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres,
 //!    vertices within 5 pixels) are finished here: exact coverage as a bitmask computed in the
 //!    same lanes, shading in lanes too ([`shade_lanes`]), and 12-byte fragment records appended to per-strip lists. Larger
 //!    triangles and clipped pieces are copied with their vertices and appended to the bin of
@@ -33,11 +33,11 @@
 //!    and in each chunk replays the micro-triangle records and scans the binned triangles,
 //!    interleaved by the cursors — so every pixel receives its fragments in primitive order, from
 //!    one thread, whatever the thread count. Large triangles are scanned row by row over exact
-//!    spans, their samples shaded eight at a time in lanes ([`shade_lanes::SpanShader`]); depth
+//!    spans, their samples shaded 16 or 8 at a time in lanes ([`shade_lanes::SpanShader`]); depth
 //!    is affine in screen space; normals and eye positions are interpolated
 //!    perspective-correctly for the headlight. Setup and the scan are compiled once per
-//!    instruction set and chosen at run time (AVX-512, AVX2 or SSE2 on x86-64), with the same
-//!    bits on every one (no fused multiply-adds).
+//!    instruction set and lane width and chosen at run time (AVX-512 at 16 lanes, AVX2 or SSE2
+//!    at 8 on x86-64), with the same bits on every one (no fused multiply-adds).
 //!
 //! # Why strips
 //!
@@ -62,6 +62,7 @@
 pub mod clip;
 pub mod coverage;
 pub mod frame;
+pub mod lanes;
 pub mod rasterizer;
 pub mod scan;
 pub mod setup;

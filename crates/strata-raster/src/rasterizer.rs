@@ -6,6 +6,7 @@ use rayon::prelude::*;
 use strata_core::{ObjectId, PackedNormal, PassTimings, Rgba8, Shading, fragment::unorm8};
 
 use crate::frame::{FragmentOutput, FrameInput};
+use crate::lanes::{LaneJob, Permute};
 use crate::scan::{Shade, scan_triangle};
 pub use crate::setup::SetupStats;
 use crate::setup::{BinnedTriangle, Chunk, PixelFragment, SetupContext, setup_chunk};
@@ -296,10 +297,11 @@ impl Prepared<'_, '_> {
     }
 
     /// Scans strip `s`: every chunk's micro-triangle fragments and binned triangles for the strip,
-    /// in primitive order. Compiled once per instruction set and chosen at run time, like setup,
-    /// so the larger triangles' lanes ([`SpanShader`]) run in the widest registers there are.
+    /// in primitive order. Compiled once per instruction set and chosen at run time with its lane
+    /// width, like setup, so the larger triangles' lanes ([`SpanShader`]) run in the widest
+    /// registers there are.
     fn scan_strip<S: FragmentSink>(&self, s: usize, sink: &mut S) -> u64 {
-        pulp::Arch::new().dispatch(StripScan {
+        crate::lanes::dispatch(StripScan {
             prepared: self,
             strip: s,
             sink,
@@ -307,8 +309,8 @@ impl Prepared<'_, '_> {
     }
 
     #[inline(always)]
-    fn scan_strip_impl<S: FragmentSink>(&self, s: usize, sink: &mut S) -> u64 {
-        let mut lanes = SpanShader::default();
+    fn scan_strip_impl<S: FragmentSink, const L: usize>(&self, s: usize, sink: &mut S) -> u64 {
+        let mut lanes = SpanShader::<L>::default();
         let rows = self.layout.rows(s);
         let rows = (rows.start as i32, rows.end as i32 - 1);
         let (w, h) = (self.layout.width as i32, self.layout.height as i32);
@@ -329,28 +331,28 @@ impl Prepared<'_, '_> {
                 shade,
             };
             n += if *lit {
-                job.run::<S, true>(&mut lanes, sink)
+                job.run::<S, true, L>(&mut lanes, sink)
             } else {
-                job.run::<S, false>(&mut lanes, sink)
+                job.run::<S, false, L>(&mut lanes, sink)
             };
         }
         n
     }
 }
 
-/// [`Prepared::scan_strip`]'s arguments, for [`pulp::Arch::dispatch`].
+/// [`Prepared::scan_strip`]'s arguments, for [`crate::lanes::dispatch`].
 struct StripScan<'p, 'r, 'a, S> {
     prepared: &'p Prepared<'r, 'a>,
     strip: usize,
     sink: &'p mut S,
 }
 
-impl<S: FragmentSink> pulp::WithSimd for StripScan<'_, '_, '_, S> {
+impl<S: FragmentSink> LaneJob for StripScan<'_, '_, '_, S> {
     type Output = u64;
 
     #[inline(always)]
-    fn with_simd<Simd: pulp::Simd>(self, _: Simd) -> u64 {
-        self.prepared.scan_strip_impl(self.strip, self.sink)
+    fn run<const L: usize, P: Permute<L>>(self, _: P) -> u64 {
+        self.prepared.scan_strip_impl::<S, L>(self.strip, self.sink)
     }
 }
 
@@ -374,7 +376,11 @@ struct BinScan<'a> {
 impl BinScan<'_> {
     /// Replays micro-triangle records and scans binned triangles, in primitive order.
     #[inline(always)]
-    fn run<S: FragmentSink, const LIT: bool>(&self, lanes: &mut SpanShader, sink: &mut S) -> u64 {
+    fn run<S: FragmentSink, const LIT: bool, const L: usize>(
+        &self,
+        lanes: &mut SpanShader<L>,
+        sink: &mut S,
+    ) -> u64 {
         let (w, h) = self.size;
         let mut n = 0u64;
         let mut next = 0;
@@ -384,7 +390,7 @@ impl BinScan<'_> {
             next = cursor;
             let t = &self.binned[r as usize];
             let attrs = [&t.attrs[0], &t.attrs[1], &t.attrs[2]];
-            n += u64::from(scan_triangle::<S, LIT>(
+            n += u64::from(scan_triangle::<S, LIT, L>(
                 t.pos, attrs, self.rows, w, h, self.shade, lanes, sink,
             ));
         }

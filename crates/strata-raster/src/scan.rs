@@ -13,8 +13,8 @@
 //! triangle's are broadcast to the lanes before its spans are found). Small triangles are
 //! shaded by [`shade_small`] (which the scan calls for small clipped pieces, and which setup's
 //! lanes in [`crate::shade_lanes`] are tested against); larger ones are scanned span by span by
-//! [`scan_triangle`], their samples shaded eight at a time by [`crate::shade_lanes::SpanShader`]
-//! with the same arithmetic (tested against one at a time).
+//! [`scan_triangle`], their samples shaded `L` at a time (16 or 8, [`crate::lanes`]) by
+//! [`crate::shade_lanes::SpanShader`] with the same arithmetic (tested against one at a time).
 
 use glam::Vec3A;
 use strata_core::material::headlight_rgba;
@@ -147,21 +147,21 @@ pub fn shade_small<const LIT: bool>(
 
 /// Rasterises one triangle into the rows `rows.0 ..= rows.1` of a `width` × `height` image,
 /// pushing each covered sample into `sink`. Returns the number of fragments pushed. A larger
-/// triangle's samples are shaded eight at a time in `lanes` (see [`SpanShader`]); a micro-sized
+/// triangle's samples are shaded `L` at a time in `lanes` (see [`SpanShader`]); a micro-sized
 /// one (a clipped piece) one at a time.
 #[inline(always)]
 #[allow(
     clippy::too_many_arguments,
     reason = "the hot loop's inputs, kept as plain values"
 )]
-pub fn scan_triangle<S: FragmentSink, const LIT: bool>(
+pub fn scan_triangle<S: FragmentSink, const LIT: bool, const L: usize>(
     pos: [ScreenPos; 3],
     attrs: [&Attrs; 3],
     rows: (i32, i32),
     width: i32,
     height: i32,
     shade: &Shade,
-    lanes: &mut SpanShader,
+    lanes: &mut SpanShader<L>,
     sink: &mut S,
 ) -> u32 {
     let mut count = 0u32;
@@ -271,8 +271,8 @@ mod tests {
     /// rows `rows` of a `w` × `h` image.
     fn scan<const LIT: bool>(tri: [ScreenPos; 3], rows: (i32, i32), w: i32, h: i32) -> Collect {
         let mut sink = Collect(Vec::new());
-        let lanes = &mut SpanShader::default();
-        scan_triangle::<_, LIT>(tri, [&ATTRS; 3], rows, w, h, &SHADE, lanes, &mut sink);
+        let lanes = &mut SpanShader::<8>::default();
+        scan_triangle::<_, LIT, 8>(tri, [&ATTRS; 3], rows, w, h, &SHADE, lanes, &mut sink);
         sink
     }
 

@@ -35,20 +35,23 @@
 //! binned triangles by the cursor in each bin entry, so every pixel still receives its fragments
 //! in primitive order.
 //!
-//! # Batches of eight
+//! # Batches of a register's width
 //!
 //! A dense mesh's triangles are mostly tiny, and which of them are culled, empty or covered is
 //! close to random from one to the next, so a triangle-at-a-time setup spends its time in
-//! mispredicted branches and scalar arithmetic. Setup therefore takes triangles [`LANES`] at a
-//! time: it gathers their window positions and outcodes into a [`Batch`] (structure of arrays),
+//! mispredicted branches and scalar arithmetic. Setup therefore takes triangles `L` at a time,
+//! `L` the number of 32-bit lanes of the instruction set it runs on (16 with AVX-512, else 8;
+//! [`crate::lanes`]): it gathers their window positions and outcodes into a [`Batch`] (structure of arrays),
 //! which classifies all of them — outside, to clip, large, micro with its coverage mask, empty —
 //! in lane-parallel arithmetic without branches. Only the lanes with work left (micro-triangles
 //! that cover something, large triangles, triangles to clip) are then visited, in primitive
 //! order. A batch's positions and outcodes are gathered a lane at a time (scalar stores), one
 //! batch ahead of the batch being classified, so that those stores have drained by the time
 //! `classify` reads them back as vectors. The whole chunk is compiled once per instruction set
-//! and chosen at run time ([`pulp::Arch::dispatch`]), so on AVX2 a batch quantity is one
-//! register.
+//! and lane width and chosen at run time ([`crate::lanes::dispatch`]), so a batch quantity is
+//! one register. Sixteen lanes on AVX-512 instead of eight took the full dragon's setup from 20
+//! to 15 ms on one thread (Intel Xeon): the batch's vector work is about the same number of
+//! instructions for twice the triangles.
 //!
 //! Nothing here allocates per triangle: all lists keep their capacity from frame to frame.
 
@@ -58,7 +61,8 @@ use std::ops::Range;
 
 use strata_core::{Fragment, ObjectId, Rgba8};
 
-use crate::coverage::{Batch, LANES, Setup, orient, pixel_bounds};
+use crate::coverage::{Batch, Setup, orient, pixel_bounds};
+use crate::lanes::{LaneJob, Permute};
 use crate::scan::Shade;
 use crate::shade_lanes::MicroShader;
 use crate::vertex::{Attrs, ObjectTransform, ScreenPos, Viewport, outcode};
@@ -211,11 +215,11 @@ pub fn setup_chunk(
     attrs: &[Attrs],
     cx: &SetupContext<'_>,
 ) {
-    // Compiled once per instruction set (AVX-512 or AVX2 where the CPU has it, else SSE2; NEON) and chosen
-    // at run time, so the batch's lane loops run in the widest registers there are. Integer
-    // lanes and the fragments' float arithmetic (no fused multiply-adds) give the same bits on
-    // every set.
-    pulp::Arch::new().dispatch(SetupJob {
+    // Compiled once per instruction set (AVX-512 or AVX2 where the CPU has it, else SSE2; NEON)
+    // and chosen at run time with its lane width (`crate::lanes`), so a batch quantity is one
+    // register. Integer lanes and the fragments' float arithmetic (no fused multiply-adds) give
+    // the same bits on every set and at every width.
+    crate::lanes::dispatch(SetupJob {
         chunk,
         draw,
         screen,
@@ -225,7 +229,7 @@ pub fn setup_chunk(
     });
 }
 
-/// [`setup_chunk`]'s arguments, for [`pulp::Arch::dispatch`].
+/// [`setup_chunk`]'s arguments, for [`crate::lanes::dispatch`].
 struct SetupJob<'j, 'd> {
     chunk: &'j mut Chunk,
     draw: &'j DrawObject<'d>,
@@ -235,11 +239,11 @@ struct SetupJob<'j, 'd> {
     cx: &'j SetupContext<'j>,
 }
 
-impl pulp::WithSimd for SetupJob<'_, '_> {
+impl LaneJob for SetupJob<'_, '_> {
     type Output = ();
 
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _: S) {
+    fn run<const L: usize, P: Permute<L>>(self, permute: P) {
         let SetupJob {
             chunk,
             draw,
@@ -249,21 +253,22 @@ impl pulp::WithSimd for SetupJob<'_, '_> {
             cx,
         } = self;
         if cx.lit {
-            setup_chunk_impl::<true>(chunk, draw, screen, codes, attrs, cx);
+            setup_chunk_impl::<true, L, P>(chunk, draw, screen, codes, attrs, cx, permute);
         } else {
-            setup_chunk_impl::<false>(chunk, draw, screen, codes, attrs, cx);
+            setup_chunk_impl::<false, L, P>(chunk, draw, screen, codes, attrs, cx, permute);
         }
     }
 }
 
 #[inline(always)]
-fn setup_chunk_impl<const LIT: bool>(
+fn setup_chunk_impl<const LIT: bool, const L: usize, P: Permute<L>>(
     chunk: &mut Chunk,
     draw: &DrawObject<'_>,
     screen: &[ScreenPos],
     codes: &[u8],
     attrs: &[Attrs],
     cx: &SetupContext<'_>,
+    permute: P,
 ) {
     let vp = cx.viewport;
     let (w, h) = (vp.width as i32, vp.height as i32);
@@ -281,7 +286,7 @@ fn setup_chunk_impl<const LIT: bool>(
             }
         };
     let tris = &draw.triangles[chunk.triangles.clone()];
-    let fill = |batch: &mut Batch, group: &[[u32; 3]]| {
+    let fill = |batch: &mut Batch<L>, group: &[[u32; 3]]| {
         for (l, tri) in group.iter().enumerate() {
             let [i0, i1, i2] = tri.map(|i| i as usize);
             batch.set(
@@ -296,10 +301,10 @@ fn setup_chunk_impl<const LIT: bool>(
     // comes: by then its stores have drained. Filled right before `classify` reads them back
     // as vectors, the loads waited for the stores (a failed store-to-load forward; `perf`:
     // 5.7 % of setup at that one load on the Intel Xeon).
-    let mut batch = Batch::default();
-    let mut pending = Batch::default();
-    let mut shader = MicroShader::default();
-    let mut groups = tris.chunks(LANES);
+    let mut batch = Batch::<L>::default();
+    let mut pending = Batch::<L>::default();
+    let mut shader = MicroShader::new(permute);
+    let mut groups = tris.chunks(L);
     let mut current = groups.next();
     if let Some(group) = current {
         fill(&mut pending, group);

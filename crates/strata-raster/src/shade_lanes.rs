@@ -1,19 +1,22 @@
-//! Shading a batch's micro-triangles together, eight samples at a time.
+//! Shading a batch's micro-triangles together, `L` samples at a time (16 with AVX-512, else 8).
 //!
 //! [`Batch::classify`](crate::coverage::Batch::classify) leaves each micro-triangle's coverage
 //! mask in its lane. Shading those samples one at a time ([`crate::scan::shade_small`]) took
 //! about a hundred scalar instructions a fragment, the largest part of setup on a dense mesh
 //! (callgrind: 100 M of the 255 M setup instructions of a full-dragon frame). Setup therefore
-//! shades a batch's covered samples [`LANES`] at a time, in **passes** of the same arithmetic,
-//! and a sample's lane is filled in one of two ways:
+//! shades a batch's covered samples `L` at a time, in **passes** of the same arithmetic, where
+//! `L` is the lane width of the instruction set setup runs on ([`crate::lanes`]: a batch of `L`
+//! triangles, a lane array one register), and a sample's lane is filled in one of two ways:
 //!
-//! - **Packed** (where the CPU has AVX2): the batch's samples one after the other in primitive
-//!   order — every sample of lane 0's triangle, then of lane 1's, … — eight a pass. Each pass
-//!   finds every output's triangle and sample without a branch (the number of lanes whose
-//!   samples end at or before it; its rank within them) and moves each triangle value into the
-//!   output's lane with one `vpermd`/`vpermps` (35 for a lit object, 17 for an unlit one). On the full dragon a
-//!   batch has 7.6 covered samples on average, 4.4 covering micro-triangles and a most-covered
-//!   lane of 2.5 samples, so a batch takes 1–2 passes where rounds took 2.5, each mostly empty.
+//! - **Packed** (where the CPU has a one-instruction lane permute: AVX2 at 8 lanes, AVX-512 at
+//!   16): the batch's samples one after the other in primitive order — every sample of lane 0's
+//!   triangle, then of lane 1's, … — `L` a pass. Each pass finds every output's triangle and
+//!   sample without a branch (the number of lanes whose samples end at or before it; its rank
+//!   within them) and moves each triangle value into the output's lane with one
+//!   `vpermd`/`vpermps` ([`Permute`]; 35 for a lit object, 17 for an unlit one). On the full
+//!   dragon a batch of eight has 7.6 covered samples on average, 4.4 covering micro-triangles
+//!   and a most-covered lane of 2.5 samples, so a batch takes 1–2 passes where rounds took 2.5,
+//!   each mostly empty; a batch of sixteen has twice the samples in passes twice as wide.
 //! - **Rounds** (elsewhere): round `r` takes the `r`-th covered sample of every lane (its lowest
 //!   remaining mask bit), so a batch needs as many rounds as its most-covered lane has samples;
 //!   lanes with fewer samples, or no micro-triangle, compute values that are marked not kept.
@@ -27,19 +30,19 @@
 //!
 //! # Layout
 //!
-//! Structure of arrays, one `[_; LANES]` per quantity, so each step of a pass is one vector
-//! operation (LLVM vectorises the lane loops; setup is compiled per instruction set, so on AVX2
-//! a lane array is one register):
+//! Structure of arrays, one `[_; L]` per quantity, so each step of a pass is one vector
+//! operation (LLVM vectorises the lane loops; setup is compiled per instruction set with its
+//! width, so a lane array is one register):
 //!
 //! ```text
 //! inputs, per lane: the triangle's vertices in orientation order (Micro::order)
 //!   inv_area           1 / twice the area
 //!   z[k]               window depth of vertex k
 //!   n[k][c], p[k][c]   component c of n_w and p_w of vertex k (lit objects)
-//! outputs, per pass r < 16 and lane (output s is lane s % 8 of pass s / 8):
+//! outputs, per pass r < 16 and lane (output s is lane s % L of pass s / L):
 //!   pixel, row, depth, colour, kept (a covered sample in front of the far plane)
 //!   sample r of lane l is output first[l] + r·stride: packed, first[l] is the number of
-//!   samples of the lanes before it and stride 1; in rounds, first[l] = l and stride 8
+//!   samples of the lanes before it and stride 1; in rounds, first[l] = l and stride L
 //! ```
 //!
 //! # Same bits as one at a time
@@ -49,10 +52,10 @@
 //! `z = (λ₀z₀ + λ₁z₁) + λ₂z₂`, the headlight's dot products as `(x·x' + y·y') + z·z'`, the
 //! quantisation of [`unorm8`](strata_core::fragment::unorm8). IEEE arithmetic is exact per lane,
 //! so the fragments are bit for bit those of [`crate::scan::shade_small`] on every instruction
-//! set (tested below against it).
+//! set and at every width (tested below against it, at 8 and 16 lanes, packed and in rounds).
 //!
 //! The scan shades a larger triangle's spans the same way ([`SpanShader`]): its vertices are
-//! broadcast to every lane, and each lane takes the next covered sample of its rows, so eight
+//! broadcast to every lane, and each lane takes the next covered sample of its rows, so `L`
 //! consecutive samples share one pass of the same arithmetic (`shade_weighted`).
 //!
 //! Each pass is a function that writes only its own return value, in small loops of one kind
@@ -67,7 +70,8 @@
 
 use strata_core::{Fragment, PackedNormal, Rgba8};
 
-use crate::coverage::{Batch, LANES, MicroLanes, SMALL};
+use crate::coverage::{Batch, MicroLanes, SMALL};
+use crate::lanes::Permute;
 use crate::scan::Shade;
 use crate::setup::PixelFragment;
 use crate::sink::FragmentSink;
@@ -80,93 +84,93 @@ const ROUNDS: usize = (SMALL * SMALL) as usize;
 const _: () = assert!(SMALL == 4);
 
 /// One pass's results (a round's or a packed pass's), a lane a sample.
-#[derive(Clone, Copy, Debug, Default)]
-struct Round {
-    pixel: [u32; LANES],
-    row: [i32; LANES],
-    depth: [f32; LANES],
-    color: [u32; LANES],
+#[derive(Clone, Copy, Debug)]
+struct Round<const L: usize> {
+    pixel: [u32; L],
+    row: [i32; L],
+    depth: [f32; L],
+    color: [u32; L],
     /// 1 for a covered sample in front of the far plane, else 0.
-    kept: [u32; LANES],
+    kept: [u32; L],
+}
+
+impl<const L: usize> Default for Round<L> {
+    fn default() -> Self {
+        Round {
+            pixel: [0; L],
+            row: [0; L],
+            depth: [0.0; L],
+            color: [0; L],
+            kept: [0; L],
+        }
+    }
 }
 
 /// The triangles' vertex attributes, a lane a triangle, in orientation order.
-#[derive(Clone, Copy, Debug, Default)]
-struct Vertices {
-    z: [[f32; LANES]; 3],
+#[derive(Clone, Copy, Debug)]
+struct Vertices<const L: usize> {
+    z: [[f32; L]; 3],
     /// `n[k][c]`: component `c` of vertex `k`'s `n_w`; likewise `p`.
-    n: [[[f32; LANES]; 3]; 3],
-    p: [[[f32; LANES]; 3]; 3],
+    n: [[[f32; L]; 3]; 3],
+    p: [[[f32; L]; 3]; 3],
+}
+
+impl<const L: usize> Default for Vertices<L> {
+    fn default() -> Self {
+        Vertices {
+            z: [[0.0; L]; 3],
+            n: [[[0.0; L]; 3]; 3],
+            p: [[[0.0; L]; 3]; 3],
+        }
+    }
 }
 
 /// What every pass of a batch shares, a lane a triangle.
 #[derive(Clone, Copy, Debug)]
-struct Constants<'a> {
-    lanes: MicroLanes<'a>,
-    vertices: &'a Vertices,
-    inv_area: [f32; LANES],
+struct Constants<'a, const L: usize> {
+    lanes: MicroLanes<'a, L>,
+    vertices: &'a Vertices<L>,
+    inv_area: [f32; L],
     /// Row-major index of the box's first pixel.
-    first: [u32; LANES],
+    first: [u32; L],
     width: i32,
 }
 
-/// How a batch's covered samples are put in lanes; see the module docs.
+/// A batch's micro-triangles shaded in lanes, `L` samples a pass, their triangles' values moved
+/// into the samples' lanes by `P`; see the module docs. Reused from batch to batch.
 #[derive(Clone, Copy, Debug)]
-enum Packing {
-    /// Pass `r` shades the `r`-th sample of every triangle: sample `r` of lane `l` is output
-    /// `r · LANES + l`.
-    Rounds,
-    /// The samples one after the other in primitive order, [`LANES`] a pass, each sample's
-    /// triangle values moved into its lane by AVX2's lane permutes: sample `r` of lane `l` is
-    /// output `first[l] + r`.
-    #[cfg(target_arch = "x86_64")]
-    Packed(pulp::x86::V3),
-}
-
-impl Packing {
-    /// Packed where the CPU has AVX2 (its permute moves eight lanes in one instruction), else
-    /// rounds.
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(v3) = pulp::x86::V3::try_new() {
-            return Packing::Packed(v3);
-        }
-        Packing::Rounds
-    }
-}
-
-/// A batch's micro-triangles shaded in lanes; see the module docs. Reused from batch to batch.
-#[derive(Clone, Copy, Debug)]
-pub struct MicroShader {
-    vertices: Vertices,
+pub struct MicroShader<const L: usize, P> {
+    vertices: Vertices<L>,
     /// Covered samples of each lane (0 for lanes without a micro-triangle).
-    counts: [u32; LANES],
+    counts: [u32; L],
     /// The output of each lane's first sample, and the step from one of its samples to the
-    /// next: `(l, LANES)` in rounds, `(first sample, 1)` packed.
-    first: [u32; LANES],
+    /// next: `(l, L)` in rounds, `(first sample, 1)` packed.
+    first: [u32; L],
     stride: u32,
     /// Covered samples of all lanes.
     samples: u32,
-    /// The outputs, [`LANES`] a pass: output `s` is lane `s % LANES` of pass `s / LANES`.
-    passes: [Round; ROUNDS],
-    packing: Packing,
+    /// The outputs, `L` a pass: output `s` is lane `s % L` of pass `s / L`. A batch covers
+    /// at most `16 · L` samples (16 a micro-triangle).
+    passes: [Round<L>; ROUNDS],
+    permute: P,
 }
 
-impl Default for MicroShader {
-    fn default() -> Self {
+impl<const L: usize, P: Permute<L>> MicroShader<L, P> {
+    /// A shader that packs its samples if `P` does ([`Permute::PACKED`]), else shades in rounds.
+    pub fn new(permute: P) -> Self {
         MicroShader {
             vertices: Vertices::default(),
-            counts: [0; LANES],
-            first: [0; LANES],
+            counts: [0; L],
+            first: [0; L],
             stride: 0,
             samples: 0,
             passes: [Round::default(); ROUNDS],
-            packing: Packing::detect(),
+            permute,
         }
     }
 }
 
-impl Vertices {
+impl<const L: usize> Vertices<L> {
     /// Loads the lanes of `micro`, a lane at a time. (Loading all eight lanes with AVX2 and
     /// transposing them in registers took fewer instructions but more time on the full dragon:
     /// it also loads the vertices of the third of the triangles that cover nothing. Tried again
@@ -176,7 +180,7 @@ impl Vertices {
     fn load<'v, const LIT: bool>(
         &mut self,
         micro: u32,
-        swapped: &[bool; LANES],
+        swapped: &[bool; L],
         vertices: &impl Fn(usize) -> [&'v Attrs; 3],
     ) {
         let mut todo = micro;
@@ -198,7 +202,7 @@ impl Vertices {
     }
 }
 
-impl MicroShader {
+impl<const L: usize, P: Permute<L>> MicroShader<L, P> {
     /// Shades every covered sample of the micro-triangles in the lanes of `micro` (a subset of
     /// [`crate::coverage::Verdict::micro`]); `vertices(l)` gives lane `l`'s vertex attributes
     /// in input order. Read the results with [`MicroShader::fragments`] or
@@ -206,7 +210,7 @@ impl MicroShader {
     #[inline(always)]
     pub fn shade<'v, const LIT: bool>(
         &mut self,
-        batch: &Batch,
+        batch: &Batch<L>,
         micro: u32,
         vertices: impl Fn(usize) -> [&'v Attrs; 3],
         width: i32,
@@ -215,70 +219,66 @@ impl MicroShader {
         let lanes = batch.micro_lanes();
         // Inputs: the covered lanes' vertices in orientation order.
         self.vertices.load::<LIT>(micro, lanes.swapped, &vertices);
-        let mut mask = [0u32; LANES];
+        let mut mask = [0u32; L];
         let mut cx = Constants {
             lanes,
             vertices: &self.vertices,
-            inv_area: [0.0; LANES],
-            first: [0; LANES],
+            inv_area: [0.0; L],
+            first: [0; L],
             width,
         };
         // Small loops of one kind each, on local arrays, so that each is one vector operation
         // (with the count in the loop below, LLVM stored the counts a lane at a time and the
         // packed passes stalled reading them back as a vector).
-        for l in 0..LANES {
+        for l in 0..L {
             mask[l] = if micro >> l & 1 != 0 {
                 lanes.mask[l]
             } else {
                 0
             };
         }
-        let mut counts = [0u32; LANES];
-        for l in 0..LANES {
+        let mut counts = [0u32; L];
+        for l in 0..L {
             counts[l] = mask[l].count_ones();
         }
         self.counts = counts;
-        for l in 0..LANES {
+        for l in 0..L {
             cx.inv_area[l] = 1.0 / lanes.area[l] as f32;
             cx.first[l] = (lanes.y0[l] as u32)
                 .wrapping_mul(width as u32)
                 .wrapping_add(lanes.x0[l] as u32);
         }
-        match self.packing {
-            Packing::Rounds => {
-                let rounds = *self.counts.iter().max().unwrap_or(&0) as usize;
-                for r in 0..rounds {
-                    self.passes[r] = round::<LIT>(&cx, &mut mask, shade);
-                }
-                self.first = std::array::from_fn(|l| l as u32);
-                self.stride = LANES as u32;
-                self.samples = self.counts.iter().sum();
+        if !P::PACKED {
+            let rounds = *self.counts.iter().max().unwrap_or(&0) as usize;
+            for r in 0..rounds {
+                self.passes[r] = round::<L, LIT>(&cx, &mut mask, shade);
             }
-            #[cfg(target_arch = "x86_64")]
-            Packing::Packed(v3) => {
-                // The samples in primitive order: every sample of lane 0, then of lane 1, …;
-                // lane `l`'s are outputs `first[l]..end[l]`.
-                let end = prefix_sum(&counts);
-                let mut first = [0u32; LANES];
-                for l in 0..LANES {
-                    first[l] = end[l] - counts[l];
-                }
-                self.first = first;
-                let n = end[LANES - 1];
-                self.stride = 1;
-                self.samples = n;
-                let rounds = counts.into_iter().max().unwrap_or(0);
-                let packing = Packed {
-                    mask: &mask,
-                    first: &self.first,
-                    end: &end,
-                    samples: n,
-                    rounds,
-                };
-                for r in 0..(n as usize).div_ceil(LANES) {
-                    self.passes[r] = packed_pass::<LIT>(v3, &cx, &packing, r, shade);
-                }
-            }
+            self.first = std::array::from_fn(|l| l as u32);
+            self.stride = L as u32;
+            self.samples = self.counts.iter().sum();
+            return;
+        }
+        // The samples in primitive order: every sample of lane 0, then of lane 1, …; lane `l`'s
+        // are outputs `first[l]..end[l]`.
+        let end = prefix_sum(&counts);
+        let mut first = [0u32; L];
+        for l in 0..L {
+            first[l] = end[l] - counts[l];
+        }
+        self.first = first;
+        let n = end[L - 1];
+        self.stride = 1;
+        self.samples = n;
+        let rounds = counts.into_iter().max().unwrap_or(0);
+        let packing = Packed {
+            mask: &mask,
+            first: &self.first,
+            end: &end,
+            samples: n,
+            rounds,
+        };
+        for r in 0..(n as usize).div_ceil(L) {
+            self.passes[r] = packed_pass::<L, P, LIT>(self.permute, &cx, &packing, r, shade);
         }
     }
 
@@ -302,7 +302,7 @@ impl MicroShader {
                 }
             }
         } else {
-            for l in 0..LANES {
+            for l in 0..L {
                 for (row, fragment) in self.fragments(l) {
                     f(row, fragment);
                 }
@@ -313,7 +313,7 @@ impl MicroShader {
     /// Output `s` with its image row, if it is kept.
     #[inline(always)]
     fn output(&self, s: usize) -> Option<(i32, PixelFragment)> {
-        let (pass, k) = (&self.passes[s / LANES], s % LANES);
+        let (pass, k) = (&self.passes[s / L], s % L);
         (pass.kept[k] != 0).then(|| {
             (
                 pass.row[k],
@@ -327,36 +327,36 @@ impl MicroShader {
     }
 }
 
-/// Shades a larger triangle's covered samples [`LANES`] at a time, in the order they are added:
-/// what [`crate::scan::scan_triangle`] does with the spans of a triangle too large for setup's
+/// Shades a larger triangle's covered samples `L` at a time, in the order they are added: what
+/// [`crate::scan::scan_triangle`] does with the spans of a triangle too large for setup's
 /// micro-triangle lanes. The triangle's vertices are broadcast to every lane once
 /// ([`SpanShader::begin`]); each sample brings its pixel and its barycentric numerators, and a
 /// full set of lanes is shaded by the same arithmetic as a micro-triangle's round (so the same
 /// bits as one at a time) and pushed into the sink in order. Reused from triangle to triangle.
 #[derive(Clone, Copy, Debug)]
-pub struct SpanShader {
-    vertices: Vertices,
+pub struct SpanShader<const L: usize> {
+    vertices: Vertices<L>,
     inv_area: f32,
     /// Barycentric numerators `E_k` of the pending samples, a lane a sample.
-    e: [[f32; LANES]; 3],
-    pixel: [u32; LANES],
-    /// Pending samples, `< LANES`.
+    e: [[f32; L]; 3],
+    pixel: [u32; L],
+    /// Pending samples, `< L`.
     len: usize,
 }
 
-impl Default for SpanShader {
+impl<const L: usize> Default for SpanShader<L> {
     fn default() -> Self {
         SpanShader {
             vertices: Vertices::default(),
             inv_area: 0.0,
-            e: [[0.0; LANES]; 3],
-            pixel: [0; LANES],
+            e: [[0.0; L]; 3],
+            pixel: [0; L],
             len: 0,
         }
     }
 }
 
-impl SpanShader {
+impl<const L: usize> SpanShader<L> {
     /// Starts a triangle of twice the area `area` whose vertices, in orientation order, are
     /// `attrs`. Any pending samples of the previous triangle must have been flushed.
     #[inline(always)]
@@ -365,11 +365,11 @@ impl SpanShader {
         self.len = 0;
         self.inv_area = 1.0 / area;
         for (k, a) in attrs.into_iter().enumerate() {
-            self.vertices.z[k] = [a.z; LANES];
+            self.vertices.z[k] = [a.z; L];
             if LIT {
                 for c in 0..3 {
-                    self.vertices.n[k][c] = [a.n_w[c]; LANES];
-                    self.vertices.p[k][c] = [a.p_w[c]; LANES];
+                    self.vertices.n[k][c] = [a.n_w[c]; L];
+                    self.vertices.p[k][c] = [a.p_w[c]; L];
                 }
             }
         }
@@ -391,7 +391,7 @@ impl SpanShader {
             self.e[k][l] = e[k];
         }
         self.len = l + 1;
-        if self.len == LANES {
+        if self.len == L {
             self.flush::<S, LIT>(shade, sink)
         } else {
             0
@@ -407,15 +407,15 @@ impl SpanShader {
             return 0;
         }
         self.len = 0;
-        let mut weight = [[0f32; LANES]; 3];
-        let mut covered = [0u32; LANES];
-        for l in 0..LANES {
+        let mut weight = [[0f32; L]; 3];
+        let mut covered = [0u32; L];
+        for l in 0..L {
             for k in 0..3 {
                 weight[k][l] = self.e[k][l] * self.inv_area;
             }
             covered[l] = u32::from(l < len);
         }
-        let out = shade_weighted::<LIT>(&self.vertices, &weight, &covered, shade);
+        let out = shade_weighted::<L, LIT>(&self.vertices, &weight, &covered, shade);
         let mut pushed = 0;
         for l in 0..len {
             if out.kept[l] != 0 {
@@ -436,12 +436,12 @@ impl SpanShader {
 
 /// The inclusive prefix sum of `counts`.
 #[inline(always)]
-fn prefix_sum(counts: &[u32; LANES]) -> [u32; LANES] {
+fn prefix_sum<const L: usize>(counts: &[u32; L]) -> [u32; L] {
     let mut sum = *counts;
     let mut step = 1;
-    while step < LANES {
+    while step < L {
         let before = sum;
-        for l in 0..LANES {
+        for l in 0..L {
             sum[l] = before[l] + if l >= step { before[l - step] } else { 0 };
         }
         step *= 2;
@@ -453,36 +453,40 @@ fn prefix_sum(counts: &[u32; LANES]) -> [u32; LANES] {
 /// it), shaded. Writes only its own value, so LLVM need not fear aliasing and vectorises every
 /// lane loop.
 #[inline(always)]
-fn round<const LIT: bool>(cx: &Constants<'_>, mask: &mut [u32; LANES], shade: &Shade) -> Round {
+fn round<const L: usize, const LIT: bool>(
+    cx: &Constants<'_, L>,
+    mask: &mut [u32; L],
+    shade: &Shade,
+) -> Round<L> {
     let v = cx.vertices;
     // The lowest remaining sample of each lane: its bit index from the exponent of the
     // isolated bit (exact in f32 for 16-bit masks). Small loops of one kind of work each,
     // so that LLVM vectorises every one.
-    let mut low = [0u32; LANES];
-    let mut i = [0i32; LANES];
-    let mut j = [0i32; LANES];
-    for l in 0..LANES {
+    let mut low = [0u32; L];
+    let mut i = [0i32; L];
+    let mut j = [0i32; L];
+    for l in 0..L {
         low[l] = mask[l] & mask[l].wrapping_neg();
         mask[l] &= mask[l].wrapping_sub(1);
         let bit = ((low[l] as i32 as f32).to_bits() >> 23) as i32 - 127;
         (i[l], j[l]) = (bit & (SMALL - 1), bit >> 2);
     }
     // Barycentric weights: the edge values stepped to the sample, times 1 / area.
-    let mut weight = [[0f32; LANES]; 3];
+    let mut weight = [[0f32; L]; 3];
     for k in 0..3 {
-        for l in 0..LANES {
+        for l in 0..L {
             let e = cx.lanes.e[k][l]
                 .wrapping_add(cx.lanes.dx[k][l].wrapping_mul(i[l]))
                 .wrapping_add(cx.lanes.dy[k][l].wrapping_mul(j[l]));
             weight[k][l] = e as f32 * cx.inv_area[l];
         }
     }
-    let mut covered = [0u32; LANES];
-    for l in 0..LANES {
+    let mut covered = [0u32; L];
+    for l in 0..L {
         covered[l] = u32::from(low[l] != 0);
     }
-    let mut out = shade_weighted::<LIT>(v, &weight, &covered, shade);
-    for l in 0..LANES {
+    let mut out = shade_weighted::<L, LIT>(v, &weight, &covered, shade);
+    for l in 0..L {
         out.pixel[l] = cx.first[l]
             .wrapping_add((j[l] as u32).wrapping_mul(cx.width as u32))
             .wrapping_add(i[l] as u32);
@@ -493,82 +497,72 @@ fn round<const LIT: bool>(cx: &Constants<'_>, mask: &mut [u32; LANES], shade: &S
 
 /// Where a batch's samples are packed: lane `l`'s samples (the bits of `mask[l]`) are outputs
 /// `first[l]..end[l]` of `samples`; no lane has more than `rounds`.
-#[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
-struct Packed<'a> {
-    mask: &'a [u32; LANES],
-    first: &'a [u32; LANES],
-    end: &'a [u32; LANES],
+struct Packed<'a, const L: usize> {
+    mask: &'a [u32; L],
+    first: &'a [u32; L],
+    end: &'a [u32; L],
     samples: u32,
     rounds: u32,
 }
 
-/// Pass `pass` of packed samples: outputs `pass · LANES ..` shaded, a lane an output. Output
-/// `s` belongs to the lane `t` with `first[t] ≤ s < end[t]` (the number of lanes that end at or
+/// Pass `pass` of packed samples: outputs `pass · L ..` shaded, a lane an output. Output `s`
+/// belongs to the lane `t` with `first[t] ≤ s < end[t]` (the number of lanes that end at or
 /// before it) and is that lane's sample `s − first[t]`; its triangle's values are moved into
 /// the output's lane with one permute each, and the arithmetic is then [`round`]'s, so the same
 /// bits. Outputs past the last sample are marked not kept. Branch-free: every step is a lane
 /// loop.
-#[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn packed_pass<const LIT: bool>(
-    v3: pulp::x86::V3,
-    cx: &Constants<'_>,
-    packed: &Packed<'_>,
+fn packed_pass<const L: usize, P: Permute<L>, const LIT: bool>(
+    permute: P,
+    cx: &Constants<'_, L>,
+    packed: &Packed<'_, L>,
     pass: usize,
     shade: &Shade,
-) -> Round {
-    use pulp::bytemuck::cast;
-    let mut slot = [0u32; LANES];
-    let mut source = [0u32; LANES];
-    let mut covered = [0u32; LANES];
-    for l in 0..LANES {
-        slot[l] = (pass * LANES + l) as u32;
+) -> Round<L> {
+    let mut slot = [0u32; L];
+    let mut source = [0u32; L];
+    let mut covered = [0u32; L];
+    for l in 0..L {
+        slot[l] = (pass * L + l) as u32;
         covered[l] = u32::from(slot[l] < packed.samples);
     }
-    for t in 0..LANES {
-        for l in 0..LANES {
+    for t in 0..L {
+        for l in 0..L {
             source[l] += u32::from(packed.end[t] <= slot[l]);
         }
     }
-    let idx = cast::<[u32; LANES], core::arch::x86_64::__m256i>(source);
-    let gi = |a: &[i32; LANES]| -> [i32; LANES] {
-        let a = cast::<[i32; LANES], core::arch::x86_64::__m256i>(*a);
-        cast(v3.avx2._mm256_permutevar8x32_epi32(a, idx))
-    };
-    let gu = |a: &[u32; LANES]| -> [u32; LANES] {
-        let a = cast::<[u32; LANES], core::arch::x86_64::__m256i>(*a);
-        cast(v3.avx2._mm256_permutevar8x32_epi32(a, idx))
-    };
-    let gf = |a: &[f32; LANES]| -> [f32; LANES] {
-        let a = cast::<[f32; LANES], core::arch::x86_64::__m256>(*a);
-        cast(v3.avx2._mm256_permutevar8x32_ps(a, idx))
-    };
+    let idx = source;
     // The output's sample: drop the lowest `s − first` bits of its lane's mask, take the
     // lowest left (its index from the exponent of the isolated bit, as in `round`).
-    let (first, mut mask) = (gu(packed.first), gu(packed.mask));
-    let mut rank = [0u32; LANES];
-    for l in 0..LANES {
+    let (first, mut mask) = (
+        permute.u32s(*packed.first, idx),
+        permute.u32s(*packed.mask, idx),
+    );
+    let mut rank = [0u32; L];
+    for l in 0..L {
         rank[l] = slot[l].wrapping_sub(first[l]);
     }
     for r in 1..packed.rounds {
-        for l in 0..LANES {
+        for l in 0..L {
             let drop = mask[l] & mask[l].wrapping_sub(1);
             mask[l] = if r <= rank[l] { drop } else { mask[l] };
         }
     }
-    let mut i = [0i32; LANES];
-    let mut j = [0i32; LANES];
-    for l in 0..LANES {
+    let mut i = [0i32; L];
+    let mut j = [0i32; L];
+    for l in 0..L {
         let low = mask[l] & mask[l].wrapping_neg();
         let bit = ((low as i32 as f32).to_bits() >> 23) as i32 - 127;
         (i[l], j[l]) = (bit & (SMALL - 1), bit >> 2);
     }
-    let inv_area = gf(&cx.inv_area);
-    let mut weight = [[0f32; LANES]; 3];
+    let inv_area = permute.f32s(cx.inv_area, idx);
+    let mut weight = [[0f32; L]; 3];
     for k in 0..3 {
-        let (e, dx, dy) = (gi(&cx.lanes.e[k]), gi(&cx.lanes.dx[k]), gi(&cx.lanes.dy[k]));
-        for l in 0..LANES {
+        let e = permute.i32s(cx.lanes.e[k], idx);
+        let dx = permute.i32s(cx.lanes.dx[k], idx);
+        let dy = permute.i32s(cx.lanes.dy[k], idx);
+        for l in 0..L {
             let e = e[l]
                 .wrapping_add(dx[l].wrapping_mul(i[l]))
                 .wrapping_add(dy[l].wrapping_mul(j[l]));
@@ -576,14 +570,14 @@ fn packed_pass<const LIT: bool>(
         }
     }
     let v = Permuted {
-        v3,
+        permute,
         idx,
         vertices: cx.vertices,
     };
-    let mut out = shade_weighted::<LIT>(v, &weight, &covered, shade);
-    let first = gu(&cx.first);
-    let y0 = gi(cx.lanes.y0);
-    for l in 0..LANES {
+    let mut out = shade_weighted::<L, LIT>(v, &weight, &covered, shade);
+    let first = permute.u32s(cx.first, idx);
+    let y0 = permute.i32s(*cx.lanes.y0, idx);
+    for l in 0..L {
         out.pixel[l] = first[l]
             .wrapping_add((j[l] as u32).wrapping_mul(cx.width as u32))
             .wrapping_add(i[l] as u32);
@@ -594,98 +588,86 @@ fn packed_pass<const LIT: bool>(
 
 /// The vertex attributes of [`shade_weighted`]'s samples, a lane a sample: read as they lie
 /// ([`Vertices`]), or moved into the sample lanes as they are read ([`Permuted`]).
-trait VertexLanes: Copy {
+trait VertexLanes<const L: usize>: Copy {
     /// Window depth of vertex `k`.
-    fn z(self, k: usize) -> [f32; LANES];
+    fn z(self, k: usize) -> [f32; L];
     /// Component `c` of vertex `k`'s `n_w`.
-    fn n(self, k: usize, c: usize) -> [f32; LANES];
+    fn n(self, k: usize, c: usize) -> [f32; L];
     /// Component `c` of vertex `k`'s `p_w`.
-    fn p(self, k: usize, c: usize) -> [f32; LANES];
+    fn p(self, k: usize, c: usize) -> [f32; L];
 }
 
-impl VertexLanes for &Vertices {
+impl<const L: usize> VertexLanes<L> for &Vertices<L> {
     #[inline(always)]
-    fn z(self, k: usize) -> [f32; LANES] {
+    fn z(self, k: usize) -> [f32; L] {
         self.z[k]
     }
     #[inline(always)]
-    fn n(self, k: usize, c: usize) -> [f32; LANES] {
+    fn n(self, k: usize, c: usize) -> [f32; L] {
         self.n[k][c]
     }
     #[inline(always)]
-    fn p(self, k: usize, c: usize) -> [f32; LANES] {
+    fn p(self, k: usize, c: usize) -> [f32; L] {
         self.p[k][c]
     }
 }
 
 /// A batch's vertices (a lane a triangle) read into sample lanes: lane `s` gets triangle lane
-/// `idx[s]`, one AVX2 permute an attribute.
-#[cfg(target_arch = "x86_64")]
+/// `idx[s]`, one permute an attribute.
 #[derive(Clone, Copy)]
-struct Permuted<'a> {
-    v3: pulp::x86::V3,
-    idx: core::arch::x86_64::__m256i,
-    vertices: &'a Vertices,
+struct Permuted<'a, const L: usize, P> {
+    permute: P,
+    idx: [u32; L],
+    vertices: &'a Vertices<L>,
 }
 
-#[cfg(target_arch = "x86_64")]
-impl Permuted<'_> {
+impl<const L: usize, P: Permute<L>> VertexLanes<L> for Permuted<'_, L, P> {
     #[inline(always)]
-    fn get(self, a: &[f32; LANES]) -> [f32; LANES] {
-        use pulp::bytemuck::cast;
-        let a = cast::<[f32; LANES], core::arch::x86_64::__m256>(*a);
-        cast(self.v3.avx2._mm256_permutevar8x32_ps(a, self.idx))
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-impl VertexLanes for Permuted<'_> {
-    #[inline(always)]
-    fn z(self, k: usize) -> [f32; LANES] {
-        self.get(&self.vertices.z[k])
+    fn z(self, k: usize) -> [f32; L] {
+        self.permute.f32s(self.vertices.z[k], self.idx)
     }
     #[inline(always)]
-    fn n(self, k: usize, c: usize) -> [f32; LANES] {
-        self.get(&self.vertices.n[k][c])
+    fn n(self, k: usize, c: usize) -> [f32; L] {
+        self.permute.f32s(self.vertices.n[k][c], self.idx)
     }
     #[inline(always)]
-    fn p(self, k: usize, c: usize) -> [f32; LANES] {
-        self.get(&self.vertices.p[k][c])
+    fn p(self, k: usize, c: usize) -> [f32; L] {
+        self.permute.f32s(self.vertices.p[k][c], self.idx)
     }
 }
 
-/// Depth and colour of [`LANES`] samples from their barycentric weights `weight[k]` (the edge
+/// Depth and colour of `L` samples from their barycentric weights `weight[k]` (the edge
 /// values times `1 / area`), a lane a sample, with lane `l`'s vertices in `v`'s lane `l`;
 /// `covered[l]` is 1 for a sample to keep if it lies in front of the far plane. The arithmetic
 /// of [`crate::scan`]'s one-at-a-time shading, in the same order, so the same bits. Leaves
 /// `pixel` and `row` at zero.
 #[inline(always)]
-fn shade_weighted<const LIT: bool>(
-    v: impl VertexLanes,
-    weight: &[[f32; LANES]; 3],
-    covered: &[u32; LANES],
+fn shade_weighted<const L: usize, const LIT: bool>(
+    v: impl VertexLanes<L>,
+    weight: &[[f32; L]; 3],
+    covered: &[u32; L],
     shade: &Shade,
-) -> Round {
+) -> Round<L> {
     let mut out = Round::default();
     let [l0, l1, l2] = weight;
     let z = [v.z(0), v.z(1), v.z(2)];
-    for l in 0..LANES {
+    for l in 0..L {
         let z = l0[l] * z[0][l] + l1[l] * z[1][l] + l2[l] * z[2][l];
         // Covered, and not beyond the far plane (nor NaN); rounding below 0 gives +0.
         out.kept[l] = covered[l] & u32::from(z <= 1.0);
         out.depth[l] = if z > 0.0 { z } else { 0.0 };
     }
     if !LIT {
-        out.color = [shade.flat.to_bits(); LANES];
+        out.color = [shade.flat.to_bits(); L];
         return out;
     }
     // The perspective-correct normal and position, up to a common factor.
-    let mut n = [[0f32; LANES]; 3];
-    let mut p = [[0f32; LANES]; 3];
+    let mut n = [[0f32; L]; 3];
+    let mut p = [[0f32; L]; 3];
     for c in 0..3 {
         let vn = [v.n(0, c), v.n(1, c), v.n(2, c)];
         let vp = [v.p(0, c), v.p(1, c), v.p(2, c)];
-        for l in 0..LANES {
+        for l in 0..L {
             n[c][l] = vn[0][l] * l0[l] + vn[1][l] * l1[l] + vn[2][l] * l2[l];
             p[c][l] = vp[0][l] * l0[l] + vp[1][l] * l1[l] + vp[2][l] * l2[l];
         }
@@ -695,7 +677,7 @@ fn shade_weighted<const LIT: bool>(
         return out;
     }
     let alpha = u32::from(shade.alpha) << 24;
-    for l in 0..LANES {
+    for l in 0..L {
         let (nx, ny, nz) = (n[0][l], n[1][l], n[2][l]);
         let (px, py, pz) = (p[0][l], p[1][l], p[2][l]);
         let nn = nx * nx + ny * ny + nz * nz;
@@ -796,9 +778,9 @@ mod tests {
 
     /// [`MicroShader::shade`]'s arguments, for [`pulp::Arch::dispatch`] (a closure would be
     /// called out of line, compiled for the baseline instruction set).
-    struct ShadeJob<'a, F> {
-        shader: &'a mut MicroShader,
-        batch: &'a Batch,
+    struct ShadeJob<'a, F, const L: usize, P> {
+        shader: &'a mut MicroShader<L, P>,
+        batch: &'a Batch<L>,
         micro: u32,
         vertices: F,
         width: i32,
@@ -806,7 +788,9 @@ mod tests {
         lit: bool,
     }
 
-    impl<'v, F: Fn(usize) -> [&'v Attrs; 3]> pulp::WithSimd for ShadeJob<'_, F> {
+    impl<'v, F: Fn(usize) -> [&'v Attrs; 3], const L: usize, P: Permute<L>> pulp::WithSimd
+        for ShadeJob<'_, F, L, P>
+    {
         type Output = ();
 
         #[inline(always)]
@@ -838,18 +822,18 @@ mod tests {
 
     /// [`crate::scan::scan_triangle`]'s arguments for a larger triangle, for
     /// [`pulp::Arch::dispatch`], so the lanes run under the instruction set the scan picks.
-    struct SpanJob<'a> {
+    struct SpanJob<'a, const L: usize> {
         pos: [ScreenPos; 3],
         attrs: [&'a Attrs; 3],
         rows: (i32, i32),
         size: (i32, i32),
         shade: &'a Shade,
-        lanes: &'a mut SpanShader,
+        lanes: &'a mut SpanShader<L>,
         sink: &'a mut Collect,
         lit: bool,
     }
 
-    impl pulp::WithSimd for SpanJob<'_> {
+    impl<const L: usize> pulp::WithSimd for SpanJob<'_, L> {
         type Output = u32;
 
         #[inline(always)]
@@ -865,25 +849,32 @@ mod tests {
                 lit,
             } = self;
             if lit {
-                crate::scan::scan_triangle::<_, true>(pos, attrs, rows, w, h, shade, lanes, sink)
+                crate::scan::scan_triangle::<_, true, L>(pos, attrs, rows, w, h, shade, lanes, sink)
             } else {
-                crate::scan::scan_triangle::<_, false>(pos, attrs, rows, w, h, shade, lanes, sink)
+                crate::scan::scan_triangle::<_, false, L>(
+                    pos, attrs, rows, w, h, shade, lanes, sink,
+                )
             }
         }
     }
 
     /// Larger triangles (boxes of 5 to 40 pixels, some cut by the image's edges and the strip's
     /// rows; the micro-sized among the 6,000 random ones are skipped), their spans shaded eight
-    /// samples at a time, against one sample at a time, in
-    /// every shading mode: the same fragments, bit for bit, in the same order, whatever number
-    /// of samples a triangle leaves pending in the lanes.
+    /// and sixteen samples at a time (the two lane widths of [`crate::lanes`]), against one
+    /// sample at a time, in every shading mode: the same fragments, bit for bit, in the same
+    /// order, whatever number of samples a triangle leaves pending in the lanes.
     #[test]
     fn span_lanes_shade_exactly_like_one_sample_at_a_time() {
+        span_lanes_like_one_sample_at_a_time::<8>();
+        span_lanes_like_one_sample_at_a_time::<16>();
+    }
+
+    fn span_lanes_like_one_sample_at_a_time<const L: usize>() {
         use crate::scan::shade_large_one_at_a_time;
         let mut rand = Rand(0x2545_f491_4f6c_dd1d);
         let (w, h) = (61, 47);
         // One shader reused across triangles, as a strip's scan does.
-        let mut lanes = SpanShader::default();
+        let mut lanes = SpanShader::<L>::default();
         let (mut compared, mut large, mut far, mut tail) = (0usize, 0usize, 0usize, 0usize);
         for case in 0..6000 {
             let (lit, packed) = [(false, false), (true, false), (true, true)][case % 3];
@@ -947,7 +938,7 @@ mod tests {
             );
             compared += want.0.len();
             large += 1;
-            tail += usize::from(!samples.is_multiple_of(LANES));
+            tail += usize::from(!samples.is_multiple_of(L));
             // Covered samples beyond the far plane, which both dropped.
             far += samples - want.0.len();
         }
@@ -963,32 +954,36 @@ mod tests {
 
     /// Every micro-triangle of many random batches, shaded in lanes and one at a time, in every
     /// shading mode: the same fragments, bit for bit, in the same order. The lanes run under
-    /// setup's instruction-set dispatch, the reference one at a time for the baseline.
+    /// setup's instruction-set dispatch, the reference one at a time for the baseline. Both
+    /// widths, packed and in rounds, with a lane-by-lane permute on any CPU; then with the
+    /// permutes setup itself uses, where this CPU has them.
     #[test]
     fn lanes_shade_exactly_like_one_triangle_at_a_time() {
-        lanes_shade_like_one_at_a_time(Packing::Rounds);
-        // Packed passes where the CPU has AVX2 (the EPYC and Xeon CI has run on); elsewhere setup
-        // only has rounds, tested above.
+        use crate::lanes::{PackedScalar, Rounds};
+        lanes_shade_like_one_at_a_time::<8, _>(Rounds);
+        lanes_shade_like_one_at_a_time::<16, _>(Rounds);
+        lanes_shade_like_one_at_a_time::<8, _>(PackedScalar);
+        lanes_shade_like_one_at_a_time::<16, _>(PackedScalar);
         #[cfg(target_arch = "x86_64")]
-        if let Some(v3) = pulp::x86::V3::try_new() {
-            assert!(
-                matches!(Packing::detect(), Packing::Packed(_)),
-                "AVX2 packs"
-            );
-            lanes_shade_like_one_at_a_time(Packing::Packed(v3));
+        {
+            match pulp::x86::V3::try_new() {
+                Some(v3) => lanes_shade_like_one_at_a_time::<8, _>(v3),
+                None => eprintln!("no AVX2 on this CPU: its packed passes are not tested here"),
+            }
+            match pulp::x86::V4::try_new() {
+                Some(v4) => lanes_shade_like_one_at_a_time::<16, _>(v4),
+                None => eprintln!("no AVX-512 on this CPU: its packed passes are not tested here"),
+            }
         }
     }
 
-    /// The test above with the samples put in lanes by `packing`; also checks that
+    /// The test above with the samples put in `L` lanes by `permute`; also checks that
     /// [`MicroShader::for_each_fragment`] gives every lane's fragments in lane order.
-    fn lanes_shade_like_one_at_a_time(packing: Packing) {
+    fn lanes_shade_like_one_at_a_time<const L: usize, P: Permute<L>>(permute: P) {
         let mut rand = Rand(0x9e37_79b9_7f4a_7c15);
         let (w, h) = (37, 23);
-        let mut batch = Batch::default();
-        let mut shader = MicroShader {
-            packing,
-            ..MicroShader::default()
-        };
+        let mut batch = Batch::<L>::default();
+        let mut shader = MicroShader::new(permute);
         let shades = [
             (false, false),
             (true, false), // headlight
@@ -1005,7 +1000,7 @@ mod tests {
                 packed,
             };
             let mut verts = Vec::new();
-            for l in 0..LANES {
+            for l in 0..L {
                 let (bx, by) = (rand.below(w as u32 * 256), rand.below(h as u32 * 256));
                 // Vertices up to 4 pixels apart, or (every other case) up to 5, the most a
                 // micro-triangle spreads: these cover up to the whole 4 × 4 block.
@@ -1018,7 +1013,7 @@ mod tests {
                 batch.set(l, pos, [0; 3]);
                 verts.push([attrs(&mut rand), attrs(&mut rand), attrs(&mut rand)]);
             }
-            let verdict = batch.classify(LANES, w, h, outcode::VIEW, outcode::CLIP);
+            let verdict = batch.classify(L, w, h, outcode::VIEW, outcode::CLIP);
             let vertices = |l: usize| [&verts[l][0], &verts[l][1], &verts[l][2]];
             // Shaded under the same run-time choice of instruction set as setup (AVX2 where the
             // CPU has it), so the vector code the renderer runs is the code tested.
@@ -1031,13 +1026,13 @@ mod tests {
                 shade: &shade,
                 lit,
             });
-            passes += usize::from(shader.samples as usize > LANES);
+            passes += usize::from(shader.samples as usize > L);
             many += usize::from(shader.counts.iter().any(|&c| c > 8));
             let mut all = Vec::new();
             shader.for_each_fragment(|row, f| all.push((row, f)));
-            let by_lane: Vec<_> = (0..LANES).flat_map(|l| shader.fragments(l)).collect();
+            let by_lane: Vec<_> = (0..L).flat_map(|l| shader.fragments(l)).collect();
             assert_eq!(all, by_lane, "case {case}");
-            for l in 0..LANES {
+            for l in 0..L {
                 let lanes: Vec<_> = shader.fragments(l).collect();
                 if verdict.micro >> l & 1 == 0 {
                     assert!(lanes.is_empty(), "lane {l} is not a micro-triangle");
@@ -1067,10 +1062,7 @@ mod tests {
         assert!(compared > 20_000, "{compared} fragments compared");
         assert!(far > 500, "{far} samples beyond the far plane");
         // Batches of several packed passes, and triangles covering more than half their block.
-        assert!(
-            passes > 1000,
-            "{passes} batches of more than {LANES} samples"
-        );
+        assert!(passes > 1000, "{passes} batches of more than {L} samples");
         assert!(
             many > 10,
             "{many} batches with a triangle of more than 8 samples"
