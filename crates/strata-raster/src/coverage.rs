@@ -16,16 +16,26 @@
 //! OR-ed together.
 //!
 //! Pixel centres are at `(x + ½, y + ½)`. Triangles whose bounding box spans at most
-//! [`SMALL`] × [`SMALL`] pixel centres (most triangles of a dense mesh) get their coverage as one
-//! bitmask, computed once in setup; larger ones are scanned row by row, each row's covered span
-//! found exactly with one integer division per edge.
-
-use wide::i32x4;
+//! [`MICRO_W`] × [`MICRO_H`] pixel centres (most triangles of a dense mesh, and the slivers
+//! among the rest) get their coverage as one bitmask, computed once in setup; larger ones are
+//! scanned row by row, each row's covered span found exactly with one integer division per edge.
 
 use crate::vertex::{HALF, ONE, SUBPIXEL_BITS, ScreenPos};
 
-/// Bounding boxes of at most `SMALL × SMALL` pixel centres are covered by a bitmask.
-pub const SMALL: i32 = 4;
+/// Bounding boxes of at most `MICRO_W × MICRO_H` pixel centres are covered by a bitmask of
+/// `MICRO_W · MICRO_H` = 32 bits, bit `j · MICRO_W + i` for pixel offset `(i, j)`. Eight wide
+/// rather than four (the block was 4 × 4 before): on the full dragon, half of the triangles
+/// that missed a 4 × 4 block were slivers five to eight pixel centres wide and at most four
+/// high, and scanning each as a larger triangle cost about 130 ns.
+pub const MICRO_W: i32 = 8;
+
+/// See [`MICRO_W`].
+pub const MICRO_H: i32 = 4;
+
+/// Samples of a micro-triangle's block.
+pub const MICRO_SAMPLES: usize = (MICRO_W * MICRO_H) as usize;
+
+const _: () = assert!(MICRO_SAMPLES <= 32, "a micro-triangle's coverage is a u32");
 
 /// Twice the signed area of `abc` in fixed point (y down: positive for clockwise on screen).
 #[inline(always)]
@@ -192,7 +202,7 @@ impl Setup {
 /// What setup makes of a triangle.
 #[derive(Clone, Copy, Debug)]
 pub enum Triangle {
-    /// Bounding box of at most [`SMALL`] × [`SMALL`] pixel centres.
+    /// Bounding box of at most [`MICRO_W`] × [`MICRO_H`] pixel centres.
     Micro(Micro),
     /// Anything larger.
     Large(Setup),
@@ -206,7 +216,7 @@ impl Triangle {
         let [a, b, c] = pos;
         let bounds = pixel_bounds(a, b, c, width, height)?;
         let [x0, x1, y0, y1] = bounds;
-        if x1 - x0 < SMALL && y1 - y0 < SMALL && close_together(a, b, c) {
+        if x1 - x0 < MICRO_W && y1 - y0 < MICRO_H && close_together(a, b, c) {
             Micro::new(pos, bounds).map(Triangle::Micro)
         } else {
             Setup::new(pos, width, height).map(Triangle::Large)
@@ -214,23 +224,27 @@ impl Triangle {
     }
 }
 
-/// Largest vertex spread, in x and in y (fixed point), of a micro-triangle: 5 pixels less one
-/// step. Every triangle whose bounding box holds at most [`SMALL`] × [`SMALL`] pixel centres
-/// spreads less than 5 pixels; one whose box was cut to that size by the image's edges may
-/// spread up to the guard band, and its edge functions would overflow `i32`, so it is set up as
-/// a large triangle instead.
-pub const MICRO_SPREAD: i32 = (SMALL + 1) * ONE - 1;
+/// Largest vertex spread in x (fixed point) of a micro-triangle: [`MICRO_W`] + 1 pixels less
+/// one step. Every triangle whose bounding box holds at most [`MICRO_W`] × [`MICRO_H`] pixel
+/// centres spreads less than 9 × 5 pixels; one whose box was cut to that size by the image's
+/// edges may spread up to the guard band, and its edge functions would overflow `i32`, so it is
+/// set up as a large triangle instead.
+pub const MICRO_SPREAD_X: i32 = (MICRO_W + 1) * ONE - 1;
 
-/// True if the vertices spread at most [`MICRO_SPREAD`] in x and in y.
+/// Largest vertex spread in y of a micro-triangle; see [`MICRO_SPREAD_X`].
+pub const MICRO_SPREAD_Y: i32 = (MICRO_H + 1) * ONE - 1;
+
+/// True if the vertices spread at most [`MICRO_SPREAD_X`] in x and [`MICRO_SPREAD_Y`] in y.
 #[inline(always)]
 fn close_together(a: ScreenPos, b: ScreenPos, c: ScreenPos) -> bool {
     let spread = |p: i32, q: i32, r: i32| p.max(q).max(r) - p.min(q).min(r);
-    spread(a.x, b.x, c.x) <= MICRO_SPREAD && spread(a.y, b.y, c.y) <= MICRO_SPREAD
+    spread(a.x, b.x, c.x) <= MICRO_SPREAD_X && spread(a.y, b.y, c.y) <= MICRO_SPREAD_Y
 }
 
-/// A micro-triangle set up in `i32`: its vertices lie within 5 pixels of each other
-/// ([`MICRO_SPREAD`]) and of every sample of its 4 × 4 block, so twice its area stays below 2^21
-/// and every edge value below 2^23.
+/// A micro-triangle set up in `i32`: its vertices lie within 9 × 5 pixels of each other
+/// ([`MICRO_SPREAD_X`], [`MICRO_SPREAD_Y`]) and of every sample of its 8 × 4 block, so every
+/// edge value `ex·(sy − py) − ey·(sx − px)` stays below 2 · 9 · 5 · 256² < 2^23 and converts
+/// to `f32` exactly, and so does twice its area.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Micro {
     /// Which input vertex is vertex 0, 1, 2 after orientation.
@@ -285,28 +299,23 @@ impl Micro {
         })
     }
 
-    /// The coverage bitmask, bit `j * SMALL + i` for pixel offset `(i, j)`.
+    /// The coverage bitmask, bit `j * MICRO_W + i` for pixel offset `(i, j)`.
     ///
-    /// All 16 samples of the 4 × 4 block are evaluated branch-free, a row of four at a time in
-    /// `i32x4` lanes (SSE2 through the `wide` crate), then masked to the bounding box.
+    /// All 32 samples of the 8 × 4 block are evaluated branch-free, then masked to the bounding
+    /// box. (Setup covers micro-triangles in its lanes, [`Batch::classify`]; this serves the
+    /// scan's clipped pieces and the tests.)
     #[inline(always)]
     pub fn coverage(&self) -> u32 {
-        let lanes = |k: usize| {
-            let (e, d) = (self.e[k], self.dx[k]);
-            i32x4::new([e, e + d, e + 2 * d, e + 3 * d])
-        };
-        let mut rows = [lanes(0), lanes(1), lanes(2)];
-        let steps = self.dy.map(i32x4::splat);
-        let mut outside = 0u32;
-        for j in 0..4 {
-            // A sample is outside if any biased edge value is negative: OR the sign bits.
-            outside |= ((rows[0] | rows[1] | rows[2]).to_bitmask() & 0xf) << (4 * j);
-            for k in 0..3 {
-                rows[k] += steps[k];
+        let mut mask = 0u32;
+        for j in 0..MICRO_H {
+            for i in 0..MICRO_W {
+                // A sample is outside if any biased edge value is negative.
+                let v = |k: usize| self.e[k] + self.dx[k] * i + self.dy[k] * j;
+                mask |= u32::from((v(0) | v(1) | v(2)) >= 0) << (j * MICRO_W + i);
             }
         }
         let [x0, x1, y0, y1] = self.bounds;
-        !outside & box_mask(x1 - x0, y1 - y0)
+        mask & box_mask(x1 - x0, y1 - y0)
     }
 
     /// Barycentric numerators `E_k` of the sample at pixel offset `(i, j)`.
@@ -323,7 +332,7 @@ pub struct Verdict {
     pub outside: u32,
     /// Not outside, but a vertex crosses the near plane or the guard band: to be clipped.
     pub clip: u32,
-    /// Neither, and more than [`SMALL`] × [`SMALL`] pixel centres in the bounding box: to be set
+    /// Neither, and more than [`MICRO_W`] × [`MICRO_H`] pixel centres in the bounding box: to be set
     /// up in `i64` by [`Triangle::new`] and binned.
     pub large: u32,
     /// Micro-triangles that cover at least one sample; [`Batch::micro`] gives each one.
@@ -443,9 +452,9 @@ impl<const L: usize> Batch<L> {
             let (last_x, last_y) = (x1.wrapping_sub(x0), y1.wrapping_sub(y0));
             // Micro-sized, with the vertices close together (`close_together`: a box cut small by
             // the image's edges may hide vertices far outside it, too far for `i32`).
-            let close = max_x.wrapping_sub(min_x) <= MICRO_SPREAD
-                && max_y.wrapping_sub(min_y) <= MICRO_SPREAD;
-            let small = last_x < SMALL && last_y < SMALL && close;
+            let close = max_x.wrapping_sub(min_x) <= MICRO_SPREAD_X
+                && max_y.wrapping_sub(min_y) <= MICRO_SPREAD_Y;
+            let small = last_x < MICRO_W && last_y < MICRO_H && close;
             let candidate = !outside[l] && !clipped[l] && some;
             large[l] = candidate && !small;
             // Micro::new, lane by lane, in wrapping i32 (exact for micro-triangles).
@@ -481,22 +490,22 @@ impl<const L: usize> Batch<L> {
                 edge(cx, cy, ax, ay),
                 edge(ax, ay, bx, by),
             ];
-            // Coverage of the 4 × 4 block, then masked to the bounding box (`box_mask`, with
+            // Coverage of the 8 × 4 block, then masked to the bounding box (`box_mask`, with
             // the box clamped so that lanes that are not micro-triangles shift in range).
             let mut mask = 0u32;
-            for j in 0..SMALL {
-                for i in 0..SMALL {
+            for j in 0..MICRO_H {
+                for i in 0..MICRO_W {
                     let v = |k: usize| {
                         let (e, dx, dy, _) = edges[k];
                         e.wrapping_add(dx.wrapping_mul(i))
                             .wrapping_add(dy.wrapping_mul(j))
                     };
                     let inside = (v(0) | v(1) | v(2)) >= 0;
-                    mask |= u32::from(inside) << (j * SMALL + i);
+                    mask |= u32::from(inside) << (j * MICRO_W + i);
                 }
             }
-            let (bx, by) = (last_x.clamp(0, SMALL - 1), last_y.clamp(0, SMALL - 1));
-            mask &= ((2u32 << bx) - 1) * (0x1111 >> (SMALL * (SMALL - 1 - by)));
+            let (bx, by) = (last_x.clamp(0, MICRO_W - 1), last_y.clamp(0, MICRO_H - 1));
+            mask &= ((2u32 << bx) - 1) * (0x0101_0101 >> (MICRO_W * (MICRO_H - 1 - by)));
             micro[l] = candidate && small && area != 0 && mask != 0;
             self.swapped[l] = swap;
             self.area[l] = area.wrapping_abs();
@@ -596,11 +605,12 @@ pub(crate) struct MicroLanes<'a, const L: usize> {
     pub mask: &'a [u32; L],
 }
 
-/// Bits of the samples inside a box of `(last_x + 1) × (last_y + 1)` pixels.
+/// Bits of the samples inside a box of `(last_x + 1) × (last_y + 1)` pixels (at most
+/// [`MICRO_W`] × [`MICRO_H`]).
 #[inline(always)]
 fn box_mask(last_x: i32, last_y: i32) -> u32 {
-    let row = (1u32 << (last_x + 1)) - 1;
-    let rows = [row, row * 0x11, row * 0x111, row * 0x1111];
+    let row = (2u32 << last_x) - 1;
+    let rows = [row, row * 0x101, row * 0x1_0101, row * 0x101_0101];
     rows[last_y as usize]
 }
 
@@ -763,9 +773,9 @@ mod tests {
             let snap = |v: f32, on: bool| if on { (v * 2.0).round() / 2.0 } else { v };
             let on = rand(1.0) < 0.3;
             let t = [
-                pos(snap(base.0 + rand(5.0), on), snap(base.1 + rand(5.0), on)),
-                pos(snap(base.0 + rand(5.0), on), snap(base.1 + rand(5.0), on)),
-                pos(snap(base.0 + rand(5.0), on), snap(base.1 + rand(5.0), on)),
+                pos(snap(base.0 + rand(9.0), on), snap(base.1 + rand(5.0), on)),
+                pos(snap(base.0 + rand(9.0), on), snap(base.1 + rand(5.0), on)),
+                pos(snap(base.0 + rand(9.0), on), snap(base.1 + rand(5.0), on)),
             ];
             let Some(Triangle::Micro(micro)) = Triangle::new(t, 32, 32) else {
                 continue;
@@ -774,7 +784,7 @@ mod tests {
             let mask = micro.coverage();
             for y in y0..=y1 {
                 for x in x0..=x1 {
-                    let bit = (y - y0) * SMALL + (x - x0);
+                    let bit = (y - y0) * MICRO_W + (x - x0);
                     assert_eq!(
                         mask >> bit & 1 == 1,
                         covered(t, x, y),
@@ -792,7 +802,8 @@ mod tests {
     fn a_box_cut_small_by_the_image_edge_is_covered_exactly() {
         use crate::vertex::outcode;
         // Thin triangles entering a 40 × 30 image at its left edge from up to 60,000 pixels
-        // away, so their boxes of pixel centres in the image are at most 4 × 4 while their edge
+        // away, so their boxes of pixel centres in the image are at most 4 × 4 (or, from 6 pixels
+        // away, a micro-triangle's 9-pixel spread) while their edge
         // functions are far beyond i32 (they once overflowed as micro-triangles).
         let (w, h) = (40, 30);
         let mut tested = 0;
@@ -813,8 +824,8 @@ mod tests {
                         Some(Triangle::Micro(m)) => {
                             let [x0, _, y0, _] = m.bounds;
                             let mask = m.coverage();
-                            for bit in (0..16).filter(|b| mask >> b & 1 == 1) {
-                                one.push((x0 + bit % SMALL, y0 + bit / SMALL));
+                            for bit in (0..MICRO_SAMPLES as i32).filter(|b| mask >> b & 1 == 1) {
+                                one.push((x0 + bit % MICRO_W, y0 + bit / MICRO_W));
                             }
                             assert_eq!(v.micro != 0, mask != 0, "far {far}: batch and one differ");
                         }

@@ -24,8 +24,8 @@
 //!    A triangle entirely outside one view plane, with zero area, or covering no pixel centre is
 //!    culled; one that crosses the near plane or the guard band is clipped exactly in clip space
 //!    ([`clip`]). Triangles are classified in SIMD lanes, 16 at a time on AVX-512 and 8
-//!    elsewhere ([`lanes`], [`coverage::Batch`]). *Micro-triangles* (bounding box of at most 4 × 4 pixel centres,
-//!    vertices within 5 pixels) are finished here: exact coverage as a bitmask computed in the
+//!    elsewhere ([`lanes`], [`coverage::Batch`]). *Micro-triangles* (bounding box of at most
+//!    8 × 4 pixel centres, vertices within 9 × 5 pixels) are finished here: exact coverage as a bitmask computed in the
 //!    same lanes, shading in lanes too ([`shade_lanes`]), and 12-byte fragment records appended to per-strip lists. Larger
 //!    triangles and clipped pieces are copied with their vertices and appended to the bin of
 //!    every *strip* their rows touch, with a cursor into the strip's record list.

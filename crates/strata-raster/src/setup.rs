@@ -24,8 +24,9 @@
 //! A triangle is culled when its three vertices lie outside the same view-volume plane, when its
 //! fixed-point area is zero, or when it covers no pixel centre.
 //!
-//! **Micro-triangles** — bounding box of at most [`crate::coverage::SMALL`]² pixel centres and
-//! vertices within 5 pixels of each other ([`crate::coverage::MICRO_SPREAD`]), most triangles of
+//! **Micro-triangles** — bounding box of at most [`crate::coverage::MICRO_W`] ×
+//! [`crate::coverage::MICRO_H`] pixel centres (8 × 4) and vertices within 9 × 5 pixels of each
+//! other ([`crate::coverage::MICRO_SPREAD_X`], [`crate::coverage::MICRO_SPREAD_Y`]), most triangles of
 //! a dense mesh — are finished here, in `i32`: their exact coverage is one SIMD
 //! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
 //! are shaded at once, the batch's micro-triangles together in lanes ([`crate::shade_lanes`]),

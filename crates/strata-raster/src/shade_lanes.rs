@@ -70,18 +70,27 @@
 
 use strata_core::{Fragment, PackedNormal, Rgba8};
 
-use crate::coverage::{Batch, MicroLanes, SMALL};
+use crate::coverage::{Batch, MICRO_SAMPLES, MICRO_W, MicroLanes};
 use crate::lanes::Permute;
 use crate::scan::Shade;
 use crate::setup::PixelFragment;
 use crate::sink::FragmentSink;
 use crate::vertex::Attrs;
 
-/// The most samples a micro-triangle covers: its 4 × 4 block.
-const ROUNDS: usize = (SMALL * SMALL) as usize;
+/// The most samples a micro-triangle covers: its 8 × 4 block.
+const ROUNDS: usize = MICRO_SAMPLES;
 
-// Sample `bit` of the block is pixel offset `(bit & 3, bit >> 2)`.
-const _: () = assert!(SMALL == 4);
+// Sample `bit` of the block is pixel offset `(bit & 7, bit >> 3)`.
+const _: () = assert!(MICRO_W == 8);
+
+/// The block offset `(i, j)` of the sample whose bit is `low` (a single set bit, or 0 for no
+/// sample, which gives a value never used): the bit's index read off the exponent of `low` as
+/// an `f32` (exact for a power of two; the sign of bit 31 masked off), a form LLVM vectorises.
+#[inline(always)]
+fn sample_offset(low: u32) -> (i32, i32) {
+    let bit = (((low as i32 as f32).to_bits() >> 23) & 0xff) as i32 - 127;
+    (bit & (MICRO_W - 1), bit >> 3)
+}
 
 /// One pass's results (a round's or a packed pass's), a lane a sample.
 #[derive(Clone, Copy, Debug)]
@@ -468,8 +477,7 @@ fn round<const L: usize, const LIT: bool>(
     for l in 0..L {
         low[l] = mask[l] & mask[l].wrapping_neg();
         mask[l] &= mask[l].wrapping_sub(1);
-        let bit = ((low[l] as i32 as f32).to_bits() >> 23) as i32 - 127;
-        (i[l], j[l]) = (bit & (SMALL - 1), bit >> 2);
+        (i[l], j[l]) = sample_offset(low[l]);
     }
     // Barycentric weights: the edge values stepped to the sample, times 1 / area.
     let mut weight = [[0f32; L]; 3];
@@ -553,8 +561,7 @@ fn packed_pass<const L: usize, P: Permute<L>, const LIT: bool>(
     let mut j = [0i32; L];
     for l in 0..L {
         let low = mask[l] & mask[l].wrapping_neg();
-        let bit = ((low as i32 as f32).to_bits() >> 23) as i32 - 127;
-        (i[l], j[l]) = (bit & (SMALL - 1), bit >> 2);
+        (i[l], j[l]) = sample_offset(low);
     }
     let inv_area = permute.f32s(cx.inv_area, idx);
     let mut weight = [[0f32; L]; 3];
@@ -1002,12 +1009,16 @@ mod tests {
             let mut verts = Vec::new();
             for l in 0..L {
                 let (bx, by) = (rand.below(w as u32 * 256), rand.below(h as u32 * 256));
-                // Vertices up to 4 pixels apart, or (every other case) up to 5, the most a
-                // micro-triangle spreads: these cover up to the whole 4 × 4 block.
-                let spread = if case % 2 == 0 { 4 * 256 } else { 5 * 256 - 1 };
+                // Vertices up to 4 pixels apart, or (every other case) up to 9 in x and 5 in y,
+                // the most a micro-triangle spreads: these cover up to the whole 8 × 4 block.
+                let (sx, sy) = if case % 2 == 0 {
+                    (4 * 256, 4 * 256)
+                } else {
+                    (9 * 256 - 1, 5 * 256 - 1)
+                };
                 let mut v = || ScreenPos {
-                    x: bx + rand.below(spread) - spread as i32 / 2,
-                    y: by + rand.below(spread) - spread as i32 / 2,
+                    x: bx + rand.below(sx) - sx as i32 / 2,
+                    y: by + rand.below(sy) - sy as i32 / 2,
                 };
                 let pos = [v(), v(), v()];
                 batch.set(l, pos, [0; 3]);
@@ -1027,7 +1038,7 @@ mod tests {
                 lit,
             });
             passes += usize::from(shader.samples as usize > L);
-            many += usize::from(shader.counts.iter().any(|&c| c > 8));
+            many += usize::from(shader.counts.iter().any(|&c| c > 12));
             let mut all = Vec::new();
             shader.for_each_fragment(|row, f| all.push((row, f)));
             let by_lane: Vec<_> = (0..L).flat_map(|l| shader.fragments(l)).collect();
@@ -1065,7 +1076,7 @@ mod tests {
         assert!(passes > 1000, "{passes} batches of more than {L} samples");
         assert!(
             many > 10,
-            "{many} batches with a triangle of more than 8 samples"
+            "{many} batches with a triangle of more than 12 samples"
         );
     }
 }
