@@ -22,11 +22,13 @@
 
 use crate::vertex::{HALF, ONE, SUBPIXEL_BITS, ScreenPos};
 
-/// Bounding boxes of at most `MICRO_W × MICRO_H` pixel centres are covered by a bitmask of
-/// `MICRO_W · MICRO_H` = 32 bits, bit `j · MICRO_W + i` for pixel offset `(i, j)`. Eight wide
-/// rather than four (the block was 4 × 4 before): on the full dragon, half of the triangles
-/// that missed a 4 × 4 block were slivers five to eight pixel centres wide and at most four
-/// high, and scanning each as a larger triangle cost about 130 ns.
+/// Bounding boxes of at most `MICRO_W × MICRO_H` pixel centres (*wide* micro-triangles) or
+/// `MICRO_H × MICRO_W` (*tall* ones) are covered by a bitmask of `MICRO_W · MICRO_H` = 32
+/// bits, bit `r · MICRO_W + c` for offset `c` along the block's long side and `r` across it:
+/// pixel offset `(c, r)` in a wide block, `(r, c)` in a tall one ([`Micro::offset`]). Eight
+/// long rather than four (the block was 4 × 4 before): on the full dragon, 37,500 of the 40,000
+/// triangles that missed a 4 × 4 block were slivers five to eight pixel centres long and at
+/// most four across, and scanning each as a larger triangle cost about 130 ns.
 pub const MICRO_W: i32 = 8;
 
 /// See [`MICRO_W`].
@@ -202,7 +204,8 @@ impl Setup {
 /// What setup makes of a triangle.
 #[derive(Clone, Copy, Debug)]
 pub enum Triangle {
-    /// Bounding box of at most [`MICRO_W`] × [`MICRO_H`] pixel centres.
+    /// Bounding box of at most [`MICRO_W`] × [`MICRO_H`] or [`MICRO_H`] × [`MICRO_W`] pixel
+    /// centres.
     Micro(Micro),
     /// Anything larger.
     Large(Setup),
@@ -216,35 +219,55 @@ impl Triangle {
         let [a, b, c] = pos;
         let bounds = pixel_bounds(a, b, c, width, height)?;
         let [x0, x1, y0, y1] = bounds;
-        if x1 - x0 < MICRO_W && y1 - y0 < MICRO_H && close_together(a, b, c) {
-            Micro::new(pos, bounds).map(Triangle::Micro)
+        if let Some(tall) = micro_block(x1 - x0, y1 - y0, spreads(a, b, c)) {
+            Micro::new(pos, bounds, tall).map(Triangle::Micro)
         } else {
             Setup::new(pos, width, height).map(Triangle::Large)
         }
     }
 }
 
-/// Largest vertex spread in x (fixed point) of a micro-triangle: [`MICRO_W`] + 1 pixels less
-/// one step. Every triangle whose bounding box holds at most [`MICRO_W`] × [`MICRO_H`] pixel
-/// centres spreads less than 9 × 5 pixels; one whose box was cut to that size by the image's
-/// edges may spread up to the guard band, and its edge functions would overflow `i32`, so it is
-/// set up as a large triangle instead.
-pub const MICRO_SPREAD_X: i32 = (MICRO_W + 1) * ONE - 1;
+/// Largest vertex spread (fixed point) of a micro-triangle along its block's long side:
+/// [`MICRO_W`] + 1 pixels less one step. Every triangle whose bounding box holds at most
+/// [`MICRO_W`] × [`MICRO_H`] pixel centres spreads less than 9 × 5 pixels; one whose box was
+/// cut to that size by the image's edges may spread up to the guard band, and its edge
+/// functions would overflow `i32`, so it is set up as a large triangle instead.
+pub const MICRO_SPREAD_LONG: i32 = (MICRO_W + 1) * ONE - 1;
 
-/// Largest vertex spread in y of a micro-triangle; see [`MICRO_SPREAD_X`].
-pub const MICRO_SPREAD_Y: i32 = (MICRO_H + 1) * ONE - 1;
+/// Largest vertex spread across a micro-triangle's block; see [`MICRO_SPREAD_LONG`].
+pub const MICRO_SPREAD_SHORT: i32 = (MICRO_H + 1) * ONE - 1;
 
-/// True if the vertices spread at most [`MICRO_SPREAD_X`] in x and [`MICRO_SPREAD_Y`] in y.
+/// The vertices' spread in x and in y.
 #[inline(always)]
-fn close_together(a: ScreenPos, b: ScreenPos, c: ScreenPos) -> bool {
+fn spreads(a: ScreenPos, b: ScreenPos, c: ScreenPos) -> (i32, i32) {
     let spread = |p: i32, q: i32, r: i32| p.max(q).max(r) - p.min(q).min(r);
-    spread(a.x, b.x, c.x) <= MICRO_SPREAD_X && spread(a.y, b.y, c.y) <= MICRO_SPREAD_Y
+    (spread(a.x, b.x, c.x), spread(a.y, b.y, c.y))
 }
 
-/// A micro-triangle set up in `i32`: its vertices lie within 9 × 5 pixels of each other
-/// ([`MICRO_SPREAD_X`], [`MICRO_SPREAD_Y`]) and of every sample of its 8 × 4 block, so every
-/// edge value `ex·(sy − py) − ey·(sx − px)` stays below 2 · 9 · 5 · 256² < 2^23 and converts
-/// to `f32` exactly, and so does twice its area.
+/// Which block a triangle with a box of `(last_x + 1) × (last_y + 1)` pixel centres and vertex
+/// spreads `(sx, sy)` is covered in: `Some(false)` wide (preferred), `Some(true)` tall, `None`
+/// if it is not a micro-triangle. [`Batch::classify`] decides the same lane by lane.
+#[inline(always)]
+fn micro_block(last_x: i32, last_y: i32, (sx, sy): (i32, i32)) -> Option<bool> {
+    let fits = |last_long: i32, last_short: i32, s_long: i32, s_short: i32| {
+        last_long < MICRO_W
+            && last_short < MICRO_H
+            && s_long <= MICRO_SPREAD_LONG
+            && s_short <= MICRO_SPREAD_SHORT
+    };
+    if fits(last_x, last_y, sx, sy) {
+        Some(false)
+    } else if fits(last_y, last_x, sy, sx) {
+        Some(true)
+    } else {
+        None
+    }
+}
+
+/// A micro-triangle set up in `i32`: its vertices lie within 9 × 5 pixels (or 5 × 9) of each
+/// other ([`MICRO_SPREAD_LONG`], [`MICRO_SPREAD_SHORT`]) and of every sample of its block, so
+/// every edge value `ex·(sy − py) − ey·(sx − px)` stays below 2 · 9 · 5 · 256² < 2^23 and
+/// converts to `f32` exactly, and so does twice its area.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Micro {
     /// Which input vertex is vertex 0, 1, 2 after orientation.
@@ -253,6 +276,8 @@ pub struct Micro {
     pub area: i32,
     /// Pixel bounds `[x0, x1, y0, y1]`, inclusive.
     pub bounds: [i32; 4],
+    /// Covered in a tall block (long side vertical) rather than a wide one; see [`MICRO_W`].
+    pub tall: bool,
     /// Biased edge values at the centre of pixel `(x0, y0)`.
     e: [i32; 3],
     dx: [i32; 3],
@@ -262,7 +287,7 @@ pub struct Micro {
 
 impl Micro {
     #[inline(always)]
-    fn new(pos: [ScreenPos; 3], bounds: [i32; 4]) -> Option<Micro> {
+    fn new(pos: [ScreenPos; 3], bounds: [i32; 4], tall: bool) -> Option<Micro> {
         let [a, b, c] = pos;
         let area = (b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y);
         if area == 0 {
@@ -292,6 +317,7 @@ impl Micro {
             order,
             area,
             bounds,
+            tall,
             e: [e0, e1, e2],
             dx: [dx0, dx1, dx2],
             dy: [dy0, dy1, dy2],
@@ -299,23 +325,42 @@ impl Micro {
         })
     }
 
-    /// The coverage bitmask, bit `j * MICRO_W + i` for pixel offset `(i, j)`.
+    /// The pixel offset `(i, j)` from the box's first pixel of the sample of bit `bit`.
+    #[inline(always)]
+    pub fn offset(&self, bit: i32) -> (i32, i32) {
+        let (c, r) = (bit % MICRO_W, bit / MICRO_W);
+        if self.tall { (r, c) } else { (c, r) }
+    }
+
+    /// The coverage bitmask, bit `r * MICRO_W + c` for the sample at [`Micro::offset`].
     ///
-    /// All 32 samples of the 8 × 4 block are evaluated branch-free, then masked to the bounding
-    /// box. (Setup covers micro-triangles in its lanes, [`Batch::classify`]; this serves the
-    /// scan's clipped pieces and the tests.)
+    /// All 32 samples of the block are evaluated branch-free, then masked to the bounding box.
+    /// (Setup covers micro-triangles in its lanes, [`Batch::classify`]; this serves the scan's
+    /// clipped pieces and the tests.)
     #[inline(always)]
     pub fn coverage(&self) -> u32 {
         let mut mask = 0u32;
-        for j in 0..MICRO_H {
-            for i in 0..MICRO_W {
-                // A sample is outside if any biased edge value is negative.
-                let v = |k: usize| self.e[k] + self.dx[k] * i + self.dy[k] * j;
-                mask |= u32::from((v(0) | v(1) | v(2)) >= 0) << (j * MICRO_W + i);
-            }
+        for bit in 0..MICRO_SAMPLES as i32 {
+            // A sample is outside if any biased edge value is negative.
+            let (i, j) = self.offset(bit);
+            let v = |k: usize| self.e[k] + self.dx[k] * i + self.dy[k] * j;
+            mask |= u32::from((v(0) | v(1) | v(2)) >= 0) << bit;
         }
         let [x0, x1, y0, y1] = self.bounds;
-        mask & box_mask(x1 - x0, y1 - y0)
+        let (along, across) = if self.tall {
+            (y1 - y0, x1 - x0)
+        } else {
+            (x1 - x0, y1 - y0)
+        };
+        mask & box_mask(along, across)
+    }
+
+    /// The bits of `mask` whose samples lie in the box's rows `j0..=j1` (offsets from its first).
+    pub fn rows(&self, mask: u32, j0: i32, j1: i32) -> u32 {
+        (0..MICRO_SAMPLES as i32)
+            .filter(|&bit| (j0..=j1).contains(&self.offset(bit).1))
+            .fold(0, |m, bit| m | 1 << bit)
+            & mask
     }
 
     /// Barycentric numerators `E_k` of the sample at pixel offset `(i, j)`.
@@ -366,6 +411,8 @@ pub struct Batch<const L: usize> {
     code_or: [u32; L],
     // Micro-triangle set-up, valid in `Verdict::micro` lanes.
     swapped: [bool; L],
+    /// 1 for a tall block, 0 for a wide one ([`Micro::tall`]).
+    tall: [u32; L],
     area: [i32; L],
     bounds: [[i32; L]; 4],
     e: [[i32; L]; 3],
@@ -386,6 +433,7 @@ impl<const L: usize> Default for Batch<L> {
             code_and: [0; L],
             code_or: [0; L],
             swapped: [false; L],
+            tall: [0; L],
             area: [0; L],
             bounds: [[0; L]; 4],
             e: [[0; L]; 3],
@@ -450,11 +498,19 @@ impl<const L: usize> Batch<L> {
             let y1 = (max_y.wrapping_sub(HALF) >> SUBPIXEL_BITS).min(height - 1);
             let some = x0 <= x1 && y0 <= y1;
             let (last_x, last_y) = (x1.wrapping_sub(x0), y1.wrapping_sub(y0));
-            // Micro-sized, with the vertices close together (`close_together`: a box cut small by
-            // the image's edges may hide vertices far outside it, too far for `i32`).
-            let close = max_x.wrapping_sub(min_x) <= MICRO_SPREAD_X
-                && max_y.wrapping_sub(min_y) <= MICRO_SPREAD_Y;
-            let small = last_x < MICRO_W && last_y < MICRO_H && close;
+            // Micro-sized, wide or tall, with the vertices close together (`micro_block`: a box
+            // cut small by the image's edges may hide vertices far outside it, too far for
+            // `i32`).
+            let (sx_, sy_) = (max_x.wrapping_sub(min_x), max_y.wrapping_sub(min_y));
+            let fits = |last_long: i32, last_short: i32, s_long: i32, s_short: i32| {
+                last_long < MICRO_W
+                    && last_short < MICRO_H
+                    && s_long <= MICRO_SPREAD_LONG
+                    && s_short <= MICRO_SPREAD_SHORT
+            };
+            let wide = fits(last_x, last_y, sx_, sy_);
+            let tall = !wide && fits(last_y, last_x, sy_, sx_);
+            let small = wide || tall;
             let candidate = !outside[l] && !clipped[l] && some;
             large[l] = candidate && !small;
             // Micro::new, lane by lane, in wrapping i32 (exact for micro-triangles).
@@ -490,24 +546,42 @@ impl<const L: usize> Batch<L> {
                 edge(cx, cy, ax, ay),
                 edge(ax, ay, bx, by),
             ];
-            // Coverage of the 8 × 4 block, then masked to the bounding box (`box_mask`, with
-            // the box clamped so that lanes that are not micro-triangles shift in range).
+            // Coverage of the block, 8 samples along its long side (x if wide, y if tall) by 4
+            // across, then masked to the bounding box (`box_mask`, with the box clamped so that
+            // lanes that are not micro-triangles shift in range). The steps along and across
+            // are chosen per lane, so the loop is the same for both shapes.
+            let step = |k: usize| {
+                let (_, dx, dy, _) = edges[k];
+                if tall { (dy, dx) } else { (dx, dy) }
+            };
+            let steps = [step(0), step(1), step(2)];
             let mut mask = 0u32;
-            for j in 0..MICRO_H {
-                for i in 0..MICRO_W {
+            for r in 0..MICRO_H {
+                for c in 0..MICRO_W {
                     let v = |k: usize| {
-                        let (e, dx, dy, _) = edges[k];
-                        e.wrapping_add(dx.wrapping_mul(i))
-                            .wrapping_add(dy.wrapping_mul(j))
+                        let (along, across) = steps[k];
+                        edges[k]
+                            .0
+                            .wrapping_add(along.wrapping_mul(c))
+                            .wrapping_add(across.wrapping_mul(r))
                     };
                     let inside = (v(0) | v(1) | v(2)) >= 0;
-                    mask |= u32::from(inside) << (j * MICRO_W + i);
+                    mask |= u32::from(inside) << (r * MICRO_W + c);
                 }
             }
-            let (bx, by) = (last_x.clamp(0, MICRO_W - 1), last_y.clamp(0, MICRO_H - 1));
+            let (last_long, last_short) = if tall {
+                (last_y, last_x)
+            } else {
+                (last_x, last_y)
+            };
+            let (bx, by) = (
+                last_long.clamp(0, MICRO_W - 1),
+                last_short.clamp(0, MICRO_H - 1),
+            );
             mask &= ((2u32 << bx) - 1) * (0x0101_0101 >> (MICRO_W * (MICRO_H - 1 - by)));
             micro[l] = candidate && small && area != 0 && mask != 0;
             self.swapped[l] = swap;
+            self.tall[l] = u32::from(tall);
             self.area[l] = area.wrapping_abs();
             self.bounds[0][l] = x0;
             self.bounds[1][l] = x1;
@@ -545,6 +619,7 @@ impl<const L: usize> Batch<L> {
     pub(crate) fn micro_lanes(&self) -> MicroLanes<'_, L> {
         MicroLanes {
             swapped: &self.swapped,
+            tall: &self.tall,
             area: &self.area,
             x0: &self.bounds[0],
             y0: &self.bounds[2],
@@ -576,6 +651,7 @@ impl<const L: usize> Batch<L> {
                     self.bounds[2][l],
                     self.bounds[3][l],
                 ],
+                tall: self.tall[l] != 0,
                 e: [self.e[0][l], self.e[1][l], self.e[2][l]],
                 dx: [self.dx[0][l], self.dx[1][l], self.dx[2][l]],
                 dy: [self.dy[0][l], self.dy[1][l], self.dy[2][l]],
@@ -592,6 +668,8 @@ impl<const L: usize> Batch<L> {
 pub(crate) struct MicroLanes<'a, const L: usize> {
     /// Vertices 1 and 2 exchanged to orient the triangle ([`Micro::order`] is `[0, 2, 1]`).
     pub swapped: &'a [bool; L],
+    /// 1 where the block is tall: a sample's offset along the block is its `y` offset.
+    pub tall: &'a [u32; L],
     /// Twice the area, > 0.
     pub area: &'a [i32; L],
     /// The first pixel of the bounding box.
@@ -605,13 +683,13 @@ pub(crate) struct MicroLanes<'a, const L: usize> {
     pub mask: &'a [u32; L],
 }
 
-/// Bits of the samples inside a box of `(last_x + 1) × (last_y + 1)` pixels (at most
-/// [`MICRO_W`] × [`MICRO_H`]).
+/// Bits of the samples inside a box of `last_long + 1` samples along a block and
+/// `last_short + 1` across it (at most [`MICRO_W`] × [`MICRO_H`]).
 #[inline(always)]
-fn box_mask(last_x: i32, last_y: i32) -> u32 {
-    let row = (2u32 << last_x) - 1;
+fn box_mask(last_long: i32, last_short: i32) -> u32 {
+    let row = (2u32 << last_long) - 1;
     let rows = [row, row * 0x101, row * 0x1_0101, row * 0x101_0101];
-    rows[last_y as usize]
+    rows[last_short as usize]
 }
 
 #[cfg(test)]
@@ -693,15 +771,22 @@ mod tests {
             for l in 0..lanes {
                 // Mostly micro-sized triangles near the image (some off its edges, some between
                 // pixel centres, some degenerate), and now and then a large one, one far outside
-                // the image or one with clip and view outcodes.
-                let spread = [2, 5, 9, 60, 3000][rand(5) as usize] * 256;
+                // the image or one with clip and view outcodes; spreads in x and y drawn apart,
+                // so that wide and tall slivers occur.
+                let spreads = [2, 5, 9, 60, 3000];
+                let sx = spreads[rand(5) as usize] * 256;
+                let sy = if rand(2) == 0 {
+                    sx
+                } else {
+                    spreads[rand(5) as usize] * 256
+                };
                 let (bx, by) = (
                     rand(50 * 256) as i32 - 5 * 256,
                     rand(40 * 256) as i32 - 5 * 256,
                 );
                 let mut v = || ScreenPos {
-                    x: bx + rand(spread) as i32 - spread as i32 / 2,
-                    y: by + rand(spread) as i32 - spread as i32 / 2,
+                    x: bx + rand(sx) as i32 - sx as i32 / 2,
+                    y: by + rand(sy) as i32 - sy as i32 / 2,
                 };
                 let mut t = [v(), v(), v()];
                 if rand(10) == 0 {
@@ -766,36 +851,50 @@ mod tests {
             seed ^= seed << 17;
             (seed >> 40) as f32 / (1u64 << 24) as f32 * scale
         };
-        let mut tested = 0;
-        for _ in 0..20_000 {
+        let (mut tested, mut tall) = (0, 0);
+        for case in 0..30_000 {
             let base = (rand(20.0), rand(20.0));
-            // Vertices on exact half-pixel positions now and then, to hit the tie rule.
+            // Vertices on exact half-pixel positions now and then, to hit the tie rule; spread
+            // up to 9 pixels along x (wide blocks) or, every third case, along y (tall ones).
             let snap = |v: f32, on: bool| if on { (v * 2.0).round() / 2.0 } else { v };
             let on = rand(1.0) < 0.3;
+            let (sx, sy) = if case % 3 == 0 {
+                (5.0, 9.0)
+            } else {
+                (9.0, 5.0)
+            };
             let t = [
-                pos(snap(base.0 + rand(9.0), on), snap(base.1 + rand(5.0), on)),
-                pos(snap(base.0 + rand(9.0), on), snap(base.1 + rand(5.0), on)),
-                pos(snap(base.0 + rand(9.0), on), snap(base.1 + rand(5.0), on)),
+                pos(snap(base.0 + rand(sx), on), snap(base.1 + rand(sy), on)),
+                pos(snap(base.0 + rand(sx), on), snap(base.1 + rand(sy), on)),
+                pos(snap(base.0 + rand(sx), on), snap(base.1 + rand(sy), on)),
             ];
             let Some(Triangle::Micro(micro)) = Triangle::new(t, 32, 32) else {
                 continue;
             };
             let [x0, x1, y0, y1] = micro.bounds;
             let mask = micro.coverage();
-            for y in y0..=y1 {
-                for x in x0..=x1 {
-                    let bit = (y - y0) * MICRO_W + (x - x0);
-                    assert_eq!(
-                        mask >> bit & 1 == 1,
-                        covered(t, x, y),
-                        "{t:?} at ({x}, {y})"
-                    );
+            let mut inside = 0u32;
+            for bit in 0..MICRO_SAMPLES as i32 {
+                let (i, j) = micro.offset(bit);
+                let (x, y) = (x0 + i, y0 + j);
+                if x > x1 || y > y1 {
+                    continue;
                 }
+                inside |= 1 << bit;
+                assert_eq!(
+                    mask >> bit & 1 == 1,
+                    covered(t, x, y),
+                    "{t:?} at ({x}, {y})"
+                );
             }
-            assert_eq!(mask & !box_mask(x1 - x0, y1 - y0), 0);
+            // Every pixel of the box has its bit, and no bit lies outside the box.
+            assert_eq!(inside.count_ones() as i32, (x1 - x0 + 1) * (y1 - y0 + 1));
+            assert_eq!(mask & !inside, 0);
             tested += 1;
+            tall += usize::from(micro.tall);
         }
         assert!(tested > 5_000, "{tested}");
+        assert!(tall > 1_000, "{tall} tall blocks");
     }
 
     #[test]
@@ -825,7 +924,8 @@ mod tests {
                             let [x0, _, y0, _] = m.bounds;
                             let mask = m.coverage();
                             for bit in (0..MICRO_SAMPLES as i32).filter(|b| mask >> b & 1 == 1) {
-                                one.push((x0 + bit % MICRO_W, y0 + bit / MICRO_W));
+                                let (i, j) = m.offset(bit);
+                                one.push((x0 + i, y0 + j));
                             }
                             assert_eq!(v.micro != 0, mask != 0, "far {far}: batch and one differ");
                         }
@@ -849,6 +949,8 @@ mod tests {
                             }
                         }
                     }
+                    // Row by row, as `want` is (a tall block's bits run down its columns).
+                    one.sort_by_key(|&(x, y)| (y, x));
                     assert_eq!(one, want, "far {far}, top {top}, height {height}");
                     tested += usize::from(!want.is_empty());
                 }

@@ -25,7 +25,7 @@
 //!    culled; one that crosses the near plane or the guard band is clipped exactly in clip space
 //!    ([`clip`]). Triangles are classified in SIMD lanes, 16 at a time on AVX-512 and 8
 //!    elsewhere ([`lanes`], [`coverage::Batch`]). *Micro-triangles* (bounding box of at most
-//!    8 × 4 pixel centres, vertices within 9 × 5 pixels) are finished here: exact coverage as a bitmask computed in the
+//!    8 × 4 or 4 × 8 pixel centres, vertices within 9 × 5 or 5 × 9 pixels) are finished here: exact coverage as a bitmask computed in the
 //!    same lanes, shading in lanes too ([`shade_lanes`]), and 12-byte fragment records appended to per-strip lists. Larger
 //!    triangles and clipped pieces are copied with their vertices and appended to the bin of
 //!    every *strip* their rows touch, with a cursor into the strip's record list.

@@ -20,7 +20,7 @@ use glam::Vec3A;
 use strata_core::material::headlight_rgba;
 use strata_core::{Fragment, ObjectId, PackedNormal, Rgba8};
 
-use crate::coverage::{Edges, MICRO_W, Micro, Setup, Triangle};
+use crate::coverage::{Edges, Micro, Setup, Triangle};
 use crate::shade_lanes::SpanShader;
 use crate::sink::FragmentSink;
 use crate::vertex::{Attrs, ScreenPos};
@@ -138,7 +138,7 @@ pub fn shade_small<const LIT: bool>(
     while mask != 0 {
         let bit = mask.trailing_zeros() as i32;
         mask &= mask - 1;
-        let (i, j) = (bit % MICRO_W, bit / MICRO_W);
+        let (i, j) = t.offset(bit);
         if let Some(f) = interp.fragment::<LIT>(t.weights(i, j), shade) {
             out(y0 + j, first + j as u32 * width as u32 + i as u32, f);
         }
@@ -174,12 +174,10 @@ pub fn scan_triangle<S: FragmentSink, const LIT: bool, const L: usize>(
                 return 0;
             }
             // Keep the samples in this strip's rows.
-            let rows_mask = (((1u64 << ((y1 - by0 + 1) * MICRO_W)) - 1)
-                & !((1u64 << ((y0 - by0) * MICRO_W)) - 1)) as u32;
             shade_small::<LIT>(
                 &t,
                 attrs,
-                t.coverage() & rows_mask,
+                t.rows(t.coverage(), y0 - by0, y1 - by0),
                 width,
                 shade,
                 |_, pixel, f| {

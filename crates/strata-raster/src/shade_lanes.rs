@@ -83,13 +83,15 @@ const ROUNDS: usize = MICRO_SAMPLES;
 // Sample `bit` of the block is pixel offset `(bit & 7, bit >> 3)`.
 const _: () = assert!(MICRO_W == 8);
 
-/// The block offset `(i, j)` of the sample whose bit is `low` (a single set bit, or 0 for no
-/// sample, which gives a value never used): the bit's index read off the exponent of `low` as
-/// an `f32` (exact for a power of two; the sign of bit 31 masked off), a form LLVM vectorises.
+/// The pixel offset `(i, j)` in its box of the sample whose bit is `low` (a single set bit, or 0
+/// for no sample, which gives a value never used), in a tall block if `tall` is 1
+/// ([`crate::coverage::Micro::offset`]): the bit's index read off the exponent of `low` as an
+/// `f32` (exact for a power of two; the sign of bit 31 masked off), a form LLVM vectorises.
 #[inline(always)]
-fn sample_offset(low: u32) -> (i32, i32) {
+fn sample_offset(low: u32, tall: u32) -> (i32, i32) {
     let bit = (((low as i32 as f32).to_bits() >> 23) & 0xff) as i32 - 127;
-    (bit & (MICRO_W - 1), bit >> 3)
+    let (c, r) = (bit & (MICRO_W - 1), bit >> 3);
+    if tall != 0 { (r, c) } else { (c, r) }
 }
 
 /// One pass's results (a round's or a packed pass's), a lane a sample.
@@ -469,7 +471,7 @@ fn round<const L: usize, const LIT: bool>(
 ) -> Round<L> {
     let v = cx.vertices;
     // The lowest remaining sample of each lane: its bit index from the exponent of the
-    // isolated bit (exact in f32 for 16-bit masks). Small loops of one kind of work each,
+    // isolated bit (exact in f32 for any power of two). Small loops of one kind of work each,
     // so that LLVM vectorises every one.
     let mut low = [0u32; L];
     let mut i = [0i32; L];
@@ -477,7 +479,7 @@ fn round<const L: usize, const LIT: bool>(
     for l in 0..L {
         low[l] = mask[l] & mask[l].wrapping_neg();
         mask[l] &= mask[l].wrapping_sub(1);
-        (i[l], j[l]) = sample_offset(low[l]);
+        (i[l], j[l]) = sample_offset(low[l], cx.lanes.tall[l]);
     }
     // Barycentric weights: the edge values stepped to the sample, times 1 / area.
     let mut weight = [[0f32; L]; 3];
@@ -557,11 +559,12 @@ fn packed_pass<const L: usize, P: Permute<L>, const LIT: bool>(
             mask[l] = if r <= rank[l] { drop } else { mask[l] };
         }
     }
+    let tall = permute.u32s(*cx.lanes.tall, idx);
     let mut i = [0i32; L];
     let mut j = [0i32; L];
     for l in 0..L {
         let low = mask[l] & mask[l].wrapping_neg();
-        (i[l], j[l]) = sample_offset(low);
+        (i[l], j[l]) = sample_offset(low, tall[l]);
     }
     let inv_area = permute.f32s(cx.inv_area, idx);
     let mut weight = [[0f32; L]; 3];
@@ -997,6 +1000,7 @@ mod tests {
             (true, true),  // packed normals
         ];
         let (mut compared, mut far, mut passes, mut many) = (0usize, 0usize, 0usize, 0usize);
+        let mut tall = 0usize;
         for case in 0..3000 {
             let (lit, packed) = shades[case % 3];
             let shade = Shade {
@@ -1009,12 +1013,12 @@ mod tests {
             let mut verts = Vec::new();
             for l in 0..L {
                 let (bx, by) = (rand.below(w as u32 * 256), rand.below(h as u32 * 256));
-                // Vertices up to 4 pixels apart, or (every other case) up to 9 in x and 5 in y,
-                // the most a micro-triangle spreads: these cover up to the whole 8 × 4 block.
-                let (sx, sy) = if case % 2 == 0 {
-                    (4 * 256, 4 * 256)
-                } else {
-                    (9 * 256 - 1, 5 * 256 - 1)
+                // Vertices up to 4 pixels apart, or up to 9 in x and 5 in y, or 5 and 9, the
+                // most a micro-triangle spreads: these cover up to the whole block, wide or tall.
+                let (sx, sy) = match case / 3 % 3 {
+                    0 => (4 * 256, 4 * 256),
+                    1 => (9 * 256 - 1, 5 * 256 - 1),
+                    _ => (5 * 256 - 1, 9 * 256 - 1),
                 };
                 let mut v = || ScreenPos {
                     x: bx + rand.below(sx) - sx as i32 / 2,
@@ -1050,6 +1054,7 @@ mod tests {
                     continue;
                 }
                 let (tri, mask) = batch.micro(l);
+                tall += usize::from(tri.tall);
                 let mut one = Vec::new();
                 let mut push = |row, pixel, f: strata_core::Fragment| {
                     one.push((row, PixelFragment::new(pixel, f)));
@@ -1071,6 +1076,7 @@ mod tests {
         }
         // The cases must have exercised what they claim to.
         assert!(compared > 20_000, "{compared} fragments compared");
+        assert!(tall > 1_000, "{tall} micro-triangles in tall blocks");
         assert!(far > 500, "{far} samples beyond the far plane");
         // Batches of several packed passes, and triangles covering more than half their block.
         assert!(passes > 1000, "{passes} batches of more than {L} samples");
