@@ -14,7 +14,13 @@
 //!
 //! A batch of 16 triangles is one register a quantity on AVX-512, so classifying it and shading
 //! its samples take about the instructions a batch of 8 took on AVX2, for twice the triangles.
-//! On the full dragon (one thread, Intel Xeon with AVX-512) that took setup from 24 to 19 ms.
+//! On the full dragon (one thread, Intel Xeon with AVX-512) that took setup from 20–22 to
+//! 15–16 ms.
+//!
+//! `STRATA_LANES=8` in the environment makes a CPU with AVX-512 run the AVX2 path instead, so
+//! that the two widths can be compared in one binary on one machine (a CPU that splits 512-bit
+//! operations in two, such as AMD's Zen 4, may gain less from sixteen). The frames are the same
+//! either way.
 //!
 //! # Permutes
 //!
@@ -148,13 +154,13 @@ pub trait LaneJob {
 }
 
 /// Runs `job` compiled for the widest instruction set the CPU has, at that set's lane width (see
-/// the table in the module docs).
+/// the table in the module docs), or for AVX2 where `STRATA_LANES=8` asks for eight lanes.
 #[inline]
 pub fn dispatch<J: LaneJob>(job: J) -> J::Output {
     #[cfg(target_arch = "x86_64")]
     {
         // `Simd::vectorize`, not the types' own `vectorize`, which takes a closure.
-        if let Some(v4) = pulp::x86::V4::try_new() {
+        if let Some(v4) = pulp::x86::V4::try_new().filter(|_| !eight_lanes_asked()) {
             return pulp::Simd::vectorize(v4, Compiled::<J, 16, _> { job, permute: v4 });
         }
         if let Some(v3) = pulp::x86::V3::try_new() {
@@ -165,6 +171,12 @@ pub fn dispatch<J: LaneJob>(job: J) -> J::Output {
         job,
         permute: Rounds,
     })
+}
+
+/// True if the environment asks for eight lanes (`STRATA_LANES=8`); read once.
+fn eight_lanes_asked() -> bool {
+    static ASKED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ASKED.get_or_init(|| std::env::var_os("STRATA_LANES").is_some_and(|v| v == "8"))
 }
 
 /// A [`LaneJob`] with its width and permute, for [`pulp::Simd::vectorize`].
@@ -233,7 +245,7 @@ mod tests {
         let got = dispatch(Width);
         #[cfg(target_arch = "x86_64")]
         {
-            let want = if pulp::x86::V4::try_new().is_some() {
+            let want = if pulp::x86::V4::try_new().is_some() && !eight_lanes_asked() {
                 (16, true)
             } else if pulp::x86::V3::try_new().is_some() {
                 (8, true)

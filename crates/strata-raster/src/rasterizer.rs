@@ -69,7 +69,7 @@ impl Rasterizer {
     /// # Panics
     /// If `strip_height` is not a power of two, or `chunk_triangles` is zero or ≥ 2^27 (a bin
     /// entry holds a chunk's binned pieces, up to six a triangle, and its strip's micro-triangle
-    /// fragments, up to 16 a triangle, in 32 bits each).
+    /// fragments, up to 32 a triangle, in 32 bits each: (2^27 − 1) · 32 < 2^32).
     pub fn new(config: RasterConfig) -> Self {
         assert!(
             config.strip_height.is_power_of_two(),

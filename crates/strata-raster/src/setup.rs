@@ -28,8 +28,8 @@
 //! [`crate::coverage::MICRO_H`] pixel centres (8 × 4, *wide*) or 4 × 8 (*tall*), vertices
 //! within 9 × 5 (or 5 × 9) pixels of each other ([`crate::coverage::MICRO_SPREAD_LONG`],
 //! [`crate::coverage::MICRO_SPREAD_SHORT`]): most triangles of a dense mesh, and nearly all of
-//! the full dragon's slivers — are finished here, in `i32`: their exact coverage is one SIMD
-//! bitmask ([`crate::coverage::Micro::coverage`]), a third of the full dragon's cover nothing and stop there, and the rest
+//! the full dragon's slivers — are finished here, in `i32`: their exact coverage is one
+//! bitmask computed in SIMD lanes ([`crate::coverage::Batch::classify`]), a third of the full dragon's cover nothing and stop there, and the rest
 //! are shaded at once, the batch's micro-triangles together in lanes ([`crate::shade_lanes`]),
 //! their fragments appended to the strip lists as 12-byte records (pixel index, depth, colour). Setup has
 //! their vertices in registers already; binning them instead would make the scan load and set up

@@ -39,7 +39,7 @@
 //!   inv_area           1 / twice the area
 //!   z[k]               window depth of vertex k
 //!   n[k][c], p[k][c]   component c of n_w and p_w of vertex k (lit objects)
-//! outputs, per pass r < 16 and lane (output s is lane s % L of pass s / L):
+//! outputs, per pass r < 32 and lane (output s is lane s % L of pass s / L):
 //!   pixel, row, depth, colour, kept (a covered sample in front of the far plane)
 //!   sample r of lane l is output first[l] + r·stride: packed, first[l] is the number of
 //!   samples of the lanes before it and stride 1; in rounds, first[l] = l and stride L
@@ -80,7 +80,7 @@ use crate::vertex::Attrs;
 /// The most samples a micro-triangle covers: its 8 × 4 block.
 const ROUNDS: usize = MICRO_SAMPLES;
 
-// Sample `bit` of the block is pixel offset `(bit & 7, bit >> 3)`.
+// Sample `bit` of a block is `bit & 7` along it and `bit >> 3` across (`sample_offset`).
 const _: () = assert!(MICRO_W == 8);
 
 /// The pixel offset `(i, j)` in its box of the sample whose bit is `low` (a single set bit, or 0
@@ -161,7 +161,7 @@ pub struct MicroShader<const L: usize, P> {
     /// Covered samples of all lanes.
     samples: u32,
     /// The outputs, `L` a pass: output `s` is lane `s % L` of pass `s / L`. A batch covers
-    /// at most `16 · L` samples (16 a micro-triangle).
+    /// at most `32 · L` samples (32 a micro-triangle).
     passes: [Round<L>; ROUNDS],
     permute: P,
 }
@@ -1000,7 +1000,7 @@ mod tests {
             (true, true),  // packed normals
         ];
         let (mut compared, mut far, mut passes, mut many) = (0usize, 0usize, 0usize, 0usize);
-        let mut tall = 0usize;
+        let (mut tall, mut last_bit) = (0usize, 0usize);
         for case in 0..3000 {
             let (lit, packed) = shades[case % 3];
             let shade = Shade {
@@ -1055,6 +1055,7 @@ mod tests {
                 }
                 let (tri, mask) = batch.micro(l);
                 tall += usize::from(tri.tall);
+                last_bit += (mask >> 31) as usize;
                 let mut one = Vec::new();
                 let mut push = |row, pixel, f: strata_core::Fragment| {
                     one.push((row, PixelFragment::new(pixel, f)));
@@ -1077,6 +1078,11 @@ mod tests {
         // The cases must have exercised what they claim to.
         assert!(compared > 20_000, "{compared} fragments compared");
         assert!(tall > 1_000, "{tall} micro-triangles in tall blocks");
+        // Bit 31, whose f32 is negative, was shaded (and compared) too.
+        assert!(
+            last_bit > 10,
+            "{last_bit} micro-triangles covering their block's last sample"
+        );
         assert!(far > 500, "{far} samples beyond the far plane");
         // Batches of several packed passes, and triangles covering more than half their block.
         assert!(passes > 1000, "{passes} batches of more than {L} samples");
