@@ -38,7 +38,8 @@ impl std::error::Error for Failed {}
 /// ~/.local/share/strata/models, where scripts/fetch-models puts them).
 ///
 /// The rasteriser runs 16 SIMD lanes wide where the CPU has AVX-512, else 8; STRATA_LANES=8
-/// makes it run 8 wide there too (the same frames), to compare the two on one machine.
+/// makes it run 8 wide there too (the same frames), to compare the two on one machine
+/// (STRATA_LANES=16 or unset: the widest; any other value is refused).
 #[derive(Parser, Debug)]
 #[command(name = "strata", version, about, long_about, propagate_version = true)]
 struct Cli {
@@ -159,6 +160,15 @@ impl Command {
     }
 }
 
+/// Refuses a `STRATA_LANES` the rasteriser would not understand (it would ignore it and run at
+/// the widest lanes, so a benchmark of the other width would measure the wrong thing).
+fn check_lanes_variable() -> anyhow::Result<()> {
+    use strata_raster::lanes::{LANES_VAR, requested_lanes};
+    requested_lanes(std::env::var_os(LANES_VAR).as_deref())
+        .map(drop)
+        .map_err(anyhow::Error::msg)
+}
+
 /// Parses the command line, noting which method options it set (as opposed to their defaults).
 fn parse() -> Result<Cli, clap::Error> {
     let matches = Cli::command().try_get_matches()?;
@@ -187,9 +197,8 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let result = cli
-        .command
-        .check_method_options()
+    let result = check_lanes_variable()
+        .and_then(|()| cli.command.check_method_options())
         .and_then(|()| match cli.command {
             Command::Render(a) => cmd::render::run(a),
             Command::Demo(a) => cmd::demo::run(a),

@@ -318,6 +318,38 @@ fn render_is_identical_for_any_thread_count() {
     );
 }
 
+/// `STRATA_LANES=8` runs the rasteriser 8 lanes wide where the CPU has AVX-512 (16 by default):
+/// the same image and deep file. A value it does not know is refused before anything runs.
+#[test]
+fn the_lane_width_changes_nothing_and_a_bad_one_is_refused() {
+    let dir = TempDir::new().unwrap();
+    let mut deep = Vec::new();
+    for lanes in ["16", "8"] {
+        let (png, exr) = (format!("l{lanes}.png"), format!("l{lanes}.exr"));
+        run_ok(
+            strata()
+                .current_dir(dir.path())
+                .env("STRATA_LANES", lanes)
+                .args(["render", "mixed", "-o", &png, "--deep", &exr]),
+        );
+        deep.push((bytes(&dir.path().join(png)), bytes(&dir.path().join(exr))));
+    }
+    assert!(deep[0] == deep[1], "8 and 16 lanes render differently");
+    for bad in ["4", "sixteen", ""] {
+        let err = run_err(
+            strata()
+                .current_dir(dir.path())
+                .env("STRATA_LANES", bad)
+                .args(["render", "mixed", "-o", "bad.png"]),
+        );
+        assert_mentions(&err, &["STRATA_LANES", "not a lane width"]);
+        assert!(
+            !dir.path().join("bad.png").exists(),
+            "{bad:?} rendered anyway"
+        );
+    }
+}
+
 #[test]
 fn fixed_pool_that_fits_gives_the_auto_image() {
     let dir = TempDir::new().unwrap();

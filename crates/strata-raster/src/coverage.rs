@@ -699,6 +699,7 @@ fn box_mask(last_long: i32, last_short: i32) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rand::Rand;
 
     fn pos(x: f32, y: f32) -> ScreenPos {
         ScreenPos {
@@ -759,13 +760,8 @@ mod tests {
 
     fn classify_like_one_at_a_time<const L: usize>() {
         use crate::vertex::outcode;
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut rand = |n: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 33) as u32 % n
-        };
+        let mut r = Rand(0x2545_f491_4f6c_dd1d);
+        let mut rand = |n: u32| r.below(n) as u32;
         let (w, h) = (40, 30);
         let mut counts = [0usize; 5];
         let mut batch = Batch::<L>::default();
@@ -847,13 +843,8 @@ mod tests {
 
     #[test]
     fn small_coverage_mask_matches_brute_force() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut rand = |scale: f32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 40) as f32 / (1u64 << 24) as f32 * scale
-        };
+        let mut r = Rand(0x9e37_79b9_7f4a_7c15);
+        let mut rand = |scale: f32| r.unit() * scale;
         let (mut tested, mut tall) = (0, 0);
         for case in 0..30_000 {
             let base = (rand(20.0), rand(20.0));
@@ -971,13 +962,8 @@ mod tests {
     /// force, for wide and tall blocks and every range of rows.
     #[test]
     fn a_micro_triangles_rows_are_selected_exactly() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut rand = |scale: f32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 40) as f32 / (1u64 << 24) as f32 * scale
-        };
+        let mut r = Rand(0x2545_f491_4f6c_dd1d);
+        let mut rand = |scale: f32| r.unit() * scale;
         let (mut tested, mut tall) = (0, 0);
         for case in 0..4000 {
             let base = (rand(20.0), rand(20.0));

@@ -34,7 +34,9 @@
 //! instruction set (no fused multiply-adds).
 
 /// Moves lanes of a batch quantity (a lane a triangle) into sample lanes: `out[s] = a[idx[s]]`
-/// for indices below `L`.
+/// for indices below `L`. An index of `L` or more gives some lane's value (every
+/// implementation here reads lane `idx % L`): the packed passes give the outputs past a
+/// batch's last sample index `L` and mark them not kept.
 pub trait Permute<const L: usize>: Copy {
     /// True if the permute is one instruction, so that setup packs a batch's samples into
     /// passes ([`crate::shade_lanes`]); false to shade in rounds, which need no permute.
@@ -173,10 +175,30 @@ pub fn dispatch<J: LaneJob>(job: J) -> J::Output {
     })
 }
 
-/// True if the environment asks for eight lanes (`STRATA_LANES=8`); read once.
+/// The environment variable that caps the lane width; see [`requested_lanes`].
+pub const LANES_VAR: &str = "STRATA_LANES";
+
+/// The lane width a value of [`LANES_VAR`] asks for: `None` (the widest the CPU has) if unset
+/// or `16`, `Some(8)` for `8`, and an error naming the variable for anything else. The
+/// rasteriser itself treats an error as unset (it has no one to tell); `strata` refuses to
+/// start with it, so that a mistyped value cannot silently measure the wrong width.
+pub fn requested_lanes(value: Option<&std::ffi::OsStr>) -> Result<Option<usize>, String> {
+    match value.map(|v| v.to_str()) {
+        None => Ok(None),
+        Some(Some("16")) => Ok(None),
+        Some(Some("8")) => Ok(Some(8)),
+        Some(v) => Err(format!(
+            "{LANES_VAR}={} is not a lane width: use 8 (the AVX2 path where the CPU has \
+             AVX-512) or 16, or leave it unset (the widest the CPU has)",
+            v.unwrap_or("(not UTF-8)")
+        )),
+    }
+}
+
+/// True if the environment asks for eight lanes ([`requested_lanes`]); read once.
 fn eight_lanes_asked() -> bool {
     static ASKED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *ASKED.get_or_init(|| std::env::var_os("STRATA_LANES").is_some_and(|v| v == "8"))
+    *ASKED.get_or_init(|| requested_lanes(std::env::var_os(LANES_VAR).as_deref()) == Ok(Some(8)))
 }
 
 /// A [`LaneJob`] with its width and permute, for [`pulp::Simd::vectorize`].
@@ -194,40 +216,78 @@ impl<J: LaneJob, const L: usize, P: Permute<L>> pulp::WithSimd for Compiled<J, L
     }
 }
 
+/// Every permute the tests run a lane computation with: both widths in rounds and packed with a
+/// lane-by-lane copy on any CPU, then AVX2's and AVX-512's where this CPU has them (a note on
+/// stderr where it has not).
+#[cfg(test)]
+pub(crate) trait EveryPermute {
+    /// Runs the computation `L` lanes wide with `permute`.
+    fn run<const L: usize, P: Permute<L>>(&mut self, permute: P);
+}
+
+/// Runs `test` with every permute; see [`EveryPermute`].
+#[cfg(test)]
+pub(crate) fn with_every_permute(test: &mut impl EveryPermute) {
+    test.run::<8, _>(Rounds);
+    test.run::<16, _>(Rounds);
+    test.run::<8, _>(PackedScalar);
+    test.run::<16, _>(PackedScalar);
+    #[cfg(target_arch = "x86_64")]
+    {
+        match pulp::x86::V3::try_new() {
+            Some(v3) => test.run::<8, _>(v3),
+            None => eprintln!("no AVX2 on this CPU: its permute is not tested here"),
+        }
+        match pulp::x86::V4::try_new() {
+            Some(v4) => test.run::<16, _>(v4),
+            None => eprintln!("no AVX-512 on this CPU: its permute is not tested here"),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn permutes_like_indexing<const L: usize, P: Permute<L>>(p: P) {
-        let a: [u32; L] = std::array::from_fn(|l| 1000 + 7 * l as u32);
-        let f: [f32; L] = std::array::from_fn(|l| -0.5 * l as f32);
-        let i: [i32; L] = std::array::from_fn(|l| -3 * l as i32);
-        for rot in 0..L {
-            let idx: [u32; L] = std::array::from_fn(|s| ((s * 5 + rot) % L) as u32);
-            let want = |s: usize| idx[s] as usize;
-            let (u, g, n) = (p.u32s(a, idx), p.f32s(f, idx), p.i32s(i, idx));
-            for s in 0..L {
-                assert_eq!(u[s], a[want(s)], "u32 lane {s}");
-                assert_eq!(g[s].to_bits(), f[want(s)].to_bits(), "f32 lane {s}");
-                assert_eq!(n[s], i[want(s)], "i32 lane {s}");
+    /// `out[s] = a[idx[s]]` for every rotation of a scattered index pattern, in all three
+    /// types, and index `L` (a packed pass's outputs past the last sample) reading lane 0.
+    struct PermutesLikeIndexing;
+    impl EveryPermute for PermutesLikeIndexing {
+        fn run<const L: usize, P: Permute<L>>(&mut self, p: P) {
+            let a: [u32; L] = std::array::from_fn(|l| 1000 + 7 * l as u32);
+            let f: [f32; L] = std::array::from_fn(|l| -0.5 * l as f32);
+            let i: [i32; L] = std::array::from_fn(|l| -3 * l as i32);
+            for rot in 0..=L {
+                // Rotation L puts index L in lane 0.
+                let idx: [u32; L] = std::array::from_fn(|s| match (s, rot) {
+                    (0, r) if r == L => L as u32,
+                    _ => ((s * 5 + rot) % L) as u32,
+                });
+                let want = |s: usize| idx[s] as usize % L;
+                let (u, g, n) = (p.u32s(a, idx), p.f32s(f, idx), p.i32s(i, idx));
+                for s in 0..L {
+                    assert_eq!(u[s], a[want(s)], "u32 lane {s} of {L}");
+                    assert_eq!(g[s].to_bits(), f[want(s)].to_bits(), "f32 lane {s} of {L}");
+                    assert_eq!(n[s], i[want(s)], "i32 lane {s} of {L}");
+                }
             }
         }
     }
 
     #[test]
     fn every_permute_moves_lane_idx_s_into_lane_s() {
-        permutes_like_indexing::<8, _>(Rounds);
-        permutes_like_indexing::<16, _>(Rounds);
-        #[cfg(target_arch = "x86_64")]
-        {
-            match pulp::x86::V3::try_new() {
-                Some(v3) => permutes_like_indexing::<8, _>(v3),
-                None => eprintln!("no AVX2 on this CPU: its permute is not tested here"),
-            }
-            match pulp::x86::V4::try_new() {
-                Some(v4) => permutes_like_indexing::<16, _>(v4),
-                None => eprintln!("no AVX-512 on this CPU: its permute is not tested here"),
-            }
+        with_every_permute(&mut PermutesLikeIndexing);
+    }
+
+    #[test]
+    fn the_lanes_variable_takes_8_16_or_nothing() {
+        use std::ffi::OsStr;
+        assert_eq!(requested_lanes(None), Ok(None));
+        assert_eq!(requested_lanes(Some(OsStr::new("16"))), Ok(None));
+        assert_eq!(requested_lanes(Some(OsStr::new("8"))), Ok(Some(8)));
+        for bad in ["", "4", "32", " 8", "eight", "8x"] {
+            let err = requested_lanes(Some(OsStr::new(bad))).unwrap_err();
+            assert!(err.starts_with(&format!("STRATA_LANES={bad} ")), "{err}");
         }
     }
 

@@ -70,6 +70,9 @@ pub mod shade_lanes;
 pub mod sink;
 pub mod vertex;
 
+#[cfg(test)]
+mod test_rand;
+
 pub use frame::{DrawObject, FragmentOutput, FrameInput};
 pub use rasterizer::{Prepared, RasterConfig, RasterStats, Rasterizer, SetupStats};
 pub use sink::{CaptureTarget, FragmentSink, FragmentVec, StripLayout};

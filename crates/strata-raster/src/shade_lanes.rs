@@ -730,21 +730,7 @@ mod tests {
     use strata_core::ObjectId;
 
     /// A tiny xorshift generator, so the cases are the same on every run.
-    struct Rand(u64);
-    impl Rand {
-        fn next(&mut self) -> u64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            self.0
-        }
-        fn below(&mut self, n: u32) -> i32 {
-            ((self.next() >> 33) % u64::from(n)) as i32
-        }
-        fn unit(&mut self) -> f32 {
-            (self.next() >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
+    use crate::test_rand::Rand;
 
     fn attrs(rand: &mut Rand) -> Attrs {
         let mut v = || rand.unit() * 4.0 - 2.0;
@@ -969,22 +955,13 @@ mod tests {
     /// permutes setup itself uses, where this CPU has them.
     #[test]
     fn lanes_shade_exactly_like_one_triangle_at_a_time() {
-        use crate::lanes::{PackedScalar, Rounds};
-        lanes_shade_like_one_at_a_time::<8, _>(Rounds);
-        lanes_shade_like_one_at_a_time::<16, _>(Rounds);
-        lanes_shade_like_one_at_a_time::<8, _>(PackedScalar);
-        lanes_shade_like_one_at_a_time::<16, _>(PackedScalar);
-        #[cfg(target_arch = "x86_64")]
-        {
-            match pulp::x86::V3::try_new() {
-                Some(v3) => lanes_shade_like_one_at_a_time::<8, _>(v3),
-                None => eprintln!("no AVX2 on this CPU: its packed passes are not tested here"),
-            }
-            match pulp::x86::V4::try_new() {
-                Some(v4) => lanes_shade_like_one_at_a_time::<16, _>(v4),
-                None => eprintln!("no AVX-512 on this CPU: its packed passes are not tested here"),
+        struct Shades;
+        impl crate::lanes::EveryPermute for Shades {
+            fn run<const L: usize, P: Permute<L>>(&mut self, permute: P) {
+                lanes_shade_like_one_at_a_time::<L, P>(permute);
             }
         }
+        crate::lanes::with_every_permute(&mut Shades);
     }
 
     /// The test above with the samples put in `L` lanes by `permute`; also checks that
