@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId};
 
-use super::lanes::{Flush, LANES, Pending};
+use super::lanes::{Flush, LANES, MAX_SKIP, Pending};
 use super::view::View;
 use super::{BAND_ROWS, sort_entries};
 
@@ -154,7 +154,8 @@ impl Held {
     /// list. One parallel pass and a small serial one, none over the whole list on one thread:
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
-    ///    (`View::project_batch`, batches of one object's entries gathered by `lanes::Pending`),
+    ///    (`View::project_batch`: a row of `LANES` entries of one object as it lies, any
+    ///    other entry in batches of one object's entries gathered by `lanes::Pending`),
     ///    then, while the band's moved entries are still in cache, the indices of those that
     ///    stay in view grouped by destination band in the source band's own stretch of the
     ///    bucket list (a counting sort by destination band, so each group keeps source order);
@@ -202,19 +203,50 @@ impl Held {
                 .zip(groups.par_iter_mut())
                 .for_each(|(((band, grouped), (s, src)), group)| {
                     let first = band_pixels(s, w, h).start;
+                    let (entries, offsets) = (&src.entries, &src.offsets);
+                    let unchanged = |o: ObjectId| unchanged.get(o.0 as usize) == Some(&true);
                     let mut pending = Pending::default();
                     let mut flush = MoveFlush { view, band };
-                    for (k, o) in src.offsets.windows(2).enumerate() {
-                        let p = (first + k) as u32;
-                        for i in o[0] as usize..o[1] as usize {
-                            let e = &src.entries[i];
-                            let object = e.fragment.object;
-                            if unchanged.get(object.0 as usize) == Some(&true) {
-                                flush.band[i] = (p, e.fragment);
+                    // `LANES` entries in a row of one moving object (nearly all of a band, where
+                    // one object fills the view) go through the lanes straight from the list
+                    // into their places; any other entry one at a time, through `Pending` (or
+                    // kept as it is, for an unchanged object), with its pixel found by a cursor
+                    // that only walks forward. After a row that is not one object's, the next
+                    // entries go one at a time, twice as many after each row in a row that is
+                    // not (up to `MAX_SKIP`), so that runs through several objects are not
+                    // tested at every entry.
+                    let (mut i, mut k, mut next_try, mut skip) = (0, 0, 0, LANES);
+                    while i < entries.len() {
+                        if i >= next_try
+                            && let Some(row) = entries.get(i..i + LANES)
+                            && let Ok(row) = <&[Entry; LANES]>::try_from(row)
+                        {
+                            let object = row[0].fragment.object;
+                            if row.iter().all(|e| e.fragment.object == object)
+                                && !unchanged(object)
+                                && let Ok(out) = <&mut [(u32, Fragment); LANES]>::try_from(
+                                    &mut flush.band[i..i + LANES],
+                                )
+                            {
+                                view.project_batch(object, row, out);
+                                i += LANES;
+                                skip = LANES;
                                 continue;
                             }
+                            next_try = i + skip;
+                            skip = (2 * skip).min(MAX_SKIP);
+                        }
+                        while offsets[k + 1] as usize <= i {
+                            k += 1;
+                        }
+                        let e = &entries[i];
+                        let object = e.fragment.object;
+                        if unchanged(object) {
+                            flush.band[i] = ((first + k) as u32, e.fragment);
+                        } else {
                             pending.push(object, i, e.surfel, &mut flush);
                         }
+                        i += 1;
                     }
                     pending.finish(&mut flush);
                     // Counts per destination band, then their starts (`group[d]`), then the

@@ -491,11 +491,15 @@ fn entries_made_in_lanes_are_those_made_one_at_a_time_bit_for_bit() {
         .collect();
     assert!(objects.len() > 8);
     let counts: Vec<u32> = (0..W * H).map(|_| values.bits() % 5).collect();
-    // Runs of random length, objects, depths and normal bits (the "no normal" pattern
-    // included); sorted, as a DeepFrame's runs are.
+    // Runs of random length, depths and normal bits (the "no normal" pattern included);
+    // sorted, as a DeepFrame's runs are. Objects: in every third row each fragment's at
+    // random (batches gathered object by object); in the others mostly one object, known or
+    // not (whole batches straight from the frame's columns), now and then another.
+    let (known_object, unknown_object) = (ids[0], objects[objects.len() - 1]);
     let runs: Vec<Vec<Fragment>> = counts
         .iter()
-        .map(|&n| {
+        .enumerate()
+        .map(|(p, &n)| {
             let mut run: Vec<Fragment> = (0..n)
                 .map(|_| Fragment {
                     depth: values.unit(),
@@ -504,7 +508,11 @@ fn entries_made_in_lanes_are_those_made_one_at_a_time_bit_for_bit() {
                     } else {
                         values.bits()
                     }),
-                    object: objects[values.bits() as usize % objects.len()],
+                    object: match (p / W as usize) % 3 {
+                        1 if !values.bits().is_multiple_of(16) => known_object,
+                        2 if !values.bits().is_multiple_of(16) => unknown_object,
+                        _ => objects[values.bits() as usize % objects.len()],
+                    },
                 })
                 .collect();
             run.sort_by_key(Fragment::order_key);
