@@ -1000,6 +1000,17 @@ impl GatherWriter {
         }
     }
 
+    /// Room for `pixels` more pixels and `fragments` more fragments, so that the columns do
+    /// not grow while they are filled (a writer made [`GatherWriter::reusing`] a buffer that
+    /// is already large enough allocates nothing).
+    pub fn reserve(&mut self, pixels: usize, fragments: usize) {
+        let g = &mut self.gathered;
+        g.counts.reserve(pixels);
+        g.depth.reserve(fragments);
+        g.color.reserve(fragments);
+        g.object.reserve(fragments);
+    }
+
     /// Keeps only the prefix of each sorted run that `limit` keeps (a render node's
     /// depth-limited export, [`RunLimit`]); every fragment of the run is still checked.
     pub fn with_limit(mut self, limit: RunLimit) -> Self {

@@ -571,7 +571,7 @@ impl RegionSink<'_> {
     /// The strip's regions gathered into columns for `slot`, each run checked and sorted front
     /// to back in a copy ([`GatherWriter::push_run`]), so the regions themselves stay as
     /// captured, and cut to the slot's limit.
-    fn gather(&self, slot: &StripSlot) -> Result<GatheredPixels, DeepFrameError> {
+    fn gather(&self, slot: &mut StripSlot) -> Result<GatheredPixels, DeepFrameError> {
         let stored = self.fill.iter().map(|&n| n as usize).sum();
         let mut w = slot.writer(self.fill.len(), stored);
         let mut run = Vec::new();

@@ -296,8 +296,9 @@ fn the_k_buffers_fused_export_gathers_every_chunk() {
 }
 
 /// A store that exports frame after frame, each into the buffers of the frame before (as a
-/// render node does): a deep frame, then a shallow one of another size, then the deep one
-/// again, each cut or not, must export what a fresh store exports.
+/// render node does) and each strip into columns the store kept from the export before (stale
+/// fragments in them, more or fewer strips): a deep frame, then a shallow one of another size,
+/// then the deep one again, each cut or not, must export what a fresh store exports.
 #[test]
 fn exports_into_the_last_frames_buffers_equal_fresh_exports() {
     let deep_scene = scene("overlap", 64, 48);

@@ -50,7 +50,8 @@
 //!   A render node's export is fused the same way ([`Method::capture_and_export`]): each strip
 //!   walks its rows' lists in the same batches and writes their sorted fragments into columns
 //!   of its own ([`strata_core::GatherWriter`], sized by the fragments the strip stored, so they
-//!   do not grow when the frame is captured in one call) as its scan ends, and the frame is
+//!   do not grow when the frame is captured in one call, and kept by the store for the next
+//!   export, so that a stream of frames maps no fresh pages) as its scan ends, and the frame is
 //!   assembled from them.
 //!
 //! # Overflow
@@ -85,7 +86,7 @@ use crate::alloc::{BlockCursor, block_size, capacity_for};
 use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::PoolCapacity;
 use crate::resolve::resolve_chunks;
-use crate::strip_export::{self, StripSlot};
+use crate::strip_export::{self, SpareColumns, StripSlot};
 
 /// The name `--method` selects it by.
 pub const NAME: &str = "abuffer";
@@ -152,6 +153,8 @@ pub struct LinkedListABuffer {
     stored: AtomicU64,
     dropped: AtomicU64,
     depth: Option<DepthStats>,
+    /// The fused export's strip columns, kept for the next export.
+    spare_columns: SpareColumns,
 }
 
 impl LinkedListABuffer {
@@ -167,6 +170,7 @@ impl LinkedListABuffer {
             stored: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
             depth: None,
+            spare_columns: SpareColumns::default(),
         }
     }
 
@@ -858,12 +862,13 @@ impl Method for LinkedListABuffer {
     ) -> Result<(CaptureReport, Option<Result<DeepFrame, DeepFrameError>>), StoreError> {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let mut slots = strip_export::slots(prepared.layout(), limit);
+        let mut slots = strip_export::slots(prepared.layout(), limit, &mut self.spare_columns);
         let (report, scan) =
             self.capture_prepared(&prepared, timings, Some(Fused::Export(&mut slots)))?;
         timings.add("capture.raster", scan);
         let start = Instant::now();
-        let frame = strip_export::assemble(self.width, self.height, slots, reuse);
+        let (width, height) = (self.width, self.height);
+        let frame = strip_export::assemble(width, height, slots, reuse, &mut self.spare_columns);
         timings.add("capture.export", start.elapsed());
         Ok((report, Some(frame)))
     }
@@ -1027,7 +1032,8 @@ mod tests {
 
         // And gathered strip by strip, as the fused export does (its batches of lists' fronts
         // end mid-strip and hold an empty pixel).
-        let mut slots = strip_export::slots(&layout, RunLimit::NONE);
+        let mut spare = SpareColumns::default();
+        let mut slots = strip_export::slots(&layout, RunLimit::NONE, &mut spare);
         let mut fused = Fused::Export(&mut slots);
         let mut target = FusedTarget {
             store: &mut ab,
@@ -1036,7 +1042,8 @@ mod tests {
         for mut s in target.sinks(&layout) {
             s.finish();
         }
-        let frame = strip_export::assemble(width, 1, slots, None).expect("valid depths");
+        let frame =
+            strip_export::assemble(width, 1, slots, None, &mut spare).expect("valid depths");
         assert_eq!(frame, want);
     }
 

@@ -61,7 +61,7 @@ use crate::method::{CaptureReport, Method, StoreError, try_alloc};
 use crate::options::MethodOptions;
 use crate::regions::{Policy, RegionCapture, RegionSink, Regions};
 use crate::resolve::resolve_pixels;
-use crate::strip_export::{self, StripSlot};
+use crate::strip_export::{self, SpareColumns, StripSlot};
 
 /// The name it is selected by.
 pub const NAME: &str = "kbuffer";
@@ -129,6 +129,8 @@ pub struct KBuffer {
     tail: Vec<Tail>,
     neg_ln: [u32; 256],
     depth: Option<DepthStats>,
+    /// The fused export's strip columns, kept for the next export.
+    spare_columns: SpareColumns,
 }
 
 impl KBuffer {
@@ -146,6 +148,7 @@ impl KBuffer {
             tail: Vec::new(),
             neg_ln: neg_ln_table(),
             depth: None,
+            spare_columns: SpareColumns::default(),
         }
     }
 
@@ -188,7 +191,8 @@ impl KBuffer {
     ) -> (CaptureReport, Option<Vec<StripSlot>>) {
         let prepared = raster.prepare(input);
         timings.extend(prepared.timings());
-        let mut slots = export.map(|limit| strip_export::slots(prepared.layout(), limit));
+        let spare = &mut self.spare_columns;
+        let mut slots = export.map(|limit| strip_export::slots(prepared.layout(), limit, spare));
         let export = slots.as_deref_mut();
         let stats = timings.time("capture.capture", || {
             if self.tail_blend {
@@ -272,7 +276,7 @@ impl Method for KBuffer {
         let (width, height) = (self.regions.width(), self.regions.height());
         let frame = timings.time("capture.export", || {
             let slots = slots.expect("an exporting capture returns its slots");
-            strip_export::assemble(width, height, slots, reuse)
+            strip_export::assemble(width, height, slots, reuse, &mut self.spare_columns)
         });
         Ok((report, Some(frame)))
     }
