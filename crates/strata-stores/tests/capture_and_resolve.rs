@@ -304,7 +304,8 @@ fn exports_into_the_last_frames_buffers_equal_fresh_exports() {
     let deep_scene = scene("overlap", 64, 48);
     let deep_plain = FrameInput::from_scene(&deep_scene, 2);
     let (deep, _) = drawn_over(&deep_plain, 8);
-    let shallow_scene = scene("mixed", 72, 40);
+    // 24 rows against 48: fewer strips, then more again.
+    let shallow_scene = scene("mixed", 72, 24);
     let shallow = FrameInput::from_scene(&shallow_scene, 5);
     let limits = [RunLimit::NONE, RunLimit::new(2, None), RunLimit::NONE];
     let frames = [&deep, &shallow, &deep];

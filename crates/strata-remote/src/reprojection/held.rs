@@ -154,8 +154,8 @@ impl Held {
     /// list. One parallel pass and a small serial one, none over the whole list on one thread:
     ///
     /// 1. per source band (of 16 rows): every entry moved to `view`
-    ///    (`View::project_batch`: a row of `LANES` entries of one object as it lies, any
-    ///    other entry in batches of one object's entries gathered by `lanes::Pending`),
+    ///    (`View::project_batch`: `LANES` consecutive entries of one moving object as they lie,
+    ///    any other entry in batches of one object's entries gathered by `lanes::Pending`),
     ///    then, while the band's moved entries are still in cache, the indices of those that
     ///    stay in view grouped by destination band in the source band's own stretch of the
     ///    bucket list (a counting sort by destination band, so each group keeps source order);
@@ -207,14 +207,15 @@ impl Held {
                     let unchanged = |o: ObjectId| unchanged.get(o.0 as usize) == Some(&true);
                     let mut pending = Pending::default();
                     let mut flush = MoveFlush { view, band };
-                    // `LANES` entries in a row of one moving object (nearly all of a band, where
-                    // one object fills the view) go through the lanes straight from the list
-                    // into their places; any other entry one at a time, through `Pending` (or
-                    // kept as it is, for an unchanged object), with its pixel found by a cursor
-                    // that only walks forward. After a row that is not one object's, the next
-                    // entries go one at a time, twice as many after each row in a row that is
-                    // not (up to `MAX_SKIP`), so that runs through several objects are not
-                    // tested at every entry.
+                    // Where the next `LANES` entries are all of one moving (not unchanged)
+                    // object — nearly all of a band, where one object fills the view — they go
+                    // through the lanes straight from the list into their places. Every other
+                    // entry goes one at a time: through `Pending`, or kept as it is for an
+                    // unchanged object, with its pixel found by a cursor `k` that only walks
+                    // forward (it catches up with `i` there). After a failed test the next
+                    // `skip` entries go one at a time; `skip` starts at `LANES`, doubles with
+                    // each failure in a row up to `MAX_SKIP`, and starts again at a success,
+                    // so that runs through several objects are not tested at every entry.
                     let (mut i, mut k, mut next_try, mut skip) = (0, 0, 0, LANES);
                     while i < entries.len() {
                         if i >= next_try

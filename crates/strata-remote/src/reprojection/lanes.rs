@@ -16,15 +16,16 @@
 //! are padding and are not written back. The loops are compiled once per instruction set and
 //! chosen at run time ([`pulp::Arch::dispatch`]): on AVX2 a lane array is one register.
 //!
-//! Where [`LANES`] consecutive items of a list are of one object — nearly every stretch of a
-//! held band or a rendered row where one object fills the view — they are a batch as they lie:
+//! Where a list's walk finds [`LANES`] consecutive items of one object (for the move, one that
+//! moved) — nearly every stretch of a held band or a rendered row where one object fills the
+//! view — they are a batch as they lie:
 //! the lanes read them from the list (the held entries, the frame's depth and colour columns)
 //! and write their results straight into their places. Every other item is gathered by
 //! [`Pending`]: up to eight batches fill at once, one per object, so that a pixel's run
 //! through several objects (the back and front of a transparent sphere behind another's)
 //! still fills whole batches. Each gathered item carries where its result goes. Gathering
-//! every item, one object or not, cost a copy of it in and of its result out: taking rows as
-//! they lie cut a reprojection node's select by 8 % (dragon, one thread, Intel Xeon).
+//! every item, one object or not, cost a copy of it in and of its result out: taking items as
+//! they lie cut a reprojection node's select by 8–10 % (dragon, one thread, Intel Xeon).
 //!
 //! # Same bits
 //!
@@ -78,8 +79,8 @@ const OPEN: usize = 8;
 /// are computed in changes no result.
 ///
 /// A batch keeps its items as two arrays, where they go and what the lanes read, so that the
-/// lanes read the second as it is. An item of the last item's object (in a one-object scene,
-/// every item) goes straight to that batch.
+/// lanes read the second as it is. An item of the last item's object goes straight to that
+/// batch.
 ///
 /// **A full batch waits for the next.** Items are stored one at a time, and the lanes read a
 /// batch back as whole arrays: read at once, the last items' stores are still on their way to
@@ -585,11 +586,11 @@ impl View {
         // Where a fragment's entry goes: its index in the row's fragments, with its column; the
         // lanes' input: the fragment.
         let mut pending = Pending::<[u32; 2], Fragment>::default();
-        // `LANES` fragments in a row of one object (nearly all of a row, where one object
-        // fills the view) go through the lanes straight from the frame's columns into their
-        // places; any other fragment through `Pending`. As in `Held::move_to`, after a row of
-        // several objects the next fragments go one at a time ([`MAX_SKIP`]). `x` is the
-        // column of fragment `k`, found by a cursor that only walks forward.
+        // `LANES` consecutive fragments of one object (nearly all of an image row, where one
+        // object fills the view) go through the lanes straight from the frame's columns into
+        // their places; any other fragment through `Pending`. As in `Held::move_to`, after a
+        // failed test the next fragments go one at a time ([`MAX_SKIP`]). `x` is the column of
+        // fragment `k`, found by a cursor that only walks forward.
         let ends = &offsets[row * w + 1..(row + 1) * w + 1];
         let (mut k, mut x, mut next_try, mut skip) = (first, 0, first, LANES);
         while k < last {

@@ -603,10 +603,18 @@ fn reprojection_is_the_stable_sort_of_every_moved_entry_at_any_thread_count_and_
             s.camera.projection(w, h),
         )
     };
-    // Frame 2 is where the list was made: every object unchanged, kept bit for bit.
+    // Frame 2 is where the list was made: every object unchanged, kept bit for bit. Then,
+    // at frame 2, the first object left out (unknown) beside unchanged ones, and one object
+    // moved beside unchanged ones: entries of one moving object taken as they lie next to
+    // entries kept one at a time.
+    let camera = (s.camera.view(), s.camera.projection(W, H));
+    let mut nudged = s.clone();
+    nudged.objects[1].translate.x += 0.02;
     let views = [
         sized(4, (W, H)),
         sized(2, (W, H)),
+        View::new(&s, &ids[1..], 2, (W, H), camera.0, camera.1),
+        View::new(&nudged, &ids, 2, (W, H), camera.0, camera.1),
         sized(9, (W / 2 + 3, H / 2 + 5)),
         sized(6, (W * 2, H + 17)),
         sized(5, (1, 1)),
