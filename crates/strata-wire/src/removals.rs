@@ -25,8 +25,13 @@
 //!   gaps     varint × (count − 1)   each next position minus the previous, minus one
 //! ```
 
+use rayon::prelude::*;
+
 use crate::bytes::{Reader, put_varint};
 use crate::error::WireError;
+
+/// Touched pixels encoded by one task of [`Removals::encode`].
+const ENCODE_CHUNK: usize = 4096;
 
 /// Most positions one pixel may lose in one frame (a pixel's run is shorter in practice; the
 /// limit keeps a hostile count from promising more work than its bytes could describe).
@@ -98,29 +103,62 @@ impl Removals {
     /// # Panics
     /// If the counts do not add up to `positions.len()`, or as `push_pixel` panics.
     pub fn push_pixels(&mut self, counts: &[u32], positions: &[u32]) {
-        let total: u64 = counts.iter().map(|&n| u64::from(n)).sum();
-        assert_eq!(
-            total,
-            positions.len() as u64,
-            "the counts must add up to the positions"
-        );
-        // Everything is checked before anything is appended.
-        let mut at = 0;
-        for &n in counts {
-            let new = &positions[at..at + n as usize];
-            assert!(
-                new.windows(2).all(|w| w[0] < w[1]),
-                "removal positions must be strictly increasing"
+        self.push_pieces(&[(counts, positions)]);
+    }
+
+    /// Appends several pieces of touched pixels in order, each `(counts, positions)` as
+    /// [`Removals::push_pixels`] takes it, checking and copying the pieces in parallel (a
+    /// reprojection node appends its bands' removals at once: one after another, on one thread,
+    /// they held up the node's other stages for about 1.5 ms a dragon frame). Everything is
+    /// checked before anything is appended.
+    ///
+    /// # Panics
+    /// As `push_pixels` panics, for any piece.
+    pub fn push_pieces(&mut self, pieces: &[(&[u32], &[u32])]) {
+        pieces.par_iter().for_each(|&(counts, positions)| {
+            let total: u64 = counts.iter().map(|&n| u64::from(n)).sum();
+            assert_eq!(
+                total,
+                positions.len() as u64,
+                "the counts must add up to the positions"
             );
-            assert!(n <= MAX_REMOVALS_PER_PIXEL);
-            at += n as usize;
+            let mut at = 0;
+            for &n in counts {
+                assert!(n <= MAX_REMOVALS_PER_PIXEL);
+                let new = &positions[at..at + n as usize];
+                assert!(
+                    new.windows(2).all(|w| w[0] < w[1]),
+                    "removal positions must be strictly increasing"
+                );
+                at += n as usize;
+            }
+        });
+        // Each piece's share of the offsets and positions, filled in parallel: its offsets
+        // continue from the positions of the pieces before it.
+        let (old_pixels, old_positions) = (self.offsets.len(), self.positions.len());
+        let added: usize = pieces.iter().map(|(c, _)| c.len()).sum();
+        let added_positions: usize = pieces.iter().map(|(_, p)| p.len()).sum();
+        self.offsets.resize(old_pixels + added, 0);
+        self.positions.resize(old_positions + added_positions, 0);
+        let mut offsets = &mut self.offsets[old_pixels..];
+        let mut positions = &mut self.positions[old_positions..];
+        let mut base = old_positions;
+        let mut jobs = Vec::with_capacity(pieces.len());
+        for &(counts, from) in pieces {
+            let (o, rest) = std::mem::take(&mut offsets).split_at_mut(counts.len());
+            let (p, rest_p) = std::mem::take(&mut positions).split_at_mut(from.len());
+            (offsets, positions) = (rest, rest_p);
+            jobs.push((o, p, counts, from, base));
+            base += from.len();
         }
-        let mut end = self.positions.len();
-        for &n in counts {
-            end += n as usize;
-            self.offsets.push(end as u32);
-        }
-        self.positions.extend_from_slice(positions);
+        jobs.into_par_iter().for_each(|(o, p, counts, from, base)| {
+            let mut end = base;
+            for (o, &n) in o.iter_mut().zip(counts) {
+                end += n as usize;
+                *o = end as u32;
+            }
+            p.copy_from_slice(from);
+        });
     }
 
     /// The state digest.
@@ -151,21 +189,38 @@ impl Removals {
         self.positions.len()
     }
 
-    /// Appends the wire encoding.
+    /// Appends the wire encoding. Pixels are encoded [`ENCODE_CHUNK`] at a time in parallel,
+    /// and the chunks' bytes appended in order: the same bytes as one pixel after another (a
+    /// pixel's record does not depend on the others), which held up a reprojection node's other
+    /// stages for about 1.7 ms a dragon frame.
     pub fn encode(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.checksum.to_le_bytes());
         out.extend_from_slice(&self.depth_error.to_le_bytes());
-        // At least a byte a count and a position; most take one.
-        out.reserve(self.offsets.len() + self.positions.len());
-        for w in self.offsets.windows(2) {
-            let p = &self.positions[w[0] as usize..w[1] as usize];
-            put_varint(out, p.len() as u32);
-            // The first position as it is, then each one's gap after the one before.
-            let mut next = 0u32;
-            for &i in p {
-                put_varint(out, i - next);
-                next = i.wrapping_add(1);
-            }
+        let pixels = self.pixel_count();
+        let chunks: Vec<Vec<u8>> = (0..pixels.div_ceil(ENCODE_CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let range = c * ENCODE_CHUNK..((c + 1) * ENCODE_CHUNK).min(pixels);
+                let offsets = &self.offsets[range.start..range.end + 1];
+                let (first, last) = (offsets[0] as usize, offsets[offsets.len() - 1] as usize);
+                // At least a byte a count and a position; most take one.
+                let mut bytes = Vec::with_capacity(range.len() + last - first);
+                for w in offsets.windows(2) {
+                    let p = &self.positions[w[0] as usize..w[1] as usize];
+                    put_varint(&mut bytes, p.len() as u32);
+                    // The first position as it is, then each one's gap after the one before.
+                    let mut next = 0u32;
+                    for &i in p {
+                        put_varint(&mut bytes, i - next);
+                        next = i.wrapping_add(1);
+                    }
+                }
+                bytes
+            })
+            .collect();
+        out.reserve(chunks.iter().map(Vec::len).sum());
+        for bytes in &chunks {
+            out.extend_from_slice(bytes);
         }
     }
 
@@ -280,6 +335,63 @@ mod tests {
             });
             assert!(bad.is_err(), "{counts:?} {positions:?} accepted");
         }
+    }
+
+    /// Several pieces appended at once (empty ones among them) are the pieces appended one
+    /// after another; a bad piece anywhere panics before anything is appended.
+    #[test]
+    fn pieces_pushed_at_once_are_pieces_pushed_one_by_one() {
+        let pieces: [(&[u32], &[u32]); 5] = [
+            (&[2, 0, 1], &[4, 9, 0]),
+            (&[], &[]),
+            (&[3], &[1, 2, 70_000]),
+            (&[0, 0], &[]),
+            (&[1, 1, 2], &[5, 0, 3, 8]),
+        ];
+        let mut one_by_one = Removals::new(3);
+        one_by_one.push_pixel([7]);
+        let mut at_once = one_by_one.clone();
+        for &(counts, positions) in &pieces {
+            one_by_one.push_pixels(counts, positions);
+        }
+        at_once.push_pieces(&pieces);
+        assert_eq!(at_once, one_by_one);
+        assert_eq!(at_once.pixel(4), &[1, 2, 70_000]);
+        assert_eq!(at_once.total(), 11);
+        for bad in [(&[2u32][..], &[3u32, 3][..]), (&[1], &[1, 2])] {
+            let mut r = at_once.clone();
+            let before = r.clone();
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                r.push_pieces(&[pieces[0], bad, pieces[2]]);
+            }));
+            assert!(result.is_err(), "{bad:?} accepted");
+            assert_eq!(r, before, "{bad:?}: something was appended");
+        }
+    }
+
+    /// More touched pixels than one task encodes: the chunks' bytes are one pixel's record
+    /// after another, as a single loop writes them.
+    #[test]
+    fn a_long_list_encodes_as_one_pixel_after_another() {
+        let mut r = Removals::new(0xABCD);
+        let mut want = Vec::new();
+        want.extend_from_slice(&0xABCDu64.to_le_bytes());
+        want.extend_from_slice(&0f32.to_le_bytes());
+        for k in 0..3 * ENCODE_CHUNK as u32 + 17 {
+            let positions: Vec<u32> = (0..k % 4).map(|i| i * (k % 300) + i).collect();
+            put_varint(&mut want, positions.len() as u32);
+            let mut next = 0;
+            for &i in &positions {
+                put_varint(&mut want, i - next);
+                next = i + 1;
+            }
+            r.push_pixel(positions);
+        }
+        let mut got = Vec::new();
+        r.encode(&mut got);
+        assert_eq!(got, want);
+        let n = r.pixel_count() as u32;
+        assert_eq!(Removals::decode(&got, 0, n).expect("decodes"), r);
     }
 
     #[test]

@@ -170,8 +170,11 @@ impl ReprojEncoder {
             for &p in &o.touched {
                 mask.push(p);
             }
-            removals.push_pixels(&o.removed_counts, &o.removed);
         }
+        let pieces: Vec<(&[u32], &[u32])> = (self.bands.iter())
+            .map(|o| (&o.removed_counts[..], &o.removed[..]))
+            .collect();
+        removals.push_pieces(&pieces);
         removals.set_checksum(frame_digest(
             width,
             height,
