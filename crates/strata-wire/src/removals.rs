@@ -189,7 +189,7 @@ impl Removals {
         self.positions.len()
     }
 
-    /// Appends the wire encoding. Pixels are encoded [`ENCODE_CHUNK`] at a time in parallel,
+    /// Appends the wire encoding. Pixels are encoded 4,096 at a time in parallel,
     /// and the chunks' bytes appended in order: the same bytes as one pixel after another (a
     /// pixel's record does not depend on the others), which held up a reprojection node's other
     /// stages for about 1.7 ms a dragon frame.
