@@ -708,6 +708,19 @@ mod tests {
         }
     }
 
+    /// A random triangle near the image's corner whose vertices spread up to 9 pixels along y
+    /// (`tall`) or x and 5 across, on exact half-pixel positions if `snap` (to hit the tie
+    /// rule): mostly micro-triangles of either block shape.
+    fn sliver(r: &mut Rand, tall: bool, snap: bool) -> [ScreenPos; 3] {
+        let base = (r.unit() * 20.0, r.unit() * 20.0);
+        let (sx, sy) = if tall { (5.0, 9.0) } else { (9.0, 5.0) };
+        let snap = |v: f32| if snap { (v * 2.0).round() / 2.0 } else { v };
+        std::array::from_fn(|_| {
+            let (x, y) = (base.0 + r.unit() * sx, base.1 + r.unit() * sy);
+            pos(snap(x), snap(y))
+        })
+    }
+
     /// Brute-force coverage of one sample with i64 edge functions and the top-left rule.
     fn covered(t: [ScreenPos; 3], x: i32, y: i32) -> bool {
         let [a, mut b, mut c] = t;
@@ -844,24 +857,11 @@ mod tests {
     #[test]
     fn small_coverage_mask_matches_brute_force() {
         let mut r = Rand(0x9e37_79b9_7f4a_7c15);
-        let mut rand = |scale: f32| r.unit() * scale;
         let (mut tested, mut tall) = (0, 0);
         for case in 0..30_000 {
-            let base = (rand(20.0), rand(20.0));
-            // Vertices on exact half-pixel positions now and then, to hit the tie rule; spread
-            // up to 9 pixels along x (wide blocks) or, every third case, along y (tall ones).
-            let snap = |v: f32, on: bool| if on { (v * 2.0).round() / 2.0 } else { v };
-            let on = rand(1.0) < 0.3;
-            let (sx, sy) = if case % 3 == 0 {
-                (5.0, 9.0)
-            } else {
-                (9.0, 5.0)
-            };
-            let t = [
-                pos(snap(base.0 + rand(sx), on), snap(base.1 + rand(sy), on)),
-                pos(snap(base.0 + rand(sx), on), snap(base.1 + rand(sy), on)),
-                pos(snap(base.0 + rand(sx), on), snap(base.1 + rand(sy), on)),
-            ];
+            // Vertices on exact half-pixel positions now and then; tall blocks every third case.
+            let snap = r.unit() < 0.3;
+            let t = sliver(&mut r, case % 3 == 0, snap);
             let Some(Triangle::Micro(micro)) = Triangle::new(t, 32, 32) else {
                 continue;
             };
@@ -963,17 +963,9 @@ mod tests {
     #[test]
     fn a_micro_triangles_rows_are_selected_exactly() {
         let mut r = Rand(0x2545_f491_4f6c_dd1d);
-        let mut rand = |scale: f32| r.unit() * scale;
         let (mut tested, mut tall) = (0, 0);
         for case in 0..4000 {
-            let base = (rand(20.0), rand(20.0));
-            let (sx, sy) = if case % 2 == 0 {
-                (5.0, 9.0)
-            } else {
-                (9.0, 5.0)
-            };
-            let mut v = || pos(base.0 + rand(sx), base.1 + rand(sy));
-            let t = [v(), v(), v()];
+            let t = sliver(&mut r, case % 2 == 0, false);
             let Some(Triangle::Micro(m)) = Triangle::new(t, 32, 32) else {
                 continue;
             };

@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 use strata_core::{DeepFrame, Fragment, ObjectId};
 
-use super::lanes::{Flush, LANES, MAX_SKIP, Pending};
+use super::lanes::{Flush, LANES, Pending, RowTests};
 use super::view::View;
 use super::{BAND_ROWS, sort_entries};
 
@@ -213,12 +213,11 @@ impl Held {
                     // entry goes one at a time: through `Pending`, or kept as it is for an
                     // unchanged object, with its pixel found by a cursor `k` that only walks
                     // forward (it catches up with `i` there). After a failed test the next
-                    // `skip` entries go one at a time; `skip` starts at `LANES`, doubles with
-                    // each failure in a row up to `MAX_SKIP`, and starts again at a success,
-                    // so that runs through several objects are not tested at every entry.
-                    let (mut i, mut k, mut next_try, mut skip) = (0, 0, 0, LANES);
+                    // entries go one at a time (`RowTests`), so that runs through several
+                    // objects are not tested at every entry.
+                    let (mut i, mut k, mut tests) = (0, 0, RowTests::from(0));
                     while i < entries.len() {
-                        if i >= next_try
+                        if tests.due(i)
                             && let Some(row) = entries.get(i..i + LANES)
                             && let Ok(row) = <&[Entry; LANES]>::try_from(row)
                         {
@@ -231,11 +230,10 @@ impl Held {
                             {
                                 view.project_batch(object, row, out);
                                 i += LANES;
-                                skip = LANES;
+                                tests.passed();
                                 continue;
                             }
-                            next_try = i + skip;
-                            skip = (2 * skip).min(MAX_SKIP);
+                            tests.failed(i);
                         }
                         while offsets[k + 1] as usize <= i {
                             k += 1;

@@ -60,10 +60,48 @@ fn lanes(f: impl Fn(usize) -> f32) -> Lane {
 }
 
 /// Most items a list's walk takes one at a time (through [`Pending`]) before it tests again
-/// whether the next [`LANES`] are of one object, after a stretch where they were not: the walk
-/// skips `LANES` items after one failed test and twice as many after each further one, so a
-/// list of several objects' alternating runs pays for about one test in `MAX_SKIP` items.
-pub(crate) const MAX_SKIP: usize = 16 * LANES;
+/// whether the next [`LANES`] are of one object, after a stretch where they were not
+/// ([`RowTests`]).
+const MAX_SKIP: usize = 16 * LANES;
+
+/// When a list's walk (the move of a held band, the conversion of a rendered row) next tests
+/// whether the [`LANES`] items from its position are of one object, to take them through the
+/// lanes as they lie: at every position while tests pass; after a failed test, `LANES` items
+/// later, then twice as many after each further failure, up to [`MAX_SKIP`]. So a list of
+/// several objects' alternating runs (`spheres`) pays for about one test in `MAX_SKIP` items.
+pub(crate) struct RowTests {
+    next: usize,
+    skip: usize,
+}
+
+impl RowTests {
+    /// Tests due from position `start` on.
+    pub(crate) fn from(start: usize) -> Self {
+        RowTests {
+            next: start,
+            skip: LANES,
+        }
+    }
+
+    /// Whether the walk tests at position `i`.
+    #[inline(always)]
+    pub(crate) fn due(&self, i: usize) -> bool {
+        i >= self.next
+    }
+
+    /// The test at the walk's position passed.
+    #[inline(always)]
+    pub(crate) fn passed(&mut self) {
+        self.skip = LANES;
+    }
+
+    /// The test at position `i` failed.
+    #[inline(always)]
+    pub(crate) fn failed(&mut self, i: usize) {
+        self.next = i + self.skip;
+        self.skip = (2 * self.skip).min(MAX_SKIP);
+    }
+}
 
 /// Batches open at once, one object each.
 const OPEN: usize = 8;
@@ -589,12 +627,12 @@ impl View {
         // `LANES` consecutive fragments of one object (nearly all of an image row, where one
         // object fills the view) go through the lanes straight from the frame's columns into
         // their places; any other fragment through `Pending`. As in `Held::move_to`, after a
-        // failed test the next fragments go one at a time ([`MAX_SKIP`]). `x` is the column of
+        // failed test the next fragments go one at a time ([`RowTests`]). `x` is the column of
         // fragment `k`, found by a cursor that only walks forward.
         let ends = &offsets[row * w + 1..(row + 1) * w + 1];
-        let (mut k, mut x, mut next_try, mut skip) = (first, 0, first, LANES);
+        let (mut k, mut x, mut tests) = (first, 0, RowTests::from(first));
         while k < last {
-            if k >= next_try && k + LANES <= last {
+            if tests.due(k) && k + LANES <= last {
                 let object = objects[k];
                 if objects[k..k + LANES].iter().all(|&o| o == object) {
                     let mut at = [[0u32; 2]; LANES];
@@ -624,11 +662,10 @@ impl View {
                         flush.known[k - first..k - first + LANES].fill(true);
                     }
                     k += LANES;
-                    skip = LANES;
+                    tests.passed();
                     continue;
                 }
-                next_try = k + skip;
-                skip = (2 * skip).min(MAX_SKIP);
+                tests.failed(k);
             }
             while ends[x] as usize <= k {
                 x += 1;

@@ -784,3 +784,30 @@ fn pending_batches_hand_over_every_item_once_with_its_own_object() {
         }
     }
 }
+
+/// The walk's tests for rows of one object: due at every position while they pass; after
+/// failures, `LANES` items later, then twice as many each time, up to sixteen rows; a pass
+/// starts the back-off again.
+#[test]
+fn row_tests_back_off_after_failures_and_start_again_after_a_pass() {
+    use lanes::{LANES, RowTests};
+    let mut t = RowTests::from(5);
+    assert!(!t.due(4) && t.due(5) && t.due(6));
+    let mut at = 5;
+    let mut gaps = Vec::new();
+    for _ in 0..7 {
+        t.failed(at);
+        let next = (at..).find(|&i| t.due(i)).unwrap();
+        gaps.push(next - at);
+        at = next;
+    }
+    let l = LANES;
+    assert_eq!(gaps, [l, 2 * l, 4 * l, 8 * l, 16 * l, 16 * l, 16 * l]);
+    t.passed();
+    assert!(t.due(at + 1), "due at every position after a pass");
+    t.failed(at + 1);
+    assert!(
+        !t.due(at + LANES) && t.due(at + 1 + LANES),
+        "the back-off starts again"
+    );
+}
