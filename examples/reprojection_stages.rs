@@ -2,15 +2,16 @@
 //! fragments (rasteriser, linked-list A-buffer, export), the encode of the delta against what
 //! the display holds (`ReprojEncoder::encode`: move, sort, match, merge, digest, inserts), and
 //! the wire encode of that delta into one message (`FrameEncoder::encode_reprojection_into`:
-//! mask, removals and the inserts' deep-lz4 sections).
+//! mask, removals and the inserts' sections in `CODEC`'s layout).
 //!
 //! ```sh
-//! cargo run --release -p strata-examples --example reprojection_stages -- [THREADS] [FRAMES] [SCENE]
+//! cargo run --release -p strata-examples --example reprojection_stages -- [THREADS] [FRAMES] [SCENE] [CODEC]
 //! ```
 //!
 //! Renders `FRAMES` (default 24) frames of `SCENE` (default `dragon`, whose meshes are looked up
 //! on `STRATA_MODEL_PATH`) at 1280×720 through the scene's camera and animation on `THREADS`
-//! worker threads (default 1), as a render node serving the reprojection transfer does, but
+//! worker threads (default 1), encoding the inserts with `CODEC` (default `deep-lz4`; `strata
+//! node` serves what the display asks for, `deep-huff` in `scripts/remote-stages`), as a render node serving the reprojection transfer does, but
 //! without sockets or a second thread: the stages run one after the other, so each is timed
 //! alone. Prints the median of each stage over the frames after the first (which sends
 //! everything), the fragments held and inserted and the message's bytes in the last frame, and
@@ -45,6 +46,10 @@ fn main() -> Result<()> {
         bail!("FRAMES must be at least 2: the first frame is not timed");
     }
     let scene_name = args.next().unwrap_or_else(|| "dragon".to_owned());
+    let codec: Codec = match args.next() {
+        None => Codec::DeepLz4,
+        Some(s) => s.parse().map_err(|e| anyhow::anyhow!("CODEC: {e}"))?,
+    };
     let scene = strata_scene::open_scene(&scene_name, &SearchPath::from_env())?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -103,7 +108,7 @@ fn main() -> Result<()> {
                 &delta.touched,
                 &delta.removals,
                 &delta.inserts,
-                Codec::DeepLz4,
+                codec,
             )?;
             wire_ms.push(start.elapsed().as_secs_f64() * 1e3);
             for &b in &message {
@@ -125,7 +130,7 @@ fn main() -> Result<()> {
     println!(
         "{scene_name} {width}x{height}, {threads} thread(s), median of {} frames: render {:.2} ms, \
          encode {:.2} ms, wire {:.2} ms; last frame held {held} fragments, inserted {inserted}, \
-         {} bytes on the wire (deep-lz4); messages' hash {messages_hash:016x}",
+         {} bytes on the wire ({codec}); messages' hash {messages_hash:016x}",
         frames - 1,
         median(&render_ms),
         median(&encode_ms),
