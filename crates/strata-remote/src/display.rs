@@ -1042,15 +1042,15 @@ impl<'o> Driver<'o> {
             return;
         }
         let f = a.msg.header.frame_number;
+        // The view's size (a reprojection frame's inserts are compacted: not the frame's).
+        let (width, height) = a.msg.size;
         let node_ok = a.msg.header.node_id as usize == i
-            && a.msg.frame.width() == n.copy.frame().width()
-            && a.msg.frame.height() == n.copy.frame().height();
+            && width == n.copy.frame().width()
+            && height == n.copy.frame().height();
         if !node_ok {
             let what = format!(
-                "sent frame {f} as node {} at {}x{}, not what was asked; reconnecting",
+                "sent frame {f} as node {} at {width}x{height}, not what was asked; reconnecting",
                 a.msg.header.node_id,
-                a.msg.frame.width(),
-                a.msg.frame.height()
             );
             self.report(i, t, what);
             self.nodes[i].up = false;

@@ -51,8 +51,8 @@ pub use error::WireError;
 pub use mask::{MaskBuilder, PixelMask};
 pub use message::{
     DecodeOptions, FrameDecoder, FrameEncoder, FrameHeader, FrameInfo, FrameMessage, MAGIC,
-    Message, MessageType, PREFIX_LEN, Prefix, TYPE_OFFSET, TransferMethod, VERSION, decode,
-    decode_frame, encode_delta_into, encode_frame, encode_frame_into, encode_reprojection_into,
-    inspect_frame, message_type, parse_prefix,
+    Message, MessageType, PREFIX_LEN, Prefix, TYPE_OFFSET, TransferMethod, VERSION, compact_height,
+    decode, decode_frame, encode_delta_into, encode_frame, encode_frame_into,
+    encode_reprojection_into, inspect_frame, message_type, parse_prefix,
 };
 pub use removals::Removals;

@@ -7,8 +7,8 @@
 //!
 //! ```text
 //!  0  magic        [u8; 4]  "STRW"
-//!  4  version      u16      3 (version 2 packed reprojection normals as spherical angles,
-//!                           version 1 also predicted the deep layout across the whole frame)
+//!  4  version      u16      6 (version 5 laid a reprojection frame's inserts out over the
+//!                           whole frame; earlier versions: `docs/wire-format.md` §2)
 //!  6  type         u8       1 frame, 2 request, 4 error, 5 hello, 6 stats (3: reserved),
 //!                           7–9 multi-frame rendering (see `mfr.rs`)
 //!  7  flags        u8       0 (reserved)
@@ -52,7 +52,13 @@
 //! A `reprojection` frame has two sections before the codec's: `mask` (tag 32), the pixels it
 //! touches, and `removals` (tag 34, [`Removals`]), the positions each touched pixel loses from the
 //! display's reprojected run. Its frame holds the inserted *normal* fragments (their colour bytes
-//! are [`strata_core::PackedNormal`]s) and no fragments outside the mask.
+//! are [`strata_core::PackedNormal`]s) **compacted**: run `i` is the inserts of the mask's `i`-th
+//! pixel, the runs laid out `width` to a row over `⌈touched / width⌉` rows, the last row padded
+//! with empty runs ([`compact_height`]). The header's `width` and `height` are the view's; the
+//! codec's sections hold the compacted frame (its `counts` one per touched pixel, not one per
+//! pixel of the view). Version 5 laid the inserts out over the whole view, where two thirds
+//! of a turning dragon's pixels were empty runs the codec walked, counted and coded: compacted,
+//! a render node's wire encode takes a fifth less time (`docs/wire-format.md` §3.4).
 
 use strata_core::DeepFrame;
 
@@ -65,7 +71,7 @@ use crate::removals::Removals;
 /// The four bytes every message starts with.
 pub const MAGIC: [u8; 4] = *b"STRW";
 /// The format version this crate writes and reads.
-pub const VERSION: u16 = 5;
+pub const VERSION: u16 = 6;
 /// Bytes in the prefix.
 pub const PREFIX_LEN: usize = 20;
 /// Offset of the prefix's `type` byte.
@@ -266,7 +272,7 @@ pub struct FrameMessage {
     pub header: FrameHeader,
     /// The codec it was encoded with.
     pub codec: Codec,
-    /// The fragments.
+    /// The fragments: in a reprojection frame, its inserts compacted ([`compact_height`]).
     pub frame: DeepFrame,
     /// Difference transfer: the pixels whose runs `frame` replaces (runs outside it are empty).
     pub changed: Option<PixelMask>,
@@ -274,6 +280,18 @@ pub struct FrameMessage {
     pub stale: Option<PixelMask>,
     /// Reprojection transfer: the positions each pixel of `changed` loses.
     pub removals: Option<Removals>,
+    /// The view's width and height in pixels: `frame`'s, except in a reprojection frame, whose
+    /// `frame` holds its inserts compacted ([`compact_height`]).
+    pub size: (u32, u32),
+}
+
+/// The height of a reprojection frame's compacted inserts: `touched` runs (one a touched pixel,
+/// in mask order) laid out `width` to a row, the last row padded with empty runs. Zero when
+/// `width` is.
+pub fn compact_height(touched: u32, width: u32) -> u32 {
+    touched
+        .checked_div(width)
+        .map_or(0, |_| touched.div_ceil(width))
 }
 
 /// A frame message's header and section table, without decoding its payloads.
@@ -438,8 +456,10 @@ impl FrameEncoder {
 
     /// Encodes a `reprojection` frame: at the pixels of `touched`, the display removes the
     /// positions `removals` lists (one entry per touched pixel, in order) from its reprojected
-    /// runs and inserts the normal fragments of `inserts`, which must hold none outside
-    /// `touched`.
+    /// runs and inserts the normal fragments of `inserts`, the touched pixels' runs compacted:
+    /// run `i` is the `i`-th touched pixel's, `inserts.width()` (the view's width) to a row over
+    /// [`compact_height`] rows, its padding empty. The view's height is `touched`'s pixel count
+    /// over that width.
     pub fn encode_reprojection_into(
         &mut self,
         out: &mut Vec<u8>,
@@ -454,7 +474,15 @@ impl FrameEncoder {
                 "encode_reprojection_into writes reprojection frames only".into(),
             ));
         }
-        masks_fit(inserts, &[touched])?;
+        let (width, view_pixels) = (inserts.width(), touched.frame_pixels());
+        if (width == 0 && view_pixels != 0)
+            || view_pixels.checked_rem(width).is_some_and(|r| r != 0)
+        {
+            return Err(WireError::Encode(format!(
+                "a mask covers {view_pixels} pixels, not a whole number of {width}-pixel rows"
+            )));
+        }
+        let height = view_pixels.checked_div(width).unwrap_or(0);
         if removals.pixel_count() != touched.len() as usize {
             return Err(WireError::Encode(format!(
                 "{} removal entries for {} touched pixels",
@@ -462,11 +490,30 @@ impl FrameEncoder {
                 touched.len()
             )));
         }
-        all_inside(inserts, touched)?;
-        self.write_message(out, header, inserts, codec, |scratch| {
-            scratch.push_with(SectionTag::Mask, |raw| touched.encode(raw));
-            scratch.push_with(SectionTag::Removals, |raw| removals.encode(raw));
-        })
+        let rows = compact_height(touched.len(), width);
+        if inserts.height() != rows {
+            return Err(WireError::Encode(format!(
+                "the inserts of {} touched pixels take {rows} rows of {width}, not {}",
+                touched.len(),
+                inserts.height()
+            )));
+        }
+        let padding = past_touched(inserts, touched.len());
+        if padding > 0 {
+            return Err(WireError::Encode(format!(
+                "{padding} inserted fragments lie past the touched pixels' runs"
+            )));
+        }
+        codec.validate()?;
+        self.scratch.clear();
+        self.scratch
+            .push_with(SectionTag::Mask, |raw| touched.encode(raw));
+        self.scratch
+            .push_with(SectionTag::Removals, |raw| removals.encode(raw));
+        self.scratch.push_frame(inserts, codec);
+        let size = (width, height, inserts.fragment_count());
+        write_frame(out, header, size, codec, &self.scratch.sections(codec)?);
+        Ok(())
     }
 
     /// Lays out the sections `extra` appends, then `frame`'s in `codec`'s layout, compresses
@@ -483,7 +530,8 @@ impl FrameEncoder {
         self.scratch.clear();
         extra(&mut self.scratch);
         self.scratch.push_frame(frame, codec);
-        write_frame(out, header, frame, codec, &self.scratch.sections(codec)?);
+        let size = (frame.width(), frame.height(), frame.fragment_count());
+        write_frame(out, header, size, codec, &self.scratch.sections(codec)?);
         Ok(())
     }
 }
@@ -510,6 +558,15 @@ fn all_inside(frame: &DeepFrame, mask: &PixelMask) -> Result<(), WireError> {
     }
 }
 
+/// Fragments of a reprojection frame's compacted inserts past the runs of its `touched` pixels
+/// (in the padding of the last row).
+fn past_touched(inserts: &DeepFrame, touched: u32) -> u64 {
+    let offsets = inserts.offsets();
+    offsets
+        .get(touched as usize)
+        .map_or(0, |&o| inserts.fragment_count() as u64 - u64::from(o))
+}
+
 /// Fragments of `frame` at pixels outside `mask`.
 fn outside_mask(frame: &DeepFrame, mask: &PixelMask) -> u64 {
     let offsets = frame.offsets();
@@ -522,10 +579,11 @@ fn outside_mask(frame: &DeepFrame, mask: &PixelMask) -> u64 {
     total - inside
 }
 
+/// Writes a frame message: `size` is the view's width and height and the fragments sent.
 fn write_frame(
     out: &mut Vec<u8>,
     header: &FrameHeader,
-    frame: &DeepFrame,
+    size: (u32, u32, usize),
     codec: Codec,
     sections: &[EncodedSection<'_>],
 ) {
@@ -539,9 +597,10 @@ fn write_frame(
     out.extend_from_slice(&[0; 12]); // body_len and crc, patched below
     out.extend_from_slice(&header.frame_number.to_le_bytes());
     out.extend_from_slice(&header.node_id.to_le_bytes());
-    out.extend_from_slice(&frame.width().to_le_bytes());
-    out.extend_from_slice(&frame.height().to_le_bytes());
-    out.extend_from_slice(&(frame.fragment_count() as u32).to_le_bytes());
+    let (width, height, fragments) = size;
+    out.extend_from_slice(&width.to_le_bytes());
+    out.extend_from_slice(&height.to_le_bytes());
+    out.extend_from_slice(&(fragments as u32).to_le_bytes());
     let (transfer, mut flags, layers, threshold) = header.transfer.to_fields();
     if header.fixup {
         flags |= 2;
@@ -593,7 +652,7 @@ pub fn parse_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Prefix, Wir
             "flags",
             7,
             format!("{flags:#04x}"),
-            "no flags are defined in version 5",
+            "no flags are defined in version 6",
         ));
     }
     let body_len = r.u64("body_len")?;
@@ -666,40 +725,72 @@ impl FrameDecoder {
     ) -> Result<FrameMessage, WireError> {
         let parsed = parse_frame(bytes, options)?;
         let scratch = &mut self.scratch;
+        let (width, height) = (parsed.info.width, parsed.info.height);
+        let fragments = parsed.info.fragment_count as usize;
+        // Below the decode limits; u32 because masks index pixels with u32.
+        let pixels = u32::try_from(u64::from(width) * u64::from(height)).map_err(|_| {
+            WireError::invalid(
+                "width·height",
+                32,
+                u64::from(width) * u64::from(height),
+                "a difference frame holds at most 2^32 - 1 pixels",
+            )
+        })?;
+        let reprojection = parsed.info.header.transfer == TransferMethod::Reprojection;
+        // Every section at once, except in a reprojection frame: there the counts are one per
+        // touched pixel, so its mask is decoded before the codec's sections.
+        let sides = if reprojection { 2 } else { 0 };
         // Below the decode limits, which bound width·height and the fragments.
         codec::decompress_sections(
-            &parsed.sections,
+            &parsed.sections[..if reprojection {
+                sides
+            } else {
+                parsed.sections.len()
+            }],
             scratch,
-            parsed.info.width as usize * parsed.info.height as usize,
-            parsed.info.fragment_count as usize,
+            pixels as usize,
+            fragments,
         )?;
-        let decoded = &scratch.sections[..parsed.sections.len()];
-        // Below the decode limits; u32 because masks index pixels with u32.
-        let pixels = u32::try_from(u64::from(parsed.info.width) * u64::from(parsed.info.height))
-            .map_err(|_| {
-                WireError::invalid(
-                    "width·height",
-                    32,
-                    u64::from(parsed.info.width) * u64::from(parsed.info.height),
-                    "a difference frame holds at most 2^32 - 1 pixels",
-                )
-            })?;
-        let (side, first) = decode_side_sections(&parsed, decoded, pixels)?;
+        let (side, first) = decode_side_sections(&parsed, &scratch.sections, pixels)?;
         let SideSections {
             changed,
             stale,
             removals,
         } = side;
+        // A reprojection frame's inserts are compacted: one run a touched pixel.
+        let (rows, decoded) = match (&changed, reprojection) {
+            (Some(mask), true) => {
+                let rows = compact_height(mask.len(), width);
+                check_compacted(&parsed, first, rows)?;
+                codec::decompress_sections(
+                    &parsed.sections[first..],
+                    scratch,
+                    width as usize * rows as usize,
+                    fragments,
+                )?;
+                (rows, &scratch.sections[..parsed.sections.len() - first])
+            }
+            _ => (height, &scratch.sections[first..parsed.sections.len()]),
+        };
         let frame = codec::decode_sections(
             parsed.info.codec,
-            parsed.info.width,
-            parsed.info.height,
+            width,
+            rows,
             parsed.info.fragment_count,
             &parsed.sections[first..],
-            &decoded[first..],
+            decoded,
             &mut scratch.columns,
         )?;
-        if let Some(mask) = &changed {
+        if let (Some(mask), true) = (&changed, reprojection) {
+            let past = past_touched(&frame, mask.len());
+            if past > 0 {
+                return Err(WireError::section(
+                    "mask",
+                    parsed.sections[0].offset,
+                    format!("{past} inserted fragments lie past the touched pixels' runs"),
+                ));
+            }
+        } else if let Some(mask) = &changed {
             let outside = outside_mask(&frame, mask);
             if outside > 0 {
                 return Err(WireError::section(
@@ -716,6 +807,7 @@ impl FrameDecoder {
             changed,
             stale,
             removals,
+            size: (width, height),
         })
     }
 
@@ -1086,11 +1178,18 @@ fn check_decoded_len(
 ) -> Result<(), WireError> {
     let (width, height, fragment_count) = (fields.width, fields.height, fields.fragment_count);
     let pixels = u64::from(width) * u64::from(height);
-    let (lo, hi) = if want == SectionTag::Removals {
+    let (mut lo, hi) = if want == SectionTag::Removals {
         want.decoded_range(pixels, options.max_fragments)
     } else {
         want.decoded_range(pixels, u64::from(fragment_count))
     };
+    if fields.header.transfer == TransferMethod::Reprojection
+        && !matches!(want, SectionTag::Mask | SectionTag::Removals)
+    {
+        // The codec's sections hold the compacted inserts: as few pixels as none, as many as
+        // the view's (checked exactly once the mask is decoded: `check_compacted`).
+        lo = want.decoded_range(0, u64::from(fragment_count)).0;
+    }
     if decoded_len < lo || decoded_len > hi {
         let need = if lo == hi {
             format!("exactly {lo}")
@@ -1106,6 +1205,40 @@ fn check_decoded_len(
                 want.name()
             ),
         ));
+    }
+    Ok(())
+}
+
+/// A reprojection frame's codec sections (from `first` on), whose decoded lengths were
+/// checked against the view's pixels when the table was read, checked again against the
+/// `rows` rows of compacted inserts its mask makes.
+fn check_compacted(parsed: &ParsedFrame<'_>, first: usize, rows: u32) -> Result<(), WireError> {
+    let info = &parsed.info;
+    let pixels = u64::from(info.width) * u64::from(rows);
+    let fragments = u64::from(info.fragment_count);
+    for (i, s) in parsed.sections.iter().enumerate().skip(first) {
+        let (lo, hi) = s.info.tag.decoded_range(pixels, fragments);
+        let decoded_len = s.info.decoded_len;
+        if decoded_len < lo || decoded_len > hi {
+            let need = if lo == hi {
+                format!("exactly {lo}")
+            } else {
+                format!("{lo} to {hi}")
+            };
+            // The entry's `decoded_len` field.
+            let at = (FRAME_HEADER_LEN + SECTION_ENTRY_LEN * i + 12) as u64;
+            return Err(WireError::invalid(
+                "decoded_len",
+                at,
+                decoded_len,
+                format!(
+                    "the {} section of the {}x{rows} compacted inserts of a reprojection frame of \
+                     {fragments} fragments decodes to {need} bytes",
+                    s.info.tag.name(),
+                    info.width
+                ),
+            ));
+        }
     }
     Ok(())
 }

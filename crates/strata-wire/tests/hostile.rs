@@ -258,7 +258,7 @@ fn decode_hostile(bytes: &[u8], verify_checksum: bool) -> Result<FrameMessage, W
             let info = inspect_frame(bytes, &opts).expect("inspect accepts what decode accepts");
             assert_eq!(
                 (info.width, info.height, info.fragment_count as usize),
-                (m.frame.width(), m.frame.height(), m.frame.fragment_count())
+                (m.size.0, m.size.1, m.frame.fragment_count())
             );
             let again = reencode(m).unwrap_or_else(|e| {
                 panic!("the decoder accepted a message the encoder cannot write: {e}")
@@ -623,19 +623,19 @@ fn cases() -> Vec<Case> {
             needles: &["magic", "byte 0", "STRW"],
         },
         Case {
-            what: "version 4 (the previous format)",
-            edit: |b| b[4] = 4,
-            needles: &["version 4", "byte 4", "reads version 5"],
+            what: "version 5 (the previous format)",
+            edit: |b| b[4] = 5,
+            needles: &["version 5", "byte 4", "reads version 6"],
         },
         Case {
             what: "version 1",
             edit: |b| b[4] = 1,
-            needles: &["version 1", "byte 4", "reads version 5"],
+            needles: &["version 1", "byte 4", "reads version 6"],
         },
         Case {
-            what: "version 6",
-            edit: |b| b[4] = 6,
-            needles: &["version 6", "byte 4"],
+            what: "version 7",
+            edit: |b| b[4] = 7,
+            needles: &["version 7", "byte 4"],
         },
         Case {
             what: "version u16::MAX",
@@ -864,6 +864,82 @@ fn extreme_and_lying_header_fields_are_rejected_naming_the_field() {
                 }
             }
         }
+    }
+}
+
+/// `a` with its first `k` sections (table entries and payloads) taken from `b`, resealed.
+fn splice(a: &[u8], b: &[u8], k: usize) -> Vec<u8> {
+    let n = section_count(a);
+    assert_eq!(n, section_count(b));
+    // Each section's table entry and payload.
+    let sections = |m: &[u8]| -> Vec<(Vec<u8>, Vec<u8>)> {
+        let mut at = entry(n);
+        (0..n)
+            .map(|i| {
+                let e = m[entry(i)..entry(i + 1)].to_vec();
+                let len = get_u64(m, entry(i) + 4) as usize;
+                at += len;
+                (e, m[at - len..at].to_vec())
+            })
+            .collect()
+    };
+    let (sa, sb) = (sections(a), sections(b));
+    let parts: Vec<&(Vec<u8>, Vec<u8>)> = (0..n)
+        .map(|i| if i < k { &sb[i] } else { &sa[i] })
+        .collect();
+    let mut out = a[..FRAME_HEADER_LEN].to_vec();
+    for (e, _) in &parts {
+        out.extend_from_slice(e);
+    }
+    for (_, payload) in &parts {
+        out.extend_from_slice(payload);
+    }
+    reseal(&mut out);
+    out
+}
+
+#[test]
+fn inserts_past_the_touched_pixels_are_rejected() {
+    // A 3×2 view. Message `a` touches pixels 0 to 2 and inserts at the first and the third; `b`
+    // touches pixel 0 only. Both compact their inserts into one row of 3 runs, so `a`'s
+    // inserts under `b`'s mask and removals put a fragment in the padding, which no encoder
+    // writes: the display would have no pixel to put it at.
+    let header = FrameHeader {
+        transfer: TransferMethod::Reprojection,
+        ..FrameHeader::default()
+    };
+    let f = frag(0.5, [1, 2, 3, 4], 1);
+    let message = |touched: u32, runs: &[Vec<Fragment>]| {
+        let mut removals = Removals::new(7);
+        for _ in 0..touched {
+            removals.push_pixel([]);
+        }
+        let inserts = DeepFrame::from_pixel_lists(3, 1, runs).unwrap();
+        let mask = PixelMask::from_fn(6, |p| p < touched);
+        move |codec| {
+            let mut out = Vec::new();
+            encode_reprojection_into(&mut out, &header, &mask, &removals, &inserts, codec).unwrap();
+            out
+        }
+    };
+    let a = message(3, &[vec![f], vec![], vec![f]]);
+    let b = message(1, &[vec![f], vec![], vec![]]);
+    for codec in codecs() {
+        let (a, b) = (a(codec), b(codec));
+        assert_eq!(
+            decode_frame(&a, &options(true))
+                .unwrap()
+                .frame
+                .fragment_count(),
+            2
+        );
+        let spliced = splice(&a, &b, 2);
+        let e = decode_hostile(&spliced, true).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("1 inserted fragments lie past the touched pixels' runs"),
+            "{codec}: {e}"
+        );
     }
 }
 

@@ -810,12 +810,14 @@ fn difference_frames_carry_their_masks() {
 
 #[test]
 fn reprojection_frames_carry_their_mask_and_removals() {
-    // A 4×3 frame of normal fragments at pixels 0 and 5; pixel 2 only loses positions 0 and 3,
-    // pixel 5 loses position 1 and gains two fragments, pixel 0 only gains one.
-    let mut lists = vec![Vec::new(); 12];
+    // A 4×3 view whose pixels 0, 2 and 5 are touched: pixel 0 only gains one normal fragment,
+    // pixel 2 only loses positions 0 and 3, pixel 5 loses position 1 and gains two fragments.
+    // The inserts are compacted: one run a touched pixel, 4 to a row, one row padded.
+    let mut lists = vec![Vec::new(); 4];
     lists[0] = vec![frag(0.5, [1, 2, 3, 4], 1)];
-    lists[5] = vec![frag(0.25, [5, 6, 7, 8], 2), frag(0.75, [9; 4], 3)];
-    let frame = DeepFrame::from_pixel_lists(4, 3, &lists).unwrap();
+    lists[2] = vec![frag(0.25, [5, 6, 7, 8], 2), frag(0.75, [9; 4], 3)];
+    let frame = DeepFrame::from_pixel_lists(4, 1, &lists).unwrap();
+    assert_eq!(strata_wire::compact_height(3, 4), 1);
     let touched = PixelMask::from_fn(12, |p| [0, 2, 5].contains(&p));
     let mut removals = Removals::new(0x0123_4567_89ab_cdef);
     removals.set_depth_error(2.5e-5);
@@ -834,6 +836,7 @@ fn reprojection_frames_carry_their_mask_and_removals() {
         let back = decode_frame(&bytes, &DecodeOptions::default()).unwrap();
         assert_eq!(back.header, header, "{codec}");
         assert!(back.frame == frame, "{codec}");
+        assert_eq!(back.size, (4, 3), "{codec}: the view's size");
         assert_eq!(back.changed.as_ref(), Some(&touched), "{codec}");
         assert_eq!(back.stale, None, "{codec}");
         assert_eq!(back.removals.as_ref(), Some(&removals), "{codec}");
@@ -865,7 +868,23 @@ fn reprojection_frames_carry_their_mask_and_removals() {
     };
     let e = encode_reprojection_into(&mut out, &header, &outside, &one, &frame, Codec::Raw)
         .unwrap_err();
-    assert!(e.to_string().contains("2 fragments lie outside"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("2 inserted fragments lie past the touched pixels' runs"),
+        "{e}"
+    );
+    // The inserts laid out over the whole view (version 5), not compacted.
+    let mut whole = vec![Vec::new(); 12];
+    whole[0] = lists[0].clone();
+    whole[5] = lists[2].clone();
+    let whole = DeepFrame::from_pixel_lists(4, 3, &whole).unwrap();
+    let e = encode_reprojection_into(&mut out, &header, &touched, &removals, &whole, Codec::Raw)
+        .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("the inserts of 3 touched pixels take 1 rows of 4, not 3"),
+        "{e}"
+    );
     let e = encode_reprojection_into(
         &mut out,
         &header,
@@ -875,7 +894,11 @@ fn reprojection_frames_carry_their_mask_and_removals() {
         Codec::Raw,
     )
     .unwrap_err();
-    assert!(e.to_string().contains("a mask covers 11 pixels"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("a mask covers 11 pixels, not a whole number of 4-pixel rows"),
+        "{e}"
+    );
     let e = encode_reprojection_into(
         &mut out,
         &FrameHeader::default(),
@@ -1206,7 +1229,7 @@ fn messages_are_laid_out_as_specified() {
         // Prefix.
         assert_eq!(&bytes[0..4], b"STRW");
         assert_eq!(&bytes[4..6], &VERSION.to_le_bytes());
-        assert_eq!(&bytes[4..8], &[5, 0, 1, 0]);
+        assert_eq!(&bytes[4..8], &[6, 0, 1, 0]);
         assert_eq!(&bytes[8..16], &((bytes.len() - 20) as u64).to_le_bytes());
         assert_eq!(&bytes[16..20], &crc32fast::hash(&bytes[20..]).to_le_bytes());
         // Frame header.
@@ -1398,7 +1421,7 @@ fn squeeze(text: &str) -> String {
 
 /// The `raw` message of the worked example, as printed in the document.
 const WORKED_EXAMPLE_RAW: &str = "
-    53 54 52 57 05 00 01 00 e8 00 00 00 00 00 00 00
+    53 54 52 57 06 00 01 00 e8 00 00 00 00 00 00 00
     3c 43 ec 42 07 00 00 00 00 00 00 00 01 00 00 00
     02 00 00 00 01 00 00 00 03 00 00 00 00 00 00 00
     00 00 00 00 00 00 00 00 00 00 80 3f 00 00 00 00
@@ -1417,7 +1440,7 @@ const WORKED_EXAMPLE_RAW: &str = "
 ";
 /// The `deep-lz4` message of the worked example (every section stored: too small to shrink).
 const WORKED_EXAMPLE_DEEP_LZ4: &str = "
-    53 54 52 57 05 00 01 00 19 01 00 00 00 00 00 00
+    53 54 52 57 06 00 01 00 19 01 00 00 00 00 00 00
     88 17 bd dc 07 00 00 00 00 00 00 00 01 00 00 00
     02 00 00 00 01 00 00 00 03 00 00 00 00 00 03 00
     00 00 00 00 00 00 00 00 00 00 80 3f 00 00 00 00

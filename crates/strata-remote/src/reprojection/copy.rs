@@ -4,9 +4,10 @@
 
 use rayon::prelude::*;
 use strata_core::DeepFrame;
-use strata_wire::{MaskBuilder, PixelMask, Removals};
+use strata_wire::{MaskBuilder, PixelMask, Removals, compact_height};
 
 use super::held::{Entry, Held, Scratch, SortedBand, band_digest, frame_digest};
+use super::lanes::FrameRows;
 use super::view::View;
 use super::{BAND_ROWS, merge_pixel, sort_entries};
 
@@ -37,6 +38,8 @@ pub struct ReprojCopy {
     scratch: Scratch,
     /// Each band's digest of the next state.
     digests: Vec<u64>,
+    /// The inserts' run offsets spread back over the view's pixels ([`spread_offsets`]).
+    offsets: Vec<u32>,
 }
 
 impl ReprojCopy {
@@ -47,6 +50,7 @@ impl ReprojCopy {
             spare: Held::empty(0, 0),
             scratch: Scratch::default(),
             digests: Vec::new(),
+            offsets: Vec::new(),
         }
     }
 
@@ -56,7 +60,8 @@ impl ReprojCopy {
     }
 
     /// Moves the held fragments to `view`, applies the node's removals and inserts, and checks
-    /// the digest. On error the copy is left as it was.
+    /// the digest. `inserts` holds the touched pixels' runs compacted, as the wire sends them
+    /// ([`crate::reprojection::ReprojDelta::inserts`]). On error the copy is left as it was.
     pub fn apply(
         &mut self,
         view: &View,
@@ -65,18 +70,37 @@ impl ReprojCopy {
         inserts: &DeepFrame,
     ) -> Result<(), ApplyError> {
         let (width, height) = view.size();
-        if (inserts.width(), inserts.height()) != (width, height)
+        let rows = compact_height(touched.len(), width);
+        if (inserts.width(), inserts.height()) != (width, rows)
             || touched.frame_pixels() as usize != width as usize * height as usize
             || removals.pixel_count() != touched.len() as usize
         {
             return Err(ApplyError::Mismatch(format!(
-                "a {}x{} frame with {} touched pixels and {} removal entries for a {width}x{height} view",
+                "{}x{} compacted inserts with {} touched pixels and {} removal entries for a \
+                 {width}x{height} view",
                 inserts.width(),
                 inserts.height(),
                 touched.len(),
                 removals.pixel_count()
             )));
         }
+        let pixels = width as usize * height as usize;
+        // Every inserted fragment belongs to a touched pixel: the padding holds none.
+        let end = inserts.offsets()[touched.len() as usize] as usize;
+        if end != inserts.fragment_count() {
+            return Err(ApplyError::Mismatch(format!(
+                "{} inserted fragments lie past the touched pixels' runs",
+                inserts.fragment_count() - end
+            )));
+        }
+        spread_offsets(touched, inserts.offsets(), pixels, &mut self.offsets);
+        let inserts = FrameRows {
+            width: width as usize,
+            offsets: &self.offsets,
+            depths: inserts.depths(),
+            colors: inserts.colors(),
+            objects: inserts.objects(),
+        };
         // The held list moved to the view; each band task sorts its band of it and merges it
         // with the node's removals and inserts straight into its band of the next state.
         let moved = self.held.move_to(view, &mut self.scratch);
@@ -87,7 +111,7 @@ impl ReprojCopy {
         // Each band's next length: what it holds, less its removals, plus its inserts. The
         // merge checks every removal against its run (a band that would lose more than it
         // holds fails there, with the pixel named), and the band's length against this.
-        let offsets = inserts.offsets();
+        let offsets = inserts.offsets;
         let lens: Vec<usize> = (0..bands)
             .map(|d| {
                 let band = moved.band_pixels(d);
@@ -107,7 +131,7 @@ impl ReprojCopy {
                 .build_bands(view, &mut self.digests, |b, digest, entries, counts| {
                     let taken = moved.sort_band(b, |projected| {
                         merge_band(
-                            b, view, projected, &touch, removals, inserts, entries, counts,
+                            b, view, projected, &touch, removals, &inserts, entries, counts,
                         )
                     })?;
                     if entries.len() != lens[b] {
@@ -124,10 +148,11 @@ impl ReprojCopy {
             taken += t;
             all_fit &= fit && fits;
         }
-        if taken != inserts.fragment_count() {
+        if taken != end {
+            // Not reached: spread over the view, the inserts lie at the touched pixels only.
             return Err(ApplyError::Mismatch(format!(
                 "{} inserted fragments lie outside the touched pixels",
-                inserts.fragment_count() - taken
+                end - taken
             )));
         }
         if !all_fit {
@@ -147,6 +172,23 @@ impl ReprojCopy {
         std::mem::swap(&mut self.held, &mut self.spare);
         Ok(())
     }
+}
+
+/// The offsets of compacted inserts (run `i` the `i`-th touched pixel's; `compact` has an
+/// offset past the last touched pixel) spread over the `pixels` pixels of the view, into `out`:
+/// `out[p]..out[p + 1]` is pixel `p`'s run, empty where `touched` does not hold `p`. The
+/// fragment columns stay as they are: compacted or spread, the runs follow in pixel order.
+fn spread_offsets(touched: &PixelMask, compact: &[u32], pixels: usize, out: &mut Vec<u32>) {
+    out.clear();
+    out.reserve(pixels + 1);
+    let mut i = 0;
+    for &(start, len) in touched.runs() {
+        // The untouched pixels before the run start (and end) where its first run starts.
+        out.resize(start as usize, compact[i]);
+        out.extend_from_slice(&compact[i..i + len as usize]);
+        i += len as usize;
+    }
+    out.resize(pixels + 1, compact[i]);
 }
 
 /// The touched pixels of a frame: the mask's runs, and for each the index (in mask order) of
@@ -197,7 +239,7 @@ fn merge_band(
     projected: &SortedBand,
     touched: &Touched<'_>,
     removals: &Removals,
-    inserts: &DeepFrame,
+    inserts: &FrameRows<'_>,
     entries: &mut Vec<Entry>,
     counts: &mut Vec<u32>,
 ) -> Result<usize, ApplyError> {
@@ -210,7 +252,7 @@ fn merge_band(
     let mut taken = 0;
     let (mut row_entries, mut known) = (Vec::new(), Vec::new());
     let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);
-    let offsets = inserts.offsets();
+    let offsets = inserts.offsets;
     // The run holding or following the pixel the walk is at.
     let mut r = touched.run_after(rows.start * w);
     for row in rows {
@@ -252,11 +294,11 @@ fn merge_band(
                 )));
             }
             ins.clear();
-            for (k, f) in (offsets[p] as usize..).zip(inserts.run(p).iter()) {
+            for k in offsets[p] as usize..offsets[p + 1] as usize {
                 if !known[k - row_first] {
                     return Err(ApplyError::Mismatch(format!(
                         "pixel {p}: object {} is not in the scene",
-                        f.object.0
+                        inserts.objects[k].0
                     )));
                 }
                 ins.push(row_entries[k - row_first]);

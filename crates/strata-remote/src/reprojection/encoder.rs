@@ -4,9 +4,10 @@
 
 use strata_core::{DeepFrame, GatherWriter, GatheredPixels};
 use strata_wire::removals::MAX_REMOVALS_PER_PIXEL;
-use strata_wire::{MaskBuilder, PixelMask, Removals};
+use strata_wire::{MaskBuilder, PixelMask, Removals, compact_height};
 
 use super::held::{Entry, Held, Scratch, SortedBand, band_digest, frame_digest};
+use super::lanes::FrameRows;
 use super::view::View;
 use super::{BAND_ROWS, DEPTH_SLACK, close, merge_pixel, sort_stably_by_key};
 
@@ -17,7 +18,9 @@ pub struct ReprojDelta {
     pub touched: PixelMask,
     /// Per touched pixel, the projected positions removed; with the digest of the new state.
     pub removals: Removals,
-    /// The inserted normal fragments (none outside `touched`).
+    /// The inserted normal fragments, compacted as the wire sends them: run `i` is the `i`-th
+    /// touched pixel's, laid out the view's width to a row over
+    /// [`strata_wire::compact_height`] rows, the last row padded with empty runs.
     pub inserts: DeepFrame,
     /// Fragments the display will hold after applying it.
     pub held: u64,
@@ -47,6 +50,8 @@ pub struct ReprojEncoder {
     /// A delta given back ([`ReprojEncoder::recycle`]), whose buffers the next frame's delta
     /// reuses.
     spare: Option<ReprojDelta>,
+    /// The empty runs that pad the compacted inserts' last row.
+    padding: GatheredPixels,
 }
 
 /// One band's share of a node frame (beside its new state, which it writes into the next held
@@ -99,6 +104,7 @@ impl ReprojEncoder {
             scratch: Scratch::default(),
             bands: Vec::new(),
             spare: None,
+            padding: GatheredPixels::default(),
         }
     }
 
@@ -181,12 +187,21 @@ impl ReprojEncoder {
             self.bands.iter().map(|o| o.digest),
         ));
         removals.set_depth_error(depth_error);
-        // The bands' inserts, assembled in parallel. They are rendered fragments of this frame's
-        // size, so this cannot fail; were it to, the empty frame would make the display's
-        // digest differ and the link reset, not lose fragments silently.
-        let gathered: Vec<&GatheredPixels> = self.bands.iter().map(|o| &o.gathered).collect();
-        let inserts = DeepFrame::from_gathered_reusing(width, height, gathered, reuse)
-            .unwrap_or_else(|_| DeepFrame::empty(width, height));
+        // The bands' inserts, one run a touched pixel, assembled in parallel and padded to
+        // whole rows. They are rendered fragments of this frame, so this cannot fail; were it
+        // to, the empty frame would make the display's digest differ and the link reset, not
+        // lose fragments silently.
+        let touched: usize = self.bands.iter().map(|o| o.touched.len()).sum();
+        // At most the view's pixels, which a mask counts in a `u32`.
+        let rows = compact_height(touched as u32, width);
+        let mut padding = GatherWriter::reusing(std::mem::take(&mut self.padding));
+        padding.push_empty(rows as usize * w - touched);
+        self.padding = padding.finish();
+        let gathered: Vec<&GatheredPixels> = (self.bands.iter().map(|o| &o.gathered))
+            .chain([&self.padding])
+            .collect();
+        let inserts = DeepFrame::from_gathered_reusing(width, rows, gathered, reuse)
+            .unwrap_or_else(|_| DeepFrame::empty(width, rows));
         let count = held.len() as u64;
         self.held = Some(held);
         Ok(ReprojDelta {
@@ -222,12 +237,12 @@ impl BandOut {
         self.removed.clear();
         self.depth_error = 0.0;
         let offsets = rendered.offsets();
+        let frame_rows = FrameRows::of(rendered);
         // The inserts go into the last frame's buffers.
         let mut inserts = GatherWriter::reusing(std::mem::take(&mut self.gathered));
-        let mut empty = 0;
         for row in rows {
             // Each row's entries are made first, in lanes.
-            view.row_entries(rendered, row, &mut self.row_entries, &mut self.known);
+            view.row_entries(&frame_rows, row, &mut self.row_entries, &mut self.known);
             let row_first = offsets[row * w] as usize;
             for p in row * w..(row + 1) * w {
                 let run = offsets[p] as usize..offsets[p + 1] as usize;
@@ -235,7 +250,6 @@ impl BandOut {
                 if run.is_empty() && held.is_empty() {
                     // Nothing rendered, nothing held: nothing to say.
                     counts.push(0);
-                    empty += 1;
                     continue;
                 }
                 let s = &mut self.pixel;
@@ -257,7 +271,6 @@ impl BandOut {
                 self.depth_error = self.depth_error.max(e);
                 counts.push((entries.len() - start) as u32);
                 if s.removed.is_empty() && s.inserted.is_empty() {
-                    empty += 1;
                     continue;
                 }
                 self.touched.push(p as u32);
@@ -272,12 +285,9 @@ impl BandOut {
                 for k in &mut s.inserted {
                     *k -= row_run.start as u32;
                 }
-                inserts.push_empty(empty);
-                empty = 0;
                 inserts.push_from_frame(rendered, p, &s.inserted);
             }
         }
-        inserts.push_empty(empty);
         self.digest = band_digest(b, entries, counts);
         self.gathered = inserts.finish();
     }

@@ -553,6 +553,32 @@ impl View {
     }
 }
 
+/// Runs laid out as a frame's, row by row, with the fragment columns they index: what
+/// [`View::row_entries`] reads. A node's rendered frame ([`FrameRows::of`]), or a display's
+/// compacted inserts spread back over the view's pixels.
+pub(crate) struct FrameRows<'a> {
+    /// Pixels a row.
+    pub width: usize,
+    /// `offsets[p]..offsets[p + 1]` indexes the columns for pixel `p`.
+    pub offsets: &'a [u32],
+    pub depths: &'a [f32],
+    pub colors: &'a [Rgba8],
+    pub objects: &'a [ObjectId],
+}
+
+impl<'a> FrameRows<'a> {
+    /// The rows of `frame`.
+    pub(crate) fn of(frame: &'a DeepFrame) -> Self {
+        FrameRows {
+            width: frame.width() as usize,
+            offsets: frame.offsets(),
+            depths: frame.depths(),
+            colors: frame.colors(),
+            objects: frame.objects(),
+        }
+    }
+}
+
 /// [`View::row_entries`]' batches: each through the lanes, into the row's entries.
 struct RowFlush<'a> {
     view: &'a View,
@@ -600,13 +626,13 @@ impl View {
     /// ([`Pending`]).
     pub(crate) fn row_entries(
         &self,
-        frame: &DeepFrame,
+        frame: &FrameRows<'_>,
         row: usize,
         out: &mut Vec<Entry>,
         known: &mut Vec<bool>,
     ) {
-        let w = frame.width() as usize;
-        let offsets = frame.offsets();
+        let w = frame.width;
+        let offsets = frame.offsets;
         let (first, last) = (offsets[row * w] as usize, offsets[(row + 1) * w] as usize);
         // Only `known` is cleared: an entry is written wherever its flag is set, and the
         // others are meaningless, so the last row's entries may stay (clearing them was a
@@ -614,7 +640,7 @@ impl View {
         out.resize(last - first, Entry::default());
         known.clear();
         known.resize(last - first, false);
-        let (depths, colors, objects) = (frame.depths(), frame.colors(), frame.objects());
+        let (depths, colors, objects) = (frame.depths, frame.colors, frame.objects);
         let mut flush = RowFlush {
             view: self,
             row: row as u32,

@@ -129,33 +129,37 @@ fn a_removal_beyond_a_run_or_a_wrong_digest_is_an_error_and_keeps_the_copy() {
     r.push_pixel([1000]);
     let before = copy.held().clone();
     assert!(matches!(
-        copy.apply(&v, &touched, &r, &DeepFrame::empty(W, H)),
+        copy.apply(&v, &touched, &r, &DeepFrame::empty(W, 1)),
         Err(ApplyError::Mismatch(_))
     ));
     assert_eq!(copy.held(), &before);
-    // An insert at a pixel the mask does not touch (the display would ignore it, so a node
-    // that sends one is broken).
-    let untouched = (0..W * H).find(|&q| q != p).unwrap() as usize;
+    // An insert past the touched pixels' runs, in the padding of the compacted inserts (the
+    // display would ignore it, so a node that sends one is broken).
     let f = render(&s, &ids, 0, FragmentOutput::PackedNormal)
         .run(p as usize)
         .iter()
         .next()
         .expect("a touched pixel of the first frame was rendered");
-    let stray = DeepFrame::build(W, H, &vec_with_one(untouched), |_, out| out.push(f)).unwrap();
+    let stray = DeepFrame::build(W, 1, &vec_with_one(W as usize, 1), |_, out| out.push(f)).unwrap();
     let mut r = Removals::new(0);
     r.push_pixel([]);
     assert!(matches!(
         copy.apply(&v, &touched, &r, &stray),
-        Err(ApplyError::Mismatch(m)) if m.contains("outside the touched pixels")
+        Err(ApplyError::Mismatch(m)) if m.contains("1 inserted fragments lie past the touched")
     ));
     assert_eq!(copy.held(), &before);
-    // The same, with the stray insert in a band (16 rows) that no touched pixel is in.
-    let far = ((p / W + 16) % H * W) as usize;
-    assert_ne!(far / (16 * W as usize), p as usize / (16 * W as usize));
-    let stray = DeepFrame::build(W, H, &vec_with_one(far), |_, out| out.push(f)).unwrap();
+    // The same insert at the touched pixel, but laid out over the whole view (version 5 of
+    // the wire format), not compacted.
+    let whole = DeepFrame::build(
+        W,
+        H,
+        &vec_with_one((W * H) as usize, p as usize),
+        |_, out| out.push(f),
+    )
+    .unwrap();
     assert!(matches!(
-        copy.apply(&v, &touched, &r, &stray),
-        Err(ApplyError::Mismatch(m)) if m.contains("outside the touched pixels")
+        copy.apply(&v, &touched, &r, &whole),
+        Err(ApplyError::Mismatch(m)) if m.contains("compacted inserts")
     ));
     assert_eq!(copy.held(), &before);
     // A band told to lose more fragments than it holds in all (its next length would be
@@ -170,15 +174,16 @@ fn a_removal_beyond_a_run_or_a_wrong_digest_is_an_error_and_keeps_the_copy() {
     let mut r = Removals::new(0);
     r.push_pixel(0..=band_total as u32);
     assert!(matches!(
-        copy.apply(&v, &touched, &r, &DeepFrame::empty(W, H)),
+        copy.apply(&v, &touched, &r, &DeepFrame::empty(W, 1)),
         Err(ApplyError::Mismatch(m)) if m.contains(&format!("pixel {q} holds {held_at_q} fragments"))
     ));
     assert_eq!(copy.held(), &before);
 }
 
 /// Per-pixel counts of a frame with one fragment at pixel `p`.
-fn vec_with_one(p: usize) -> Vec<u32> {
-    let mut counts = vec![0; (W * H) as usize];
+/// Run lengths of `pixels` pixels: one fragment at pixel `p`, none elsewhere.
+fn vec_with_one(pixels: usize, p: usize) -> Vec<u32> {
+    let mut counts = vec![0; pixels];
     counts[p] = 1;
     counts
 }
@@ -525,7 +530,12 @@ fn entries_made_in_lanes_are_those_made_one_at_a_time_bit_for_bit() {
     let mut checked = [0usize; 2];
     for v in lane_test_views(&s, &ids) {
         for row in 0..H as usize {
-            v.row_entries(&frame, row, &mut entries, &mut known);
+            v.row_entries(
+                &super::lanes::FrameRows::of(&frame),
+                row,
+                &mut entries,
+                &mut known,
+            );
             let first = frame.offsets()[row * W as usize] as usize;
             assert_eq!(
                 entries.len(),
