@@ -38,7 +38,7 @@ fn assert_same(a: &FrameMessage, b: &FrameMessage) {
     );
     assert_eq!(without_matrices(&a.header), without_matrices(&b.header));
     assert_eq!((&a.changed, &a.stale), (&b.changed, &b.stale));
-    assert_eq!(a.removals, b.removals);
+    assert_eq!((&a.removals, a.size), (&b.removals, b.size));
 }
 
 /// Encodes a decoded frame message again, as a relay would.

@@ -50,8 +50,8 @@ use strata_scene::Scene;
 use strata_wire::mfr::{MFR_PROTOCOL, MfrBuffer, MfrHello, MfrObject, MfrRole, MfrSnapshot};
 use strata_wire::stream::{ReadError, read_message};
 use strata_wire::{
-    Codec, DecodeOptions, FrameHeader, MessageType, WireError, decode_error, decode_frame,
-    encode_error_into, encode_frame_into,
+    Codec, DecodeOptions, FrameHeader, MessageType, TransferMethod, WireError, decode_error,
+    decode_frame, encode_error_into, encode_frame_into,
 };
 
 use crate::authority::{ObjectPose, Snapshot, ViewPose};
@@ -386,6 +386,14 @@ pub fn decode_buffer(
         return Err(TcpError::Protocol(format!(
             "buffer header of SC frame {} followed by the frame of SC frame {}",
             h.sc_frame, f.header.frame_number
+        )));
+    }
+    // Full frames only: a difference or reprojection frame is a delta against a state an SC
+    // frame does not have (and a reprojection frame's inserts are compacted, not the view).
+    if f.header.transfer != TransferMethod::Full {
+        return Err(TcpError::Protocol(format!(
+            "an SC frame sent as a {:?} transfer, not as a full frame",
+            f.header.transfer
         )));
     }
     if (f.frame.width(), f.frame.height()) != size {

@@ -28,7 +28,9 @@ use strata_mfr::{
 use strata_scene::{Scene, SearchPath, open_scene};
 use strata_wire::mfr::{MFR_PROTOCOL, MfrHello, MfrRole, MfrSnapshot};
 use strata_wire::stream::read_message;
-use strata_wire::{Codec, DecodeOptions, MAGIC, VERSION};
+use strata_wire::{
+    Codec, DecodeOptions, FrameHeader, MAGIC, PixelMask, TransferMethod, VERSION, encode_delta_into,
+};
 
 const SIZE: (u32, u32) = (64, 36);
 
@@ -138,6 +140,26 @@ fn a_buffer_of_the_wrong_size_or_with_unknown_objects_is_refused() {
         e.to_string().contains("an SC frame of 64x36 for 32x18"),
         "{e}"
     );
+    // The right size and frame, but sent as a difference frame (every pixel replaced): an SC
+    // frame is a full frame, not a delta against a state the FC does not hold.
+    let pixels = SIZE.0 * SIZE.1;
+    let delta = FrameHeader {
+        frame_number: buffer.sc_frame,
+        transfer: TransferMethod::Difference,
+        ..FrameHeader::default()
+    };
+    let mut as_delta = Vec::new();
+    encode_delta_into(
+        &mut as_delta,
+        &delta,
+        &PixelMask::full(pixels),
+        &PixelMask::empty(pixels),
+        &buffer.frame,
+        Codec::DeepLz4,
+    )
+    .unwrap();
+    let e = decode_buffer(&header, &as_delta, &scene, SIZE, &limits).unwrap_err();
+    assert!(e.to_string().contains("not as a full frame"), "{e}");
     buffer.excluded.push(ObjectId(9999));
     encode_buffer(
         &buffer,

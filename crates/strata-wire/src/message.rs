@@ -737,41 +737,56 @@ impl FrameDecoder {
             )
         })?;
         let reprojection = parsed.info.header.transfer == TransferMethod::Reprojection;
-        // Every section at once, except in a reprojection frame: there the counts are one per
-        // touched pixel, so its mask is decoded before the codec's sections.
-        let sides = if reprojection { 2 } else { 0 };
-        // Below the decode limits, which bound width·height and the fragments.
-        codec::decompress_sections(
-            &parsed.sections[..if reprojection {
-                sides
-            } else {
-                parsed.sections.len()
-            }],
-            scratch,
-            pixels as usize,
-            fragments,
-        )?;
-        let (side, first) = decode_side_sections(&parsed, &scratch.sections, pixels)?;
+        // Every section at once, except in a reprojection frame: there the codec's sections
+        // hold one run a touched pixel, so its mask is decoded first.
+        let (side, first, rows, decoded) = if reprojection {
+            if width == 0 && height != 0 {
+                // Its view's height would be lost: a reprojection frame tells it by the
+                // mask's pixels over the width.
+                return Err(WireError::invalid(
+                    "height",
+                    36,
+                    height,
+                    "a reprojection frame of width 0 has height 0",
+                ));
+            }
+            codec::decompress_sections(&parsed.sections[..1], scratch, 0, fragments)?;
+            let mask = PixelMask::decode(&scratch.sections[0], parsed.sections[0].offset, pixels)?;
+            let rows = compact_height(mask.len(), width);
+            check_compacted(&parsed, 2, rows)?;
+            // The removals with the codec's sections, the counts read for the compacted
+            // frame's pixels (below the view's).
+            codec::decompress_sections(
+                &parsed.sections[1..],
+                scratch,
+                width as usize * rows as usize,
+                fragments,
+            )?;
+            let removals =
+                Removals::decode(&scratch.sections[0], parsed.sections[1].offset, mask.len())?;
+            let side = SideSections {
+                changed: Some(mask),
+                stale: None,
+                removals: Some(removals),
+            };
+            (
+                side,
+                2,
+                rows,
+                &scratch.sections[1..parsed.sections.len() - 1],
+            )
+        } else {
+            // Below the decode limits, which bound width·height and the fragments.
+            codec::decompress_sections(&parsed.sections, scratch, pixels as usize, fragments)?;
+            let decoded = &scratch.sections[..parsed.sections.len()];
+            let (side, first) = decode_side_sections(&parsed, decoded, pixels)?;
+            (side, first, height, &decoded[first..])
+        };
         let SideSections {
             changed,
             stale,
             removals,
         } = side;
-        // A reprojection frame's inserts are compacted: one run a touched pixel.
-        let (rows, decoded) = match (&changed, reprojection) {
-            (Some(mask), true) => {
-                let rows = compact_height(mask.len(), width);
-                check_compacted(&parsed, first, rows)?;
-                codec::decompress_sections(
-                    &parsed.sections[first..],
-                    scratch,
-                    width as usize * rows as usize,
-                    fragments,
-                )?;
-                (rows, &scratch.sections[..parsed.sections.len() - first])
-            }
-            _ => (height, &scratch.sections[first..parsed.sections.len()]),
-        };
         let frame = codec::decode_sections(
             parsed.info.codec,
             width,
@@ -826,9 +841,9 @@ struct SideSections {
     removals: Option<Removals>,
 }
 
-/// Decodes the difference transfer's `mask` and `stale` or the reprojection transfer's `mask`
-/// and `removals` from the front of `decoded`; returns them with the index of the codec's first
-/// section.
+/// Decodes the difference transfer's `mask` and `stale` from the front of `decoded`; returns
+/// them with the index of the codec's first section. (A reprojection frame's `mask` and
+/// `removals` are decoded in [`FrameDecoder::decode_frame`], between its two decompressions.)
 fn decode_side_sections(
     parsed: &ParsedFrame<'_>,
     decoded: &[Vec<u8>],
@@ -843,16 +858,6 @@ fn decode_side_sections(
                 changed: Some(mask),
                 stale: Some(stale),
                 removals: None,
-            };
-            Ok((side, 2))
-        }
-        TransferMethod::Reprojection => {
-            let mask = PixelMask::decode(&decoded[0], at(0), pixels)?;
-            let removals = Removals::decode(&decoded[1], at(1), mask.len())?;
-            let side = SideSections {
-                changed: Some(mask),
-                stale: None,
-                removals: Some(removals),
             };
             Ok((side, 2))
         }

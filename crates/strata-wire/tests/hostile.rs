@@ -98,7 +98,9 @@ fn delta_message(codec: Codec) -> Vec<u8> {
     out
 }
 
-/// The small frame as a reprojection frame: pixels 0 to 4 touched, removals at 1 and 3.
+/// The small frame as the compacted inserts of a reprojection frame of a 3×4 view: five
+/// pixels touched (0, 2, 5, 6 and 11), their runs the small frame's first five (its sixth, empty,
+/// pads the second row), removals at the second and the fourth.
 fn reprojection_message(codec: Codec) -> Vec<u8> {
     let header = FrameHeader {
         frame_number: 44,
@@ -106,7 +108,7 @@ fn reprojection_message(codec: Codec) -> Vec<u8> {
         transfer: TransferMethod::Reprojection,
         ..FrameHeader::default()
     };
-    let touched = PixelMask::from_fn(6, |p| p < 5);
+    let touched = PixelMask::from_fn(12, |p| [0, 2, 5, 6, 11].contains(&p));
     let mut removals = Removals::new(0xdead_beef);
     removals.set_depth_error(1e-4);
     for p in 0..5u32 {
@@ -217,6 +219,7 @@ fn assert_same_message(a: &FrameMessage, b: &FrameMessage) {
     };
     assert_eq!(strip(&a.header), strip(&b.header));
     assert_eq!((&a.changed, &a.stale), (&b.changed, &b.stale));
+    assert_eq!((&a.removals, a.size), (&b.removals, b.size));
 }
 
 /// Every decoding error says where: a byte offset, or (for fragments that decoded but do not
@@ -941,6 +944,28 @@ fn inserts_past_the_touched_pixels_are_rejected() {
             "{codec}: {e}"
         );
     }
+}
+
+#[test]
+fn codec_sections_sized_for_the_view_not_the_compacted_inserts_are_rejected() {
+    // The reprojection message's inserts are 3×2 (six pixels) in a 3×4 view (twelve). Its
+    // lists section (`lz4`: the list layout, whose length is exact) claiming the view's length
+    // passes the table's check, which cannot know the compacted size before the mask is
+    // decoded, and is caught once it is.
+    let mut bytes = reprojection_message(Codec::Lz4);
+    let at = entry(2) + 12;
+    let (compacted, view) = (4 * 6 + 12 * 7, 4 * 12 + 12 * 7);
+    assert_eq!(get_u64(&bytes, at), compacted);
+    put_u64(&mut bytes, at, view);
+    reseal(&mut bytes);
+    let e = decode_hostile(&bytes, true).unwrap_err();
+    assert!(
+        e.to_string().contains(&format!(
+            "byte {at} (decoded_len): {view} is invalid: the lists section of the 3x2 compacted \
+             inserts of a reprojection frame of 7 fragments decodes to exactly {compacted} bytes"
+        )),
+        "{e}"
+    );
 }
 
 #[test]

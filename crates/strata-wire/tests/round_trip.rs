@@ -603,6 +603,38 @@ fn one_decoder_reusing_its_buffers_decodes_a_stream_like_fresh_decoders() {
         let mut delta = Vec::new();
         encode_delta_into(&mut delta, &header, &changed, &stale, &small.1, codec).unwrap();
         stream.push(delta);
+        // A reprojection frame: its inserts compacted into fewer pixels than its view has.
+        let inserts = DeepFrame::from_pixel_lists(
+            4,
+            1,
+            &[
+                vec![frag(0.5, [1, 2, 3, 4], 1)],
+                vec![],
+                vec![frag(0.25, [5, 6, 7, 8], 2), frag(0.75, [9; 4], 3)],
+                vec![],
+            ],
+        )
+        .unwrap();
+        let touched = PixelMask::from_fn(12, |p| [0, 2, 5].contains(&p));
+        let mut removals = Removals::new(3);
+        for r in [&[][..], &[0, 3], &[1]] {
+            removals.push_pixel(r.iter().copied());
+        }
+        let header = FrameHeader {
+            transfer: TransferMethod::Reprojection,
+            ..small.0
+        };
+        let mut reprojection = Vec::new();
+        encode_reprojection_into(
+            &mut reprojection,
+            &header,
+            &touched,
+            &removals,
+            &inserts,
+            codec,
+        )
+        .unwrap();
+        stream.push(reprojection);
         // Garbage through the second half of the payloads.
         let mut corrupt = encode_frame(&big.0, &big.1, codec).unwrap();
         let half = corrupt.len() / 2;
@@ -911,6 +943,45 @@ fn reprojection_frames_carry_their_mask_and_removals() {
     assert!(e.to_string().contains("reprojection frames only"), "{e}");
     let e = encode_frame(&header, &frame, Codec::Raw).unwrap_err();
     assert!(e.to_string().contains("encode_reprojection_into"), "{e}");
+    // Inserts of width 0 cannot say the view's height.
+    let e = encode_reprojection_into(
+        &mut out,
+        &header,
+        &PixelMask::empty(6),
+        &Removals::new(0),
+        &DeepFrame::empty(0, 0),
+        Codec::Raw,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("a mask covers 6 pixels, not a whole number of 0-pixel rows"),
+        "{e}"
+    );
+    // A view of no pixels: no rows of inserts.
+    encode_reprojection_into(
+        &mut out,
+        &header,
+        &PixelMask::empty(0),
+        &Removals::new(0),
+        &DeepFrame::empty(0, 0),
+        Codec::Raw,
+    )
+    .unwrap();
+    let back = decode_frame(&out, &DecodeOptions::default()).unwrap();
+    assert_eq!((back.size, back.frame.fragment_count()), ((0, 0), 0));
+    // Its height made 5 (and the message resealed): a reprojection view of width 0 must have
+    // height 0, or re-encoding it would lose the height.
+    out[36..40].copy_from_slice(&5u32.to_le_bytes());
+    let crc = crc32fast::hash(&out[20..]);
+    out[16..20].copy_from_slice(&crc.to_le_bytes());
+    let e = decode_frame(&out, &DecodeOptions::default()).unwrap_err();
+    assert!(
+        e.to_string().contains(
+            "byte 36 (height): 5 is invalid: a reprojection frame of width 0 has height 0"
+        ),
+        "{e}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -135,8 +135,8 @@ impl ReprojCopy {
                         )
                     })?;
                     if entries.len() != lens[b] {
-                        // Inserts outside the touched pixels (counted in the length, not taken),
-                        // reported below.
+                        // Runs that do not add up to the band's length: reported below (not
+                        // reached, as said there).
                         return Ok((taken, false));
                     }
                     *digest = band_digest(b, entries, counts);
@@ -149,7 +149,8 @@ impl ReprojCopy {
             all_fit &= fit && fits;
         }
         if taken != end {
-            // Not reached: spread over the view, the inserts lie at the touched pixels only.
+            // Not reached: spread over the view, every insert lies at a touched pixel and is
+            // taken there. Kept as a check of the spreading and the walk.
             return Err(ApplyError::Mismatch(format!(
                 "{} inserted fragments lie outside the touched pixels",
                 end - taken
@@ -178,7 +179,12 @@ impl ReprojCopy {
 /// offset past the last touched pixel) spread over the `pixels` pixels of the view, into `out`:
 /// `out[p]..out[p + 1]` is pixel `p`'s run, empty where `touched` does not hold `p`. The
 /// fragment columns stay as they are: compacted or spread, the runs follow in pixel order.
-fn spread_offsets(touched: &PixelMask, compact: &[u32], pixels: usize, out: &mut Vec<u32>) {
+pub(super) fn spread_offsets(
+    touched: &PixelMask,
+    compact: &[u32],
+    pixels: usize,
+    out: &mut Vec<u32>,
+) {
     out.clear();
     out.reserve(pixels + 1);
     let mut i = 0;
@@ -248,7 +254,7 @@ fn merge_band(
     entries.clear();
     counts.clear();
     let mut ins: Vec<Entry> = Vec::new();
-    // Inserts taken, to check that none lies outside the touched pixels.
+    // Inserts taken, which `apply` checks against the inserts sent.
     let mut taken = 0;
     let (mut row_entries, mut known) = (Vec::new(), Vec::new());
     let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(height as usize);

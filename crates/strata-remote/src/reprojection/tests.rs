@@ -821,3 +821,53 @@ fn row_tests_back_off_after_failures_and_start_again_after_a_pass() {
         "the back-off starts again"
     );
 }
+
+#[test]
+fn compacted_inserts_spread_over_the_view_at_their_touched_pixels() {
+    // A 5×3 view: every pixel touched, none, runs that start at the first pixel or end at the
+    // last, and a touched count that fills whole rows of the compacted inserts (no padding).
+    let (w, h) = (5u32, 3u32);
+    let pixels = (w * h) as usize;
+    let masks: Vec<Vec<u32>> = vec![
+        (0..15).collect(),
+        vec![],
+        vec![0, 1, 2, 7, 14],
+        vec![3, 4, 5, 9, 10, 11, 12, 13, 14, 6],
+        vec![14],
+    ];
+    let mut out = Vec::new();
+    for touched in masks {
+        let mask = PixelMask::from_fn(w * h, |p| touched.contains(&p));
+        let t = mask.len();
+        let rows = strata_wire::compact_height(t, w);
+        // Touched pixel i holds i % 3 inserts; the padding none.
+        let lens: Vec<u32> = (0..w * rows)
+            .map(|i| if i < t { i % 3 } else { 0 })
+            .collect();
+        let compact = DeepFrame::build(w, rows, &lens, |i, run| {
+            for k in 0..lens[i] {
+                run.push(Fragment {
+                    depth: 0.1 * (k + 1) as f32,
+                    color: Rgba8([0; 4]),
+                    object: ObjectId(1),
+                });
+            }
+        })
+        .unwrap();
+        copy::spread_offsets(&mask, compact.offsets(), pixels, &mut out);
+        // One pixel at a time: the i-th touched pixel's run is compacted run i.
+        let mut want = vec![0u32];
+        let mut i = 0;
+        for p in 0..w * h {
+            let n = if mask.iter().any(|q| q == p) {
+                i += 1;
+                lens[i - 1]
+            } else {
+                0
+            };
+            want.push(want.last().unwrap() + n);
+        }
+        assert_eq!(out, want, "touched {touched:?}");
+        assert_eq!(*out.last().unwrap() as usize, compact.fragment_count());
+    }
+}
