@@ -67,9 +67,9 @@ struct BandOut {
     depth_error: f32,
     /// The band's share of the new state's digest ([`band_digest`]).
     digest: u64,
-    /// The band's inserted normal fragments, each pixel's run in the wire's order, as the
-    /// band's share of the inserts frame ([`DeepFrame::from_gathered_reusing`]); its buffers
-    /// serve frame after frame.
+    /// The band's inserted normal fragments, one run a touched pixel (in `touched`'s order),
+    /// each in the wire's order, as the band's share of the compacted inserts frame
+    /// ([`DeepFrame::from_gathered_reusing`]); its buffers serve frame after frame.
     gathered: GatheredPixels,
     /// One pixel's work: what was rendered there, and what matching decided.
     pixel: PixelScratch,
