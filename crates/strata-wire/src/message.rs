@@ -425,7 +425,8 @@ impl FrameEncoder {
             ));
         }
         header.transfer.check().map_err(WireError::Encode)?;
-        self.write_message(out, header, frame, codec, |_| {})
+        let size = (frame.width(), frame.height());
+        self.write_message(out, header, size, frame, codec, |_| {})
     }
 
     /// Encodes a `difference` frame: the runs of `frame` at the pixels of `changed` replace the
@@ -447,7 +448,8 @@ impl FrameEncoder {
         }
         masks_fit(frame, &[changed, stale])?;
         all_inside(frame, changed)?;
-        self.write_message(out, header, frame, codec, |scratch| {
+        let size = (frame.width(), frame.height());
+        self.write_message(out, header, size, frame, codec, |scratch| {
             for (tag, m) in [(SectionTag::Mask, changed), (SectionTag::Stale, stale)] {
                 scratch.push_with(tag, |raw| m.encode(raw));
             }
@@ -504,24 +506,20 @@ impl FrameEncoder {
                 "{padding} inserted fragments lie past the touched pixels' runs"
             )));
         }
-        codec.validate()?;
-        self.scratch.clear();
-        self.scratch
-            .push_with(SectionTag::Mask, |raw| touched.encode(raw));
-        self.scratch
-            .push_with(SectionTag::Removals, |raw| removals.encode(raw));
-        self.scratch.push_frame(inserts, codec);
-        let size = (width, height, inserts.fragment_count());
-        write_frame(out, header, size, codec, &self.scratch.sections(codec)?);
-        Ok(())
+        self.write_message(out, header, (width, height), inserts, codec, |scratch| {
+            scratch.push_with(SectionTag::Mask, |raw| touched.encode(raw));
+            scratch.push_with(SectionTag::Removals, |raw| removals.encode(raw));
+        })
     }
 
     /// Lays out the sections `extra` appends, then `frame`'s in `codec`'s layout, compresses
-    /// them all and writes the message into `out`.
+    /// them all and writes the message into `out`, for a view of `size` (`frame`'s, except a
+    /// reprojection frame's compacted inserts).
     fn write_message(
         &mut self,
         out: &mut Vec<u8>,
         header: &FrameHeader,
+        size: (u32, u32),
         frame: &DeepFrame,
         codec: Codec,
         extra: impl FnOnce(&mut codec::EncodeScratch),
@@ -530,7 +528,7 @@ impl FrameEncoder {
         self.scratch.clear();
         extra(&mut self.scratch);
         self.scratch.push_frame(frame, codec);
-        let size = (frame.width(), frame.height(), frame.fragment_count());
+        let size = (size.0, size.1, frame.fragment_count());
         write_frame(out, header, size, codec, &self.scratch.sections(codec)?);
         Ok(())
     }
@@ -733,7 +731,7 @@ impl FrameDecoder {
                 "width·height",
                 32,
                 u64::from(width) * u64::from(height),
-                "a difference frame holds at most 2^32 - 1 pixels",
+                "a frame holds at most 2^32 - 1 pixels (its masks index them with u32)",
             )
         })?;
         let reprojection = parsed.info.header.transfer == TransferMethod::Reprojection;
@@ -1195,23 +1193,36 @@ fn check_decoded_len(
         // the view's (checked exactly once the mask is decoded: `check_compacted`).
         lo = want.decoded_range(0, u64::from(fragment_count)).0;
     }
-    if decoded_len < lo || decoded_len > hi {
-        let need = if lo == hi {
-            format!("exactly {lo}")
-        } else {
-            format!("{lo} to {hi}")
-        };
-        return Err(WireError::invalid(
-            "decoded_len",
-            decoded_at,
-            decoded_len,
-            format!(
-                "the {} section of a {width}x{height} frame of {fragment_count} fragments decodes to {need} bytes",
-                want.name()
-            ),
-        ));
+    decoded_len_within(decoded_len, (lo, hi), decoded_at, |need| {
+        format!(
+            "the {} section of a {width}x{height} frame of {fragment_count} fragments decodes to {need} bytes",
+            want.name()
+        )
+    })
+}
+
+/// `decoded_len` (the table entry's field at byte `at`) within `lo..=hi`, or an error that
+/// says what the section must decode to (`what`, given "exactly N" or "N to M").
+fn decoded_len_within(
+    decoded_len: u64,
+    (lo, hi): (u64, u64),
+    at: u64,
+    what: impl FnOnce(String) -> String,
+) -> Result<(), WireError> {
+    if (lo..=hi).contains(&decoded_len) {
+        return Ok(());
     }
-    Ok(())
+    let need = if lo == hi {
+        format!("exactly {lo}")
+    } else {
+        format!("{lo} to {hi}")
+    };
+    Err(WireError::invalid(
+        "decoded_len",
+        at,
+        decoded_len,
+        what(need),
+    ))
 }
 
 /// A reprojection frame's codec sections (from `first` on), whose decoded lengths were
@@ -1222,28 +1233,17 @@ fn check_compacted(parsed: &ParsedFrame<'_>, first: usize, rows: u32) -> Result<
     let pixels = u64::from(info.width) * u64::from(rows);
     let fragments = u64::from(info.fragment_count);
     for (i, s) in parsed.sections.iter().enumerate().skip(first) {
-        let (lo, hi) = s.info.tag.decoded_range(pixels, fragments);
-        let decoded_len = s.info.decoded_len;
-        if decoded_len < lo || decoded_len > hi {
-            let need = if lo == hi {
-                format!("exactly {lo}")
-            } else {
-                format!("{lo} to {hi}")
-            };
-            // The entry's `decoded_len` field.
-            let at = (FRAME_HEADER_LEN + SECTION_ENTRY_LEN * i + 12) as u64;
-            return Err(WireError::invalid(
-                "decoded_len",
-                at,
-                decoded_len,
-                format!(
-                    "the {} section of the {}x{rows} compacted inserts of a reprojection frame of \
-                     {fragments} fragments decodes to {need} bytes",
-                    s.info.tag.name(),
-                    info.width
-                ),
-            ));
-        }
+        let range = s.info.tag.decoded_range(pixels, fragments);
+        // The entry's `decoded_len` field.
+        let at = (FRAME_HEADER_LEN + SECTION_ENTRY_LEN * i + 12) as u64;
+        decoded_len_within(s.info.decoded_len, range, at, |need| {
+            format!(
+                "the {} section of the {}x{rows} compacted inserts of a reprojection frame of \
+                 {fragments} fragments decodes to {need} bytes",
+                s.info.tag.name(),
+                info.width
+            )
+        })?;
     }
     Ok(())
 }

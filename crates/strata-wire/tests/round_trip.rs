@@ -943,31 +943,19 @@ fn reprojection_frames_carry_their_mask_and_removals() {
     assert!(e.to_string().contains("reprojection frames only"), "{e}");
     let e = encode_frame(&header, &frame, Codec::Raw).unwrap_err();
     assert!(e.to_string().contains("encode_reprojection_into"), "{e}");
-    // Inserts of width 0 cannot say the view's height.
-    let e = encode_reprojection_into(
-        &mut out,
-        &header,
-        &PixelMask::empty(6),
-        &Removals::new(0),
-        &DeepFrame::empty(0, 0),
-        Codec::Raw,
-    )
-    .unwrap_err();
+    // No inserts, no row width: the view's pixels must be none too, or its height is lost.
+    let no_inserts = |out: &mut Vec<u8>, view_pixels| {
+        let empty = DeepFrame::empty(0, 0);
+        let mask = PixelMask::empty(view_pixels);
+        encode_reprojection_into(out, &header, &mask, &Removals::new(0), &empty, Codec::Raw)
+    };
+    let e = no_inserts(&mut out, 6).unwrap_err();
     assert!(
         e.to_string()
             .contains("a mask covers 6 pixels, not a whole number of 0-pixel rows"),
         "{e}"
     );
-    // A view of no pixels: no rows of inserts.
-    encode_reprojection_into(
-        &mut out,
-        &header,
-        &PixelMask::empty(0),
-        &Removals::new(0),
-        &DeepFrame::empty(0, 0),
-        Codec::Raw,
-    )
-    .unwrap();
+    no_inserts(&mut out, 0).unwrap();
     let back = decode_frame(&out, &DecodeOptions::default()).unwrap();
     assert_eq!((back.size, back.frame.fragment_count()), ((0, 0), 0));
     // Its height made 5 (and the message resealed): a reprojection view of width 0 must have
